@@ -1,0 +1,60 @@
+"""Command-line interface: ``superex <command> ...``.
+
+Each command lives in its own module under :mod:`superex_deploy.commands` with two functions,
+``add_arguments(parser)`` and ``run(args) -> int``. Other installed packages add commands through the
+entry-point group ``superex.commands`` (name -> module with the same two functions): that is how the torch-side
+``superex train`` and ``superex export`` appear when the ``train`` extra is installed, while this package never
+imports torch or :mod:`superex_train` itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from importlib.metadata import entry_points
+
+COMMANDS = {
+    "scan": "Simulate one SPAD scan on a map and write a figure of it",
+    "explore": "Run one exploration episode and write metrics, a final plot and a GIF",
+    "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="superex", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, help_text in COMMANDS.items():
+        module = importlib.import_module(f"superex_deploy.commands.{name}")
+        command_parser = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(command_parser)
+        command_parser.set_defaults(_module=module)
+    for entry in sorted(entry_points(group="superex.commands"), key=lambda e: e.name):
+        if entry.name in COMMANDS:
+            continue
+        try:
+            module = entry.load()
+        except ImportError as error:  # e.g. the train extra's torch is missing: say so instead of crashing
+            sub.add_parser(entry.name, help=f"unavailable ({error}); install the extra that provides it")
+            continue
+        command_parser = sub.add_parser(entry.name, help=module.__doc__.strip().splitlines()[0]
+                                        if module.__doc__ else entry.name)
+        module.add_arguments(command_parser)
+        command_parser.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not hasattr(args, "_module"):
+        print(f"superex {args.command}: this command is unavailable; see `superex --help`", file=sys.stderr)
+        return 2
+    try:
+        return int(args._module.run(args) or 0)
+    except ValueError as error:
+        print(f"superex {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Exploration engine: observed map, frontiers, motion planning, planners, episodes and metrics."""

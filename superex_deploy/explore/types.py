@@ -1,0 +1,97 @@
+"""Types shared by the mapper, the planners and the episode loop.
+
+Observed maps are int8 ``[H, W]`` arrays over the ground-truth grid with the codes :data:`UNKNOWN`,
+:data:`FREE` and :data:`OCCUPIED`. Predictions are occupancy probabilities (1 = wall).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Callable, ClassVar, Optional, Protocol
+
+import numpy as np
+
+UNKNOWN = np.int8(-1)
+FREE = np.int8(0)
+OCCUPIED = np.int8(1)
+
+
+@dataclass(frozen=True)
+class Frontier:
+    """One frontier region: free cells next to unknown ones, 8-connected.
+
+    Attributes:
+        cell_rc: (row, col) of the region's cell nearest to its centroid (the region's goal cell).
+        cells: int32 ``[n, 2]`` (row, col) of every cell of the region.
+    """
+
+    cell_rc: tuple[int, int]
+    cells: np.ndarray
+
+    @property
+    def size(self) -> int:
+        """Number of cells in the region."""
+        return int(self.cells.shape[0])
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A predicted occupancy map.
+
+    Attributes:
+        mean: float32 ``[H, W]`` probability that each cell is a wall, in [0, 1].
+        variance: float32 ``[H, W]`` variance of that probability across ensemble members (0 for a single
+            deterministic predictor).
+    """
+
+    mean: np.ndarray
+    variance: np.ndarray
+
+
+class MapPredictor(Protocol):
+    """Anything that turns an observed map (plus optional evidence) into a predicted occupancy map."""
+
+    name: str
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
+        """Args: observed int8 ``[H, W]`` (UNKNOWN/FREE/OCCUPIED); extra float32 ``[H, W]`` evidence in the
+        map frame (e.g. filtered back-projection) or None. Returns a :class:`Prediction` of shape ``[H, W]``."""
+        ...
+
+
+@dataclass(frozen=True)
+class PlanningContext:
+    """Everything a planner may look at when it picks the next goal.
+
+    Attributes:
+        observed: int8 ``[H, W]`` observed map.
+        pose_rc: robot cell (row, col).
+        frontiers: the current frontier regions (may be empty).
+        travel_cost: float64 ``[H, W]`` cost-to-go from the robot on the planning map (cells, weighted by the
+            wall-proximity cost); ``inf`` where unreachable.
+        traversable: bool ``[H, W]`` cells the robot may occupy (known free, walls inflated).
+        resolution_m: metres per cell.
+        predict: returns the current :class:`Prediction`; computed on first call and cached by the caller, so
+            planners that never call it never pay for it.
+        rng: the episode's random generator (for sampling planners such as UPEN's RRT).
+    """
+
+    observed: np.ndarray
+    pose_rc: tuple[int, int]
+    frontiers: tuple[Frontier, ...]
+    travel_cost: np.ndarray
+    traversable: np.ndarray
+    resolution_m: float
+    predict: Callable[[], Prediction]
+    rng: np.random.Generator
+
+
+class Planner(ABC):
+    """Chooses the next exploration goal. One subclass per method; stateless between calls unless documented."""
+
+    name: ClassVar[str]
+
+    @abstractmethod
+    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+        """Return the goal cell (row, col), reachable per ``ctx.travel_cost``, or None when nothing is left."""

@@ -1,0 +1,214 @@
+"""Occupancy grids: the bundled KTH floor plans, image files and ROS map_server YAML.
+
+Bundled maps (``superex_deploy/data/kth``, see its README for provenance and attribution) are 0.1 m/cell,
+8-bit grey PNGs with 0 = wall and 255 = free, plus a ``NAME_valid.png`` mask of the area inside the building
+that coverage is measured against.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal, Union
+
+import numpy as np
+
+__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "DATA_DIR"]
+
+DATA_DIR = Path(__file__).resolve().parent / "data" / "kth"
+_SPLITS = ("eval", "train")
+_IMAGE_SUFFIXES = (".png", ".pgm", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyGrid:
+    """A 2-D occupancy grid.
+
+    Attributes:
+        occupied: bool ``[H, W]``, True where a wall is; ``[row, col]``, row 0 at the top.
+        valid: bool ``[H, W]``, True inside the area an exploration can cover (coverage is measured on it).
+        resolution_m: metres per cell (> 0).
+        name: a human-readable name (the bundled map's name or the file stem).
+    """
+
+    occupied: np.ndarray
+    valid: np.ndarray
+    resolution_m: float
+    name: str
+
+    def __post_init__(self) -> None:
+        occupied = np.asarray(self.occupied)
+        valid = np.asarray(self.valid)
+        if occupied.dtype != np.bool_ or valid.dtype != np.bool_:
+            raise ValueError(f"occupied and valid must be bool arrays, got {occupied.dtype} and {valid.dtype}")
+        if occupied.ndim != 2 or min(occupied.shape) < 1:
+            raise ValueError(f"occupied must be a non-empty 2-D [rows, cols] array, got shape {occupied.shape}")
+        if valid.shape != occupied.shape:
+            raise ValueError(f"valid has shape {valid.shape} but occupied has shape {occupied.shape}")
+        resolution = float(self.resolution_m)
+        if not (np.isfinite(resolution) and resolution > 0.0):
+            raise ValueError(f"resolution_m must be positive and finite, got {self.resolution_m}")
+        # Read-only contiguous copies: a grid is shared by simulators, mappers and caches keyed on it.
+        for field_name, array in (("occupied", occupied), ("valid", valid)):
+            array = np.ascontiguousarray(array).copy()
+            array.flags.writeable = False
+            object.__setattr__(self, field_name, array)
+        object.__setattr__(self, "resolution_m", resolution)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(rows, cols)``."""
+        return self.occupied.shape  # type: ignore[return-value]
+
+    def is_free(self, rc) -> bool:
+        """True if cell ``rc = (row, col)`` is inside the grid and not a wall."""
+        r, c = int(rc[0]), int(rc[1])
+        return 0 <= r < self.shape[0] and 0 <= c < self.shape[1] and not self.occupied[r, c]
+
+    def check_pose(self, pose_rc) -> tuple[int, int]:
+        """Validate a robot cell: inside the grid and not in a wall. Returns it as ``(int, int)``."""
+        try:
+            r, c = (int(v) for v in pose_rc)
+        except (TypeError, ValueError):
+            raise ValueError(f"pose must be a (row, col) pair of integers, got {pose_rc!r}") from None
+        if not (0 <= r < self.shape[0] and 0 <= c < self.shape[1]):
+            raise ValueError(f"pose (row, col) = {(r, c)} lies outside map {self.name!r} of shape {self.shape}")
+        if self.occupied[r, c]:
+            raise ValueError(f"pose (row, col) = {(r, c)} lies inside a wall of map {self.name!r}")
+        return r, c
+
+
+@lru_cache(maxsize=1)
+def _manifest() -> dict:
+    return json.loads((DATA_DIR / "manifest.json").read_text())
+
+
+def list_maps(split: Literal["eval", "train"]) -> list[str]:
+    """Names of the bundled maps of one split, sorted. ``eval``: the 10-floor benchmark; ``train``: 112 floors
+    from other buildings (the only ones models may be trained on)."""
+    if split not in _SPLITS:
+        raise ValueError(f"split must be one of {_SPLITS}, got {split!r}")
+    return sorted(_manifest()[split])
+
+
+def _split_of(name: str) -> str:
+    for split in _SPLITS:
+        if name in _manifest()[split]:
+            return split
+    raise ValueError(f"unknown bundled map {name!r}; see list_maps('eval') and list_maps('train')")
+
+
+def start_poses(name: str) -> list[tuple[int, int]]:
+    """The benchmark's start cells ``(row, col)`` of an eval map (4 per map, as in MapEx)."""
+    entry = _manifest()[_split_of(name)][name]
+    if "start_poses_rc" not in entry:
+        raise ValueError(f"map {name!r} has no benchmark start poses (only eval maps do)")
+    return [(int(r), int(c)) for r, c in entry["start_poses_rc"]]
+
+
+def map_building(name: str) -> int:
+    """Building-group id of a bundled map: floors of one building share it (split training data by it)."""
+    return int(_manifest()[_split_of(name)][name]["building"])
+
+
+def _read_image(path: Path) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            image = image.convert("L") if image.mode not in ("L", "I", "I;16", "F") else image
+            pixels = np.asarray(image)
+    except (UnidentifiedImageError, OSError) as error:
+        raise ValueError(f"cannot read image {path}: {error}") from None
+    if pixels.ndim != 2 or min(pixels.shape) < 1:
+        raise ValueError(f"image {path} must be a non-empty 2-D grey image, got shape {pixels.shape}")
+    return pixels
+
+
+def _normalised(pixels: np.ndarray) -> np.ndarray:
+    """Map pixel values to [0, 1] brightness whatever the bit depth."""
+    pixels = pixels.astype(np.float64)
+    top = 255.0 if pixels.max(initial=0.0) <= 255.0 else 65535.0
+    return pixels / top
+
+
+def _grid_from_image(path: Path, resolution_m: float, occupied_thresh: float = 0.65, negate: bool = False,
+                     valid_path: Path | None = None, name: str | None = None) -> OccupancyGrid:
+    # ROS map_server semantics: occupancy probability p = (255 - v) / 255 (or v / 255 when negated).
+    brightness = _normalised(_read_image(path))
+    occupancy = brightness if negate else 1.0 - brightness
+    occupied = occupancy > occupied_thresh
+    if valid_path is not None and valid_path.exists():
+        valid_pixels = _read_image(valid_path)
+        if valid_pixels.shape != occupied.shape:
+            raise ValueError(f"valid mask {valid_path} has shape {valid_pixels.shape}, map has {occupied.shape}")
+        valid = valid_pixels > 127
+    else:
+        valid = ~occupied
+    return OccupancyGrid(occupied=occupied, valid=valid, resolution_m=resolution_m, name=name or path.stem)
+
+
+def _load_ros_yaml(path: Path) -> OccupancyGrid:
+    import yaml
+
+    try:
+        spec = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f"cannot parse map YAML {path}: {error}") from None
+    if not isinstance(spec, dict) or "image" not in spec or "resolution" not in spec:
+        raise ValueError(f"map YAML {path} must define at least 'image' and 'resolution'")
+    image_path = Path(spec["image"])
+    if not image_path.is_absolute():
+        image_path = path.parent / image_path
+    if not image_path.exists():
+        raise ValueError(f"map YAML {path} names image {image_path}, which does not exist")
+    try:
+        resolution = float(spec["resolution"])
+        occupied_thresh = float(spec.get("occupied_thresh", 0.65))
+    except (TypeError, ValueError):
+        raise ValueError(f"map YAML {path}: resolution and occupied_thresh must be numbers") from None
+    if not (resolution > 0.0 and np.isfinite(resolution)):
+        raise ValueError(f"map YAML {path}: resolution must be positive, got {spec['resolution']}")
+    if not 0.0 <= occupied_thresh <= 1.0:
+        raise ValueError(f"map YAML {path}: occupied_thresh must lie in [0, 1], got {occupied_thresh}")
+    negate = bool(int(spec.get("negate", 0)))
+    return _grid_from_image(image_path, resolution, occupied_thresh, negate, name=path.stem)
+
+
+def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> OccupancyGrid:
+    """Load a bundled map by name, an image file (PNG/PGM/...; dark = wall) or a ROS map_server YAML.
+
+    Args:
+        name_or_path: a bundled map name (see :func:`list_maps`), or a path to an image or ``.yaml`` file.
+            For an image ``X.png``, a sibling ``X_valid.png`` (255 = inside) is used as the valid mask if present;
+            otherwise every free cell is valid.
+        resolution_m: metres per cell for plain image files (ignored for bundled maps and YAML, which carry
+            their own).
+
+    Returns:
+        The :class:`OccupancyGrid`.
+
+    Raises:
+        ValueError: missing file, unreadable image, empty or 1-D image, resolution <= 0, malformed YAML.
+    """
+    key = str(name_or_path)
+    if not isinstance(name_or_path, Path) and key in set(_manifest()["eval"]) | set(_manifest()["train"]):
+        split = _split_of(key)
+        return _grid_from_image(DATA_DIR / split / f"{key}.png", float(_manifest()["resolution_m"]),
+                                occupied_thresh=0.5, valid_path=DATA_DIR / split / f"{key}_valid.png", name=key)
+    path = Path(name_or_path)
+    if not path.exists():
+        raise ValueError(f"no bundled map named {key!r} and no such file; bundled maps: list_maps('eval'), "
+                         f"list_maps('train')")
+    if path.is_dir():
+        raise ValueError(f"{path} is a directory, not a map file")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return _load_ros_yaml(path)
+    if path.suffix.lower() not in _IMAGE_SUFFIXES:
+        raise ValueError(f"unsupported map file type {path.suffix!r}; use an image ({', '.join(_IMAGE_SUFFIXES)}) "
+                         f"or a ROS map_server .yaml")
+    if not (float(resolution_m) > 0.0 and np.isfinite(float(resolution_m))):
+        raise ValueError(f"resolution_m must be positive, got {resolution_m}")
+    return _grid_from_image(path, float(resolution_m), valid_path=path.with_name(f"{path.stem}_valid.png"))
