@@ -1,0 +1,60 @@
+"""Non-learned map predictors: honest baselines for the planners until the learned ensembles exist.
+
+Both satisfy :class:`~superex_deploy.explore.types.MapPredictor`.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Prediction
+from superex_deploy.maps import OccupancyGrid
+
+__all__ = ["ObservedAsPrediction", "OraclePredictor", "check_observed"]
+
+
+def check_observed(observed: np.ndarray, shape: Optional[tuple[int, int]] = None) -> np.ndarray:
+    """Validate an observed map: int8 ``[H, W]`` holding only UNKNOWN (-1), FREE (0) and OCCUPIED (1)."""
+    observed = np.asarray(observed)
+    if observed.dtype != np.int8 or observed.ndim != 2:
+        raise ValueError(f"observed must be an int8 [H, W] array, got {observed.dtype} with shape {observed.shape}")
+    if shape is not None and observed.shape != tuple(shape):
+        raise ValueError(f"observed has shape {observed.shape}, expected {tuple(shape)}")
+    if observed.size and (observed.min() < -1 or observed.max() > 1):
+        raise ValueError("observed may hold only -1 (unknown), 0 (free) and 1 (occupied)")
+    return observed
+
+
+class ObservedAsPrediction:
+    """The observed map taken as the prediction: unknown cells are assumed free, walls are certain.
+
+    Variance is zero everywhere (no uncertainty model), so variance-driven planners fall back to counting
+    unknown cells (see :class:`~superex_deploy.explore.planners.MapexPlanner`).
+    """
+
+    name = "observed"
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
+        observed = check_observed(observed)
+        mean = (observed == OCCUPIED).astype(np.float32)
+        return Prediction(mean=mean, variance=np.zeros_like(mean))
+
+
+class OraclePredictor:
+    """Ground-truth walls as the prediction: an upper bound for testing planners, never reported as a method.
+
+    Observed cells keep their observed value (they agree with the ground truth in simulation); unknown cells
+    take the ground truth. Variance is zero.
+    """
+
+    name = "oracle"
+
+    def __init__(self, grid: OccupancyGrid):
+        self._walls = grid.occupied.astype(np.float32)
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
+        observed = check_observed(observed, self._walls.shape)
+        mean = np.where(observed == UNKNOWN, self._walls, (observed == OCCUPIED).astype(np.float32))
+        return Prediction(mean=mean.astype(np.float32), variance=np.zeros_like(self._walls))
