@@ -59,7 +59,166 @@ def naive_mark_rays(occupied, y0, x0, angles, max_t):
 
 # --- spad ---
 
+
+def naive_thin_wall_normals(occupied, weak):
+    """Minor principal axis (numpy eigh) of the wall cells in each weak cell's 5x5 window; 0 if isotropic."""
+    normals = np.zeros(occupied.shape + (2,))
+    for r, c in zip(*np.nonzero(weak)):
+        window = [(rr - r, cc - c) for rr in range(r - 2, r + 3) for cc in range(c - 2, c + 3)
+                  if 0 <= rr < occupied.shape[0] and 0 <= cc < occupied.shape[1] and occupied[rr, cc]]
+        values, vectors = np.linalg.eigh(np.cov(np.array(window, float).T, bias=True))
+        if values[1] - values[0] > 1e-9 and values.sum() > 1e-9:
+            normals[r, c] = vectors[:, 0]
+    return normals
+
+
+def _naive_facing_normal(scene, r, c, entry_axis, dy, dx, towards):
+    ny, nx = scene.normals[r, c]
+    if ny == 0.0 and nx == 0.0:
+        if entry_axis == 0:
+            return (-1.0 if dy > 0 else 1.0), 0.0
+        if entry_axis == 1:
+            return 0.0, (-1.0 if dx > 0 else 1.0)
+        return -dy, -dx
+    if scene.two_sided[r, c] and ny * towards[0] + nx * towards[1] < 0.0:
+        return -ny, -nx
+    return ny, nx
+
+
+def naive_simulate_histograms(scene, pose_rc, cfg):
+    """Noise-free histograms by brute force: every primary ray traces its own fan with naive_first_hit.
+
+    Follows simulate_scan's documented model (fan from X1 on the normal through the cell centre, offset start,
+    clamped cosines, the fan of a cell built with the entry face of the first ray that hit it).
+    """
+    from superex_deploy.spad import FAN_OFFSET_CELLS, MIN_DISTANCE_CELLS
+
+    grid = scene.grid
+    res = grid.resolution_m
+    y0, x0 = pose_rc[0] + 0.5, pose_rc[1] + 0.5
+    max_t = cfg.range_m / res
+    histograms = np.zeros((cfg.n_rays, cfg.n_bins))
+    first_axis = {}
+    primaries = []
+    for i in range(cfg.n_rays):
+        angle = 2.0 * np.pi * i / cfg.n_rays
+        r, c, t, axis = naive_first_hit(grid.occupied, y0, x0, angle, max_t)
+        primaries.append((angle, r, c, t))
+        if r >= 0:
+            first_axis.setdefault((r, c), axis)
+    for i, (angle, r, c, t) in enumerate(primaries):
+        if r < 0:
+            continue
+        d1 = max(t * res, MIN_DISTANCE_CELLS * res)
+        histograms[i, int(2 * d1 / cfg.bin_path_m)] += cfg.direct_counts
+        cy, cx = r + 0.5, c + 0.5
+        towards = (y0 - cy, x0 - cx)
+        ny, nx = _naive_facing_normal(scene, r, c, first_axis[(r, c)], cy - y0, cx - x0, towards)
+        if ny * towards[0] + nx * towards[1] < 0:
+            ny, nx = -ny, -nx
+        cos1 = max(0.0, -(np.sin(angle) * ny + np.cos(angle) * nx))
+        if cos1 == 0.0:
+            continue
+        half = 0.5 / max(abs(ny), abs(nx))
+        x1 = (cy + half * ny, cx + half * nx)
+        origin = (x1[0] + FAN_OFFSET_CELLS * ny, x1[1] + FAN_OFFSET_CELLS * nx)
+        if not (0 <= origin[0] < grid.shape[0] and 0 <= origin[1] < grid.shape[1]):
+            continue
+        for k in range(cfg.n_secondary):
+            phi = -0.5 * np.pi + (k + 0.5) * np.pi / cfg.n_secondary
+            dy = ny * np.cos(phi) - nx * np.sin(phi)
+            dx = ny * np.sin(phi) + nx * np.cos(phi)
+            r2, c2, t2, axis2 = naive_first_hit(grid.occupied, origin[0], origin[1], np.arctan2(dy, dx), max_t)
+            if r2 < 0:
+                continue
+            hit = (origin[0] + t2 * np.sin(np.arctan2(dy, dx)), origin[1] + t2 * np.cos(np.arctan2(dy, dx)))
+            d2 = max(np.hypot(hit[0] - x1[0], hit[1] - x1[1]) * res, MIN_DISTANCE_CELLS * res)
+            if t2 == 0.0:
+                cos2 = 1.0
+            else:
+                n2y, n2x = _naive_facing_normal(scene, r2, c2, axis2, dy, dx, (-dy, -dx))
+                cos2 = max(0.0, -(dy * n2y + dx * n2x))
+            if cos2 == 0.0:
+                continue
+            b = int((2 * d1 + 2 * d2) / cfg.bin_path_m)
+            if b < cfg.n_bins:
+                histograms[i, b] += cfg.three_bounce_scale(res) * cos1 * cos2 / (d1 * d2 * d2)
+    return histograms
+
+
 # --- nlos ---
+
+
+def naive_first_late_bins(histograms, los_bin, guard, threshold):
+    out = np.full(len(los_bin), -1)
+    for i, b1 in enumerate(los_bin):
+        if b1 < 0:
+            continue
+        late = [b for b in range(b1 + guard, histograms.shape[1]) if histograms[i, b] > threshold]
+        out[i] = late[0] if late else -1
+    return out
+
+
+def naive_hit_normals(points, radius):
+    """numpy eigh of the covariance of the points within radius of each point (nlos._hit_normals)."""
+    normals = np.zeros((len(points), 2))
+    reliable = np.zeros(len(points), bool)
+    for u, p in enumerate(points):
+        near = points[np.hypot(*(points - p).T) <= radius]
+        if len(near) < 3:
+            continue
+        values, vectors = np.linalg.eigh(np.cov(near.T, bias=True))
+        if values[1] > 0 and values[0] <= 0.25 * values[1]:
+            normals[u] = vectors[:, 0]
+            reliable[u] = True
+    return normals, reliable
+
+
+def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_limit):
+    """Test every cell of the grid against every wall point's carve sector (nlos._carve_sectors)."""
+    out = np.zeros(shape, bool)
+    for (ay, ax), (ny, nx), radius in zip(apex, normals, radius_cells):
+        if not radius > strip_cells:
+            continue
+        oy, ox = ay + 0.75 * ny, ax + 0.75 * nx
+        for r in range(shape[0]):
+            for c in range(shape[1]):
+                vy, vx = r + 0.5 - ay, c + 0.5 - ax
+                if vy * vy + vx * vx >= radius * radius or vy * ny + vx * nx < strip_cells:
+                    continue
+                wy, wx = r + 0.5 - oy, c + 0.5 - ox
+                norm = np.hypot(wy, wx)
+                if norm == 0.0 or (wy * ny + wx * nx) / norm >= cos_limit:
+                    out[r, c] = True
+    return out
+
+
+def naive_back_projection(histograms, los_bin, ray_wall, d1_m, apex, normals, guard, threshold, background,
+                          bin_path_m, resolution_m, window, known, n_radii):
+    """Every ray, every late bin, every window cell tested for membership of that bin's ring (unnormalised)."""
+    bp = np.zeros(known.shape)
+    r_lo, r_hi, c_lo, c_hi = window
+    for i in range(histograms.shape[0]):
+        u = ray_wall[i]
+        if u < 0:
+            continue
+        for b in range(los_bin[i] + guard, histograms.shape[1]):
+            if histograms[i, b] <= threshold:
+                continue
+            d2 = (b - los_bin[i]) * bin_path_m / 2.0
+            q = int(np.floor(d2 / resolution_m + 0.5))
+            if q >= n_radii:
+                continue
+            vote = (histograms[i, b] - background) * d1_m[i] * d2 * d2
+            for r in range(r_lo, r_hi + 1):
+                for c in range(c_lo, c_hi + 1):
+                    vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
+                    dist2 = vy * vy + vx * vx
+                    if max(q - 0.5, 0.0) ** 2 <= dist2 < (q + 0.5) ** 2 and vy * normals[u, 0] + vx * normals[u, 1] > 0 \
+                            and not known[r, c]:
+                        bp[r, c] += vote
+    return bp
+
 
 # --- explore ---
 

@@ -1,0 +1,536 @@
+"""SPAD LiDAR simulator: time-of-flight histograms with the direct and the three-bounce (NLOS) returns.
+
+The model is the seed paper's, in 2D and confocal (laser and detector at the robot cell centre):
+
+* Primary ray ``i`` (``SpadConfig.n_rays`` over 360 degrees) hits wall cell ``h1`` at distance ``d1`` (metres,
+  to the point where the ray enters the cell).
+* The outward normal ``n1`` at ``h1`` comes from Sobel gradients of the ground-truth grid. One-cell-thick walls
+  (5-25 % of KTH wall cells) have no Sobel response, so there the normal is the minor principal axis of the
+  wall cells in a 5x5 window, and for an isolated cell the face the primary ray entered. The normal at ``h1``
+  faces the robot.
+* ``n_secondary`` rays leave ``h1`` uniformly over [-90, 90] degrees about ``n1`` (midpoint sampling, so none
+  is exactly grazing) until they hit a wall ``h2`` at distance ``d2``.
+* Bins: ``b = floor(path / bin_path_m)`` with path ``2 d1`` (direct) and ``2 d1 + 2 d2`` (three-bounce).
+* Counts: eq. (1) ``N1 = alpha E rho / pi * lambda / (h c)`` and eq. (2)
+  ``N2 = E rho^3 cos(theta1) cos(theta2) s^2 alpha / (pi^3 d1 d2^2) * lambda / (h c)`` per secondary ray
+  (``theta1``: incidence of the primary at ``h1``; ``theta2``: of the secondary at ``h2``; ``s``: the grid
+  resolution in metres, the size of the reflecting patch).
+
+Two discretisation choices, both at the grid's 0.1 m scale:
+
+* **Per-cell fans.** All primaries hitting the same cell share one secondary fan (traced once per scan), from
+  the point ``X1`` where the normal through the cell centre leaves the cell. Rays reaching the same 0.1 m patch
+  see the same hidden scene up to a few centimetres, and this makes the scan affordable.
+* **Staircase walls.** A fan started right at ``X1`` would graze the staircase of its own rasterised wall and
+  return at ``d2 ~ 0.1 m`` for every oblique wall. Tracing therefore starts at ``X1 + FAN_OFFSET_CELLS * n1``
+  (``d2`` is still measured from ``X1``), and Lambertian cosines are clamped at zero: a secondary ray arriving
+  at the back of a thick wall's surface (``d . n2 > 0``) returns nothing. If the offset start lies in a wall,
+  the return is recorded at ``d2 = FAN_OFFSET_CELLS`` cells (an early, conservative return).
+
+Distances ``d1, d2`` are floored at half a cell so eq. (2) stays finite for a robot touching a wall.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Optional
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from superex_deploy.geometry import _trace_first_hit, cast_rays, cell_centre, ray_angles
+from superex_deploy.maps import OccupancyGrid
+
+__all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SpadScan", "SpadScene", "prepare_scene", "simulate_scan",
+           "SPEED_OF_LIGHT", "PLANCK"]
+
+SPEED_OF_LIGHT = 299_792_458.0  # m/s
+PLANCK = 6.626_070_15e-34  # J s
+FAN_OFFSET_CELLS = 0.75
+MIN_DISTANCE_CELLS = 0.5
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+# numpy's Poisson sampler refuses means above ~1e19; beyond this the normal approximation is exact to 1e-3.
+_POISSON_NORMAL_ABOVE = 1e7
+
+
+@dataclass(frozen=True)
+class SpadNoise:
+    """Detector noise. Disabled by default (the paper simulates noise-free histograms).
+
+    Attributes:
+        enabled: draw Poisson counts and add the background below.
+        ambient_per_bin: mean ambient-light photon counts per bin.
+        dark_per_bin: mean dark counts per bin.
+        jitter_s: standard deviation of the Gaussian timing jitter (seconds), applied before Poisson sampling.
+    """
+
+    enabled: bool = False
+    ambient_per_bin: float = 1.0
+    dark_per_bin: float = 0.01
+    jitter_s: float = 50e-12
+
+    def __post_init__(self) -> None:
+        for name in ("ambient_per_bin", "dark_per_bin", "jitter_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"SpadNoise.{name} must be finite and >= 0, got {value}")
+
+    @property
+    def background_per_bin(self) -> float:
+        """Mean background counts per bin (ambient + dark)."""
+        return self.ambient_per_bin + self.dark_per_bin if self.enabled else 0.0
+
+
+@dataclass(frozen=True)
+class SpadConfig:
+    """SPAD LiDAR parameters.
+
+    Attributes:
+        n_rays: primary rays over 360 degrees.
+        range_m: maximum range of primary and secondary rays (metres).
+        bin_width_s: histogram bin width (seconds); see :attr:`bin_path_m`.
+        n_secondary: secondary rays per wall hit, spread over [-90, 90] degrees about the normal.
+        reflectance: Lambertian surface reflectance rho in (0, 1].
+        detector_efficiency: photon detection efficiency alpha in (0, 1].
+        pulse_energy_j: laser pulse energy E (joules).
+        wavelength_m: laser wavelength lambda (metres; 905 nm, a common LiDAR diode).
+        noise: detector noise model.
+    """
+
+    n_rays: int = 2500
+    range_m: float = 20.0
+    bin_width_s: float = 0.1 / SPEED_OF_LIGHT
+    n_secondary: int = 64
+    reflectance: float = 0.5
+    detector_efficiency: float = 0.3
+    pulse_energy_j: float = 1e-9
+    wavelength_m: float = 905e-9
+    noise: SpadNoise = field(default_factory=SpadNoise)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.n_rays, (int, np.integer)) and self.n_rays >= 1):
+            raise ValueError(f"SpadConfig.n_rays must be a positive integer, got {self.n_rays!r}")
+        if not (isinstance(self.n_secondary, (int, np.integer)) and self.n_secondary >= 1):
+            raise ValueError(f"SpadConfig.n_secondary must be a positive integer, got {self.n_secondary!r}")
+        for name in ("range_m", "bin_width_s", "pulse_energy_j", "wavelength_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise ValueError(f"SpadConfig.{name} must be positive and finite, got {value}")
+        for name in ("reflectance", "detector_efficiency"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and 0.0 < value <= 1.0):
+                raise ValueError(f"SpadConfig.{name} must lie in (0, 1], got {value}")
+        if self.n_bins > 200_000:
+            raise ValueError(f"SpadConfig gives {self.n_bins} bins (4 * range_m / bin_path_m); widen the bins")
+
+    @property
+    def bin_path_m(self) -> float:
+        """Round-trip path length covered by one bin (metres): ``c * bin_width_s``."""
+        return SPEED_OF_LIGHT * self.bin_width_s
+
+    @property
+    def n_bins(self) -> int:
+        """Bins covering the longest three-bounce path, ``4 * range_m``."""
+        return int(np.ceil(4.0 * self.range_m / self.bin_path_m)) + 1
+
+    @property
+    def photons_per_joule(self) -> float:
+        """``lambda / (h c)``."""
+        return self.wavelength_m / (PLANCK * SPEED_OF_LIGHT)
+
+    @property
+    def direct_counts(self) -> float:
+        """Eq. (1): photons of the direct return, ``alpha E rho / pi * lambda / (h c)``."""
+        return (self.detector_efficiency * self.pulse_energy_j * self.reflectance / np.pi
+                * self.photons_per_joule)
+
+    def three_bounce_scale(self, resolution_m: float) -> float:
+        """Eq. (2) without its geometric factor: ``E rho^3 s^2 alpha / pi^3 * lambda / (h c)``; multiply by
+        ``cos(theta1) cos(theta2) / (d1 d2^2)`` (metres) for one secondary ray."""
+        return (self.pulse_energy_j * self.reflectance ** 3 * resolution_m ** 2 * self.detector_efficiency
+                / np.pi ** 3 * self.photons_per_joule)
+
+
+@dataclass(frozen=True)
+class SpadTruth:
+    """Simulation-only ground truth (labels and tests; never read by the NLOS processing).
+
+    Stored per fan (one per distinct primary-hit cell); the per-path views are derived on first access.
+
+    Attributes:
+        h1_rc: int32 ``[n_rays, 2]`` first wall cell of each primary ray, -1 where none within range.
+        d1_m: float64 ``[n_rays]`` distance to ``h1`` (metres; NaN where no hit).
+        normal1: float64 ``[n_rays, 2]`` unit outward normal ``(dy, dx)`` at ``h1`` facing the robot (0 if none).
+        cos1: float64 ``[n_rays]`` incidence cosine of the primary at ``h1`` (0 if none).
+        ray_fan: int64 ``[n_rays]`` fan index of each primary ray, -1 where it hit nothing.
+        fan_h2_rc: int64 ``[n_fans, n_secondary, 2]`` secondary hit cells (-1: no hit within range).
+        fan_d2_m: float64 ``[n_fans, n_secondary]`` distance from the fan origin ``X1`` to ``h2`` (NaN: no hit).
+        fan_cos2: float64 ``[n_fans, n_secondary]`` clamped incidence cosine at ``h2`` (0: back-facing).
+        three_bounce_scale: eq. (2) without its geometric factor (see :meth:`SpadConfig.three_bounce_scale`).
+    """
+
+    h1_rc: np.ndarray
+    d1_m: np.ndarray
+    normal1: np.ndarray
+    cos1: np.ndarray
+    ray_fan: np.ndarray
+    fan_h2_rc: np.ndarray
+    fan_d2_m: np.ndarray
+    fan_cos2: np.ndarray
+    three_bounce_scale: float
+
+    @cached_property
+    def _paths(self) -> tuple[np.ndarray, np.ndarray]:
+        rays = np.flatnonzero(self.ray_fan >= 0)
+        hit = self.fan_h2_rc[self.ray_fan[rays], :, 0] >= 0
+        ray_index, slot = np.nonzero(hit)
+        return rays[ray_index], slot
+
+    @property
+    def h2_ray(self) -> np.ndarray:
+        """int32 ``[M]``: the primary ray of every secondary hit, over all primary rays."""
+        return self._paths[0].astype(np.int32)
+
+    @property
+    def h2_rc(self) -> np.ndarray:
+        """int32 ``[M, 2]``: every secondary hit cell (aligned with :attr:`h2_ray`)."""
+        rays, slot = self._paths
+        return self.fan_h2_rc[self.ray_fan[rays], slot].astype(np.int32)
+
+    @property
+    def d2_m(self) -> np.ndarray:
+        """float64 ``[M]``: ``d2`` of every secondary hit (metres)."""
+        rays, slot = self._paths
+        return self.fan_d2_m[self.ray_fan[rays], slot]
+
+    @property
+    def h2_counts(self) -> np.ndarray:
+        """float64 ``[M]``: expected photons of every three-bounce path (eq. 2; 0 when back-facing)."""
+        rays, slot = self._paths
+        fan = self.ray_fan[rays]
+        return (self.three_bounce_scale * self.cos1[rays] * self.fan_cos2[fan, slot]
+                / (self.d1_m[rays] * self.fan_d2_m[fan, slot] ** 2))
+
+
+@dataclass(frozen=True)
+class SpadScan:
+    """One SPAD scan.
+
+    Attributes:
+        histograms: float32 ``[n_rays, n_bins]`` photon counts per ray and time bin.
+        angles: float64 ``[n_rays]`` ray angles (radians; ``superex_deploy.geometry`` convention).
+        origin_yx: sensor position (cells): the centre of ``pose_rc``.
+        pose_rc: robot cell (row, col).
+        bin_path_m: round-trip path per bin (metres).
+        resolution_m: grid resolution (metres per cell).
+        grid_shape: ``(rows, cols)`` of the map the scan was taken in.
+        config: the sensor configuration.
+        truth: simulation-only ground truth.
+    """
+
+    histograms: np.ndarray
+    angles: np.ndarray
+    origin_yx: tuple[float, float]
+    pose_rc: tuple[int, int]
+    bin_path_m: float
+    resolution_m: float
+    grid_shape: tuple[int, int]
+    config: SpadConfig
+    truth: SpadTruth
+
+
+@numba.njit(cache=True)
+def _thin_wall_normals(occupied, weak, normals):
+    """Minor principal axis of the wall cells in the 5x5 window around each ``weak`` wall cell (unit, arbitrary
+    sign); left at zero where the window's wall cells are isotropic (an isolated cell or a blob)."""
+    n_rows, n_cols = occupied.shape
+    for r in range(n_rows):
+        for c in range(n_cols):
+            if not weak[r, c]:
+                continue
+            n = 0
+            sy = 0.0
+            sx = 0.0
+            syy = 0.0
+            sxx = 0.0
+            sxy = 0.0
+            for rr in range(max(0, r - 2), min(n_rows, r + 3)):
+                for cc in range(max(0, c - 2), min(n_cols, c + 3)):
+                    if occupied[rr, cc]:
+                        dy = rr - r
+                        dx = cc - c
+                        n += 1
+                        sy += dy
+                        sx += dx
+                        syy += dy * dy
+                        sxx += dx * dx
+                        sxy += dy * dx
+            my = sy / n
+            mx = sx / n
+            cyy = syy / n - my * my
+            cxx = sxx / n - mx * mx
+            cxy = sxy / n - my * mx
+            # Eigen-decomposition of [[cyy, cxy], [cxy, cxx]]; the minor axis is the wall's normal.
+            half_trace = 0.5 * (cyy + cxx)
+            spread = np.sqrt(0.25 * (cyy - cxx) ** 2 + cxy * cxy)
+            if spread < 1e-9 or half_trace < 1e-9:
+                continue
+            minor = half_trace - spread
+            # (A - minor I) v = 0 -> v = (cxy, minor - cyy) or (minor - cxx, cxy), whichever is larger.
+            vy1, vx1 = minor - cxx, cxy
+            vy2, vx2 = cxy, minor - cyy
+            if vy1 * vy1 + vx1 * vx1 >= vy2 * vy2 + vx2 * vx2:
+                vy, vx = vy1, vx1
+            else:
+                vy, vx = vy2, vx2
+            norm = np.sqrt(vy * vy + vx * vx)
+            normals[r, c, 0] = vy / norm
+            normals[r, c, 1] = vx / norm
+
+
+@dataclass(frozen=True, eq=False)
+class SpadScene:
+    """Per-grid precomputation shared by every scan in that grid (ground-truth geometry only).
+
+    Attributes:
+        grid: the ground-truth occupancy grid.
+        normals: float64 ``[H, W, 2]`` unit normal ``(dy, dx)`` at wall cells; Sobel-based (pointing out of the
+            wall, physical sign) where ``two_sided`` is False, principal-axis based (sign unknown) where True,
+            zero where undefined (isolated cells: the entry face is used instead).
+        two_sided: bool ``[H, W]`` wall cells whose normal sign is not physical (thin walls).
+    """
+
+    grid: OccupancyGrid
+    normals: np.ndarray
+    two_sided: np.ndarray
+
+
+_SCENES: "weakref.WeakKeyDictionary[OccupancyGrid, SpadScene]" = weakref.WeakKeyDictionary()
+
+
+def prepare_scene(grid: OccupancyGrid) -> SpadScene:
+    """Wall normals of a grid, computed once and cached for the grid's lifetime."""
+    if not isinstance(grid, OccupancyGrid):
+        raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+    scene = _SCENES.get(grid)
+    if scene is None:
+        walls = grid.occupied.astype(np.float64)
+        grad_y = ndimage.sobel(walls, axis=0, mode="nearest")
+        grad_x = ndimage.sobel(walls, axis=1, mode="nearest")
+        magnitude = np.hypot(grad_y, grad_x)
+        strong = grid.occupied & (magnitude >= 1.0)
+        normals = np.zeros(grid.shape + (2,), np.float64)
+        # Occupancy rises into the wall, so the outward (free-side) normal is minus the gradient.
+        normals[strong, 0] = -grad_y[strong] / magnitude[strong]
+        normals[strong, 1] = -grad_x[strong] / magnitude[strong]
+        weak = grid.occupied & ~strong
+        _thin_wall_normals(grid.occupied, weak, normals)
+        scene = SpadScene(grid=grid, normals=normals, two_sided=weak)
+        _SCENES[grid] = scene
+    return scene
+
+
+@numba.njit(cache=True)
+def _facing_normal(normals, two_sided, r, c, entry_axis, dy, dx, towards_y, towards_x):
+    """Unit normal at wall cell (r, c) for light arriving along (dy, dx). Thin-wall and undefined normals get
+    the sign pointing towards (towards_y, towards_x) (the side the light comes from); Sobel normals keep their
+    physical sign. Returns (ny, nx, physical)."""
+    ny = normals[r, c, 0]
+    nx = normals[r, c, 1]
+    if ny == 0.0 and nx == 0.0:
+        if entry_axis == 0:
+            ny = -1.0 if dy > 0.0 else 1.0
+        elif entry_axis == 1:
+            nx = -1.0 if dx > 0.0 else 1.0
+        else:
+            ny = -dy
+            nx = -dx
+        return ny, nx, False
+    if two_sided[r, c]:
+        if ny * towards_y + nx * towards_x < 0.0:
+            ny = -ny
+            nx = -nx
+        return ny, nx, False
+    return ny, nx, True
+
+
+@numba.njit(cache=True)
+def _trace_fans(occupied, normals, two_sided, fan_cells, fan_entry_axis, robot_y, robot_x, n_secondary,
+                max_t, fan_normal, fan_d2, fan_cos2, fan_h2):
+    """Trace the secondary fan of every unique primary-hit cell.
+
+    Outputs per fan ``u`` and secondary ray ``k``: ``fan_d2[u, k]`` distance from ``X1`` to the hit (cells, NaN
+    if none), ``fan_cos2`` the clamped incidence cosine at ``h2``, ``fan_h2`` the hit cell; ``fan_normal[u]`` the
+    normal at ``h1`` facing the robot.
+    """
+    for u in range(fan_cells.shape[0]):
+        r1 = fan_cells[u, 0]
+        c1 = fan_cells[u, 1]
+        cy = r1 + 0.5
+        cx = c1 + 0.5
+        ny, nx, physical = _facing_normal(normals, two_sided, r1, c1, fan_entry_axis[u], cy - robot_y,
+                                          cx - robot_x, robot_y - cy, robot_x - cx)
+        if ny * (robot_y - cy) + nx * (robot_x - cx) < 0.0:
+            ny = -ny
+            nx = -nx
+        fan_normal[u, 0] = ny
+        fan_normal[u, 1] = nx
+        # X1: where the normal through the cell centre leaves the cell.
+        half = 0.5 / max(abs(ny), abs(nx))
+        x1_y = cy + half * ny
+        x1_x = cx + half * nx
+        oy = x1_y + 0.75 * ny
+        ox = x1_x + 0.75 * nx
+        for k in range(n_secondary):
+            phi = -0.5 * np.pi + (k + 0.5) * np.pi / n_secondary
+            cphi = np.cos(phi)
+            sphi = np.sin(phi)
+            dy = ny * cphi - nx * sphi
+            dx = ny * sphi + nx * cphi
+            fan_d2[u, k] = np.nan
+            fan_cos2[u, k] = 0.0
+            fan_h2[u, k, 0] = -1
+            fan_h2[u, k, 1] = -1
+            if oy < 0.0 or ox < 0.0 or oy >= occupied.shape[0] or ox >= occupied.shape[1]:
+                continue
+            r2, c2, t, axis = _trace_first_hit(occupied, oy, ox, dy, dx, max_t)
+            if r2 < 0:
+                continue
+            hy = oy + t * dy
+            hx = ox + t * dx
+            fan_d2[u, k] = np.sqrt((hy - x1_y) ** 2 + (hx - x1_x) ** 2)
+            fan_h2[u, k, 0] = r2
+            fan_h2[u, k, 1] = c2
+            if t == 0.0:
+                # The offset start lies inside a wall: an early return straight back, full cosine.
+                fan_cos2[u, k] = 1.0
+                continue
+            n2y, n2x, _ = _facing_normal(normals, two_sided, r2, c2, axis, dy, dx, -dy, -dx)
+            fan_cos2[u, k] = max(0.0, -(dy * n2y + dx * n2x))
+
+
+@numba.njit(cache=True)
+def _fill_histograms(angles, hit_fan, d1_cells, fan_normal, fan_d2, fan_cos2, resolution_m, bin_path_m,
+                     direct_counts, three_bounce_scale, min_distance_m, histograms, cos1_out):
+    """Accumulate eq. (1) and eq. (2) into ``histograms`` (float32 [n_rays, n_bins], zeroed), saturating at
+    float32's largest finite value; ``cos1_out[i]`` receives the primary's incidence cosine."""
+    n_bins = histograms.shape[1]
+    n_secondary = fan_d2.shape[1]
+    top = np.float64(np.finfo(np.float32).max)
+    for i in range(angles.shape[0]):
+        u = hit_fan[i]
+        cos1_out[i] = 0.0
+        if u < 0:
+            continue
+        d1 = max(d1_cells[i] * resolution_m, min_distance_m)
+        b1 = int(2.0 * d1 / bin_path_m)
+        if b1 < n_bins:
+            histograms[i, b1] = min(np.float64(histograms[i, b1]) + direct_counts, top)
+        cos1 = max(0.0, -(np.sin(angles[i]) * fan_normal[u, 0] + np.cos(angles[i]) * fan_normal[u, 1]))
+        cos1_out[i] = cos1
+        if cos1 == 0.0:
+            continue
+        for k in range(n_secondary):
+            d2_cells = fan_d2[u, k]
+            if not (d2_cells == d2_cells) or fan_cos2[u, k] == 0.0:
+                continue
+            d2 = max(d2_cells * resolution_m, min_distance_m)
+            b = int((2.0 * d1 + 2.0 * d2) / bin_path_m)
+            if b < n_bins:
+                counts = three_bounce_scale * cos1 * fan_cos2[u, k] / (d1 * d2 * d2)
+                histograms[i, b] = min(np.float64(histograms[i, b]) + counts, top)
+
+
+def _check_rng(cfg: SpadConfig, rng) -> Optional[np.random.Generator]:
+    if not cfg.noise.enabled:
+        return None
+    if rng is None:
+        raise ValueError("noise is enabled: pass rng=numpy.random.default_rng(seed) so scans are reproducible")
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    return rng
+
+
+def _add_noise(histograms: np.ndarray, cfg: SpadConfig, rng: np.random.Generator) -> np.ndarray:
+    jitter_bins = cfg.noise.jitter_s / cfg.bin_width_s
+    if jitter_bins > 0.0:
+        histograms = ndimage.gaussian_filter1d(histograms, jitter_bins, axis=1, mode="constant", truncate=4.0)
+    mean = np.maximum(histograms, 0.0) + cfg.noise.background_per_bin
+    small = mean <= _POISSON_NORMAL_ABOVE
+    noisy = np.empty_like(mean)
+    noisy[small] = rng.poisson(mean[small])
+    large = mean[~small]
+    noisy[~small] = np.maximum(np.rint(rng.normal(large, np.sqrt(large))), 0.0)
+    return noisy
+
+
+def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
+                  rng: Optional[np.random.Generator] = None) -> SpadScan:
+    """Simulate one SPAD scan from the centre of cell ``pose_rc``.
+
+    Args:
+        grid: ground-truth occupancy grid.
+        pose_rc: robot cell ``(row, col)``: inside the grid, not a wall.
+        cfg: sensor configuration.
+        rng: random generator, required when ``cfg.noise.enabled`` (ignored otherwise).
+
+    Returns:
+        The :class:`SpadScan`; histograms are float32 and clamped to float32's finite range.
+
+    Raises:
+        ValueError: bad grid, pose outside the map or in a wall, noise without a generator.
+    """
+    if not isinstance(cfg, SpadConfig):
+        raise ValueError(f"cfg must be a SpadConfig, got {type(cfg).__name__}")
+    scene = prepare_scene(grid)
+    pose_rc = grid.check_pose(pose_rc)
+    rng = _check_rng(cfg, rng)
+    origin = cell_centre(pose_rc)
+    resolution = grid.resolution_m
+    max_t = cfg.range_m / resolution
+    angles = ray_angles(cfg.n_rays)
+    hits = cast_rays(grid.occupied, origin, angles, max_t)
+    hit = hits.hit_mask
+    linear = np.where(hit, hits.hit_rc[:, 0].astype(np.int64) * grid.shape[1] + hits.hit_rc[:, 1], -1)
+    unique_cells, first_ray, inverse = np.unique(linear[hit], return_index=True, return_inverse=True)
+    hit_fan = np.full(cfg.n_rays, -1, np.int64)
+    hit_fan[hit] = inverse
+    fan_cells = np.stack([unique_cells // grid.shape[1], unique_cells % grid.shape[1]], axis=1).astype(np.int64)
+    fan_entry_axis = hits.entry_axis[hit][first_ray].astype(np.int64)
+    n_fans, k = len(unique_cells), cfg.n_secondary
+    fan_normal = np.zeros((n_fans, 2))
+    fan_d2 = np.empty((n_fans, k))
+    fan_cos2 = np.empty((n_fans, k))
+    fan_h2 = np.empty((n_fans, k, 2), np.int64)
+    _trace_fans(grid.occupied, scene.normals, scene.two_sided, fan_cells, fan_entry_axis, origin[0], origin[1],
+                k, max_t, fan_normal, fan_d2, fan_cos2, fan_h2)
+
+    histograms = np.zeros((cfg.n_rays, cfg.n_bins), np.float32)
+    cos1 = np.empty(cfg.n_rays)
+    three_bounce_scale = cfg.three_bounce_scale(resolution)
+    _fill_histograms(angles, hit_fan, hits.distance_cells, fan_normal, fan_d2, fan_cos2, resolution,
+                     cfg.bin_path_m, cfg.direct_counts, three_bounce_scale, MIN_DISTANCE_CELLS * resolution,
+                     histograms, cos1)
+    if rng is not None:
+        histograms = np.minimum(_add_noise(histograms.astype(np.float64), cfg, rng), _FLOAT32_MAX)
+        histograms = histograms.astype(np.float32)
+
+    normal1 = np.zeros((cfg.n_rays, 2))
+    normal1[hit] = fan_normal[hit_fan[hit]]
+    truth = SpadTruth(
+        h1_rc=hits.hit_rc,
+        d1_m=np.where(hit, np.maximum(hits.distance_cells * resolution, MIN_DISTANCE_CELLS * resolution), np.nan),
+        normal1=normal1,
+        cos1=cos1,
+        ray_fan=hit_fan,
+        fan_h2_rc=fan_h2,
+        fan_d2_m=np.maximum(fan_d2 * resolution, MIN_DISTANCE_CELLS * resolution),
+        fan_cos2=fan_cos2,
+        three_bounce_scale=three_bounce_scale,
+    )
+    return SpadScan(histograms=histograms, angles=angles, origin_yx=origin, pose_rc=pose_rc,
+                    bin_path_m=cfg.bin_path_m, resolution_m=resolution, grid_shape=grid.shape, config=cfg,
+                    truth=truth)

@@ -1,0 +1,224 @@
+import numpy as np
+import pytest
+
+from superex_deploy.maps import OccupancyGrid
+from superex_deploy.spad import (
+    FAN_OFFSET_CELLS, SpadConfig, SpadNoise, _thin_wall_normals, prepare_scene, simulate_scan)
+from tests.naive import naive_simulate_histograms, naive_thin_wall_normals
+
+RES = 0.1
+
+
+def _grid(walls):
+    return OccupancyGrid(walls, ~walls, RES, "test")
+
+
+def _corridor():
+    """60x60: horizontal walls at rows 20 and 40; the robot at (30, 30) between them."""
+    walls = np.zeros((60, 60), bool)
+    walls[20, :] = walls[40, :] = True
+    return _grid(walls)
+
+
+def _ray_index(cfg, angle):
+    return int(round(angle / (2 * np.pi) * cfg.n_rays)) % cfg.n_rays
+
+
+def test_corridor_direct_count_is_eq1_and_late_peak_lands_in_the_analytic_bin():
+    cfg = SpadConfig(n_rays=360, n_secondary=64)
+    scan = simulate_scan(_corridor(), (30, 30), cfg)
+    up = _ray_index(cfg, 1.5 * np.pi)
+    d1 = (30.5 - 21.0) * RES  # to the bottom face of row 20
+    b1 = int(2 * d1 / cfg.bin_path_m)
+    hist = scan.histograms[up].astype(np.float64)
+    assert hist[b1] == pytest.approx(cfg.direct_counts, rel=1e-6)
+    assert cfg.direct_counts == pytest.approx(
+        cfg.detector_efficiency * cfg.pulse_energy_j * cfg.reflectance / np.pi * cfg.wavelength_m
+        / (6.62607015e-34 * 299792458.0), rel=1e-12)
+    assert not hist[:b1].any()
+    # The fan leaves X1 = (21, 30.5); its nearest hit is the opposite wall (entry y = 40), 19 cells away, along
+    # the secondary ray closest to the normal (1.4 degrees off with 64 rays).
+    d2 = 19.0 * RES / np.cos(0.5 * np.pi / cfg.n_secondary)
+    expected = int((2 * d1 + 2 * d2) / cfg.bin_path_m)
+    late = np.flatnonzero(hist[b1 + 1:]) + b1 + 1
+    assert abs(late[0] - expected) <= 1
+    assert np.argmax(hist[b1 + 1:]) + b1 + 1 in range(expected - 1, expected + 2)
+
+
+def test_l_corner_hidden_wall_appears_at_its_analytic_bin():
+    """Robot in a corridor (rows 45-55) ending at a wall at col 40; a side corridor (cols 30-39) leads north to a
+    hidden wall at row 9, out of the robot's sight. A secondary ray from the end wall travels up the side corridor
+    to the hidden wall."""
+    walls = np.ones((70, 60), bool)
+    walls[45:56, 1:40] = False
+    walls[10:45, 30:40] = False
+    grid = _grid(walls)
+    cfg = SpadConfig(n_rays=720, n_secondary=128)
+    scan = simulate_scan(grid, (48, 10), cfg)
+    ray = _ray_index(cfg, 0.0)
+    assert tuple(scan.truth.h1_rc[ray]) == (48, 40)
+    d1 = (40.0 - 10.5) * RES
+    b1 = int(2 * d1 / cfg.bin_path_m)
+    assert scan.histograms[ray, b1] == pytest.approx(cfg.direct_counts, rel=1e-6)
+    # Secondary k = 0 leaves X1 = (48.5, 40) at phi = -90 + 0.703 degrees about the normal (0, -1): nearly north.
+    phi = -0.5 * np.pi + 0.5 * np.pi / cfg.n_secondary
+    dy, dx = np.sin(phi), -np.cos(phi)
+    origin = np.array([48.5, 40.0 - FAN_OFFSET_CELLS])
+    t = (origin[0] - 10.0) / -dy
+    hit = origin + t * np.array([dy, dx])
+    assert 30 <= hit[1] < 40  # it stays in the side corridor up to the hidden wall
+    d2 = np.hypot(*(hit - [48.5, 40.0])) * RES
+    expected = int((2 * d1 + 2 * d2) / cfg.bin_path_m)
+    assert scan.histograms[ray, expected - 1:expected + 2].max() > 0
+    hidden = scan.truth.h2_rc[(scan.truth.h2_ray == ray) & (scan.truth.h2_counts > 0)]
+    assert np.any(hidden[:, 0] == 9)
+    # The robot's own line of sight never reaches row 9.
+    assert not np.any(scan.truth.h1_rc[:, 0] == 9)
+
+
+def test_thin_wall_normals_match_naive():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        occupied = rng.random((15, 17)) < 0.3
+        weak = occupied & (rng.random(occupied.shape) < 0.5)
+        normals = np.zeros(occupied.shape + (2,))
+        _thin_wall_normals(occupied, weak, normals)
+        reference = naive_thin_wall_normals(occupied, weak)
+        dots = np.abs(np.sum(normals * reference, axis=2))
+        defined = np.any(reference != 0, axis=2)
+        np.testing.assert_allclose(dots[defined], 1.0, atol=1e-6)  # same axis, sign is free
+        assert not np.any(normals[~defined])
+
+
+def test_thin_vertical_wall_gets_horizontal_normal():
+    walls = np.zeros((12, 12), bool)
+    walls[:, 6] = True
+    scene = prepare_scene(_grid(walls))
+    assert scene.two_sided[5, 6]
+    np.testing.assert_allclose(np.abs(scene.normals[5, 6]), [0.0, 1.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_simulate_scan_matches_naive_on_small_random_grids(seed):
+    rng = np.random.default_rng(seed)
+    walls = rng.random((20, 20)) < 0.12
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    free = np.argwhere(~walls)
+    pose = tuple(free[rng.integers(len(free))])
+    grid = _grid(walls)
+    # 47 primaries and an even fan: no exact diagonals from a cell centre or a 45-degree wall corner, where
+    # float rounding (not geometry) breaks the tie.
+    cfg = SpadConfig(n_rays=47, n_secondary=12, range_m=3.0)
+    scan = simulate_scan(grid, pose, cfg)
+    reference = naive_simulate_histograms(prepare_scene(grid), pose, cfg)
+    # Same photons per ray; a path may only move to a neighbouring bin: with 0.1 m cells and 0.1 m bins, grid
+    # paths often end exactly on a bin edge, where the two methods' rounding decides.
+    actual = scan.histograms.astype(np.float64)
+    np.testing.assert_allclose(actual.sum(axis=1), reference.sum(axis=1), rtol=2e-6)
+    cum, ref_cum = np.cumsum(actual, axis=1), np.cumsum(reference, axis=1)
+    lower = np.concatenate([np.zeros((cfg.n_rays, 1)), ref_cum[:, :-1]], axis=1)
+    upper = np.concatenate([ref_cum[:, 1:], ref_cum[:, -1:]], axis=1)
+    slack = 2e-6 * ref_cum[:, -1:]
+    assert np.all(cum >= lower - slack) and np.all(cum <= upper + slack)
+    assert np.mean(np.isclose(actual, reference, rtol=2e-6, atol=0)) > 0.99
+
+
+def test_numerical_stress_cases():
+    tiny = SpadConfig(n_rays=64, n_secondary=8)
+    for walls, pose in [(np.zeros((1, 1), bool), (0, 0)), (np.zeros((30, 30), bool), (15, 15))]:
+        scan = simulate_scan(_grid(walls), pose, tiny)
+        assert not scan.histograms.any()  # nothing to reflect from
+    # One cell from a wall, with grazing rays along it.
+    walls = np.zeros((30, 30), bool)
+    walls[10, :] = True
+    scan = simulate_scan(_grid(walls), (11, 15), SpadConfig(n_rays=720, n_secondary=32))
+    assert np.isfinite(scan.histograms).all() and (scan.histograms >= 0).all() and scan.histograms.any()
+    # A 2000 x 2000 map.
+    big = np.zeros((2000, 2000), bool)
+    big[[0, -1], :] = big[:, [0, -1]] = True
+    big[1000, 500:1500] = True
+    scan = simulate_scan(_grid(big), (900, 1000), tiny)
+    assert np.isfinite(scan.histograms).all() and scan.histograms.any()
+    # Extremes: counts spanning ~1e-30 .. 1e30 stay finite and non-negative.
+    room = np.zeros((40, 40), bool)
+    room[[0, -1], :] = room[:, [0, -1]] = True
+    room[5:20, 20] = True
+    for energy, rho, alpha in [(1e-45, 1e-6, 1e-6), (1e15, 1.0, 1.0), (1e40, 1.0, 1.0)]:
+        cfg = SpadConfig(n_rays=180, n_secondary=16, pulse_energy_j=energy, reflectance=rho,
+                         detector_efficiency=alpha)
+        scan = simulate_scan(_grid(room), (30, 10), cfg)
+        h = scan.histograms
+        assert np.isfinite(h).all() and (h >= 0).all() and h.any()
+    assert SpadConfig(pulse_energy_j=1e15).direct_counts > 1e30
+
+
+def test_noise_is_seeded_and_has_the_stated_background():
+    room = np.zeros((30, 30), bool)
+    room[[0, -1], :] = room[:, [0, -1]] = True
+    noise = SpadNoise(enabled=True, ambient_per_bin=2.0, dark_per_bin=0.5, jitter_s=0.0)
+    cfg = SpadConfig(n_rays=90, n_secondary=8, noise=noise, range_m=2.0)
+    grid = _grid(room)
+    a = simulate_scan(grid, (15, 15), cfg, rng=np.random.default_rng(7))
+    b = simulate_scan(grid, (15, 15), cfg, rng=np.random.default_rng(7))
+    np.testing.assert_array_equal(a.histograms, b.histograms)
+    clean = simulate_scan(grid, (15, 15), SpadConfig(n_rays=90, n_secondary=8, range_m=2.0))
+    background = a.histograms[clean.histograms == 0]
+    # 2.5 counts/bin over thousands of bins: the sample mean is within 5 standard errors.
+    assert background.mean() == pytest.approx(2.5, abs=5 * np.sqrt(2.5 / background.size))
+    draws = np.stack([simulate_scan(grid, (15, 15), cfg, rng=np.random.default_rng(s)).histograms
+                      for s in range(40)])
+    signal = clean.histograms > 0
+    np.testing.assert_allclose(draws.mean(axis=0)[signal], clean.histograms[signal] + 2.5, rtol=0.02)
+    with pytest.raises(ValueError, match="pass rng"):
+        simulate_scan(grid, (15, 15), cfg)
+
+
+def test_jitter_spreads_the_direct_peak_without_losing_photons():
+    room = np.zeros((30, 30), bool)
+    room[[0, -1], :] = room[:, [0, -1]] = True
+    noise = SpadNoise(enabled=True, ambient_per_bin=0.0, dark_per_bin=0.0, jitter_s=3 * 0.1 / 299792458.0)
+    cfg = SpadConfig(n_rays=8, n_secondary=4, noise=noise, range_m=2.0, pulse_energy_j=1e-12)
+    clean = simulate_scan(_grid(room), (15, 15), SpadConfig(n_rays=8, n_secondary=4, range_m=2.0,
+                                                              pulse_energy_j=1e-12))
+    noisy = simulate_scan(_grid(room), (15, 15), cfg, rng=np.random.default_rng(0))
+    assert (noisy.histograms[0] > 0).sum() > (clean.histograms[0] > 0).sum()
+    assert noisy.histograms.sum() == pytest.approx(clean.histograms.sum(), rel=0.01)
+
+
+def test_deterministic_and_truth_is_consistent():
+    grid = _corridor()
+    cfg = SpadConfig(n_rays=360, n_secondary=16)
+    a, b = simulate_scan(grid, (30, 30), cfg), simulate_scan(grid, (30, 30), cfg)
+    np.testing.assert_array_equal(a.histograms, b.histograms)
+    truth = a.truth
+    assert np.all(grid.occupied[truth.h2_rc[:, 0], truth.h2_rc[:, 1]])
+    assert np.all(grid.occupied[truth.h1_rc[truth.h1_rc[:, 0] >= 0, 0], truth.h1_rc[truth.h1_rc[:, 0] >= 0, 1]])
+    assert truth.h2_rc.shape[0] == truth.h2_ray.shape[0] == truth.d2_m.shape[0] == truth.h2_counts.shape[0]
+    assert np.all(truth.h2_counts >= 0)
+
+
+def test_bad_inputs_raise_clear_errors():
+    grid = _corridor()
+    with pytest.raises(ValueError, match="outside"):
+        simulate_scan(grid, (60, 3))
+    with pytest.raises(ValueError, match="inside a wall"):
+        simulate_scan(grid, (20, 3))
+    with pytest.raises(ValueError, match="inside a wall"):
+        simulate_scan(_grid(np.ones((5, 5), bool)), (2, 2))
+    with pytest.raises(ValueError, match="OccupancyGrid"):
+        simulate_scan(np.zeros((5, 5), bool), (2, 2))
+    with pytest.raises(ValueError, match="SpadConfig"):
+        simulate_scan(grid, (30, 30), cfg={"n_rays": 3})
+    with pytest.raises(ValueError, match="n_rays"):
+        SpadConfig(n_rays=0)
+    with pytest.raises(ValueError, match="reflectance"):
+        SpadConfig(reflectance=1.5)
+    with pytest.raises(ValueError, match="bin_width_s"):
+        SpadConfig(bin_width_s=-1.0)
+    with pytest.raises(ValueError, match="widen the bins"):
+        SpadConfig(bin_width_s=1e-15)
+    with pytest.raises(ValueError, match="ambient_per_bin"):
+        SpadNoise(ambient_per_bin=-1.0)
+    noisy = SpadConfig(noise=SpadNoise(enabled=True))
+    with pytest.raises(ValueError, match="Generator"):
+        simulate_scan(grid, (30, 30), noisy, rng=42)
