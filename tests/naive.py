@@ -159,7 +159,7 @@ def naive_first_late_bins(histograms, los_bin, guard, threshold):
     return out
 
 
-def naive_hit_normals(points, radius):
+def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5):
     """numpy eigh of the covariance of the points within radius of each point (nlos._hit_normals)."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
@@ -168,9 +168,10 @@ def naive_hit_normals(points, radius):
         if len(near) < 3:
             continue
         values, vectors = np.linalg.eigh(np.cov(near.T, bias=True))
-        if values[1] > 0 and values[0] <= 0.25 * values[1]:
+        if values[1] > 0 and values[0] <= max_minor_ratio * values[1]:
             normals[u] = vectors[:, 0]
-            reliable[u] = True
+            along = (near - p) @ np.array([-vectors[1, 0], vectors[0, 0]])
+            reliable[u] = along.min() <= -interior and along.max() >= interior
     return normals, reliable
 
 

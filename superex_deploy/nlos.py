@@ -1,0 +1,530 @@
+"""NLOS processing of SPAD histograms: LOS peaks, space carving and back-projection.
+
+Everything here works from what a real sensor gives: ``scan.histograms``, the ray angles, the robot pose, the
+bin width and the sensor's own configuration. The simulator's ground truth (``scan.truth``) is read only by
+:func:`nlos_ground_truth`, which builds labels.
+
+Space carving (Tsai et al., CVPR 2017) and why it is sound
+-----------------------------------------------------------
+For a ray whose direct return lies in bin ``b1`` and whose first late (three-bounce) photon lies in bin ``bf``,
+``2 d1 < (b1 + 1) w`` and ``2 d1 + 2 d2 >= bf w`` (``w``: path per bin), so every secondary ray of that wall
+point travelled at least ``r = (bf - b1 - 1) w / 2`` before meeting a surface. Turning that into free cells
+needs three more arguments, each a margin below:
+
+1. **Angular sampling.** The simulator (like any finite model of the scattering) samples ``K`` secondary
+   directions, ``pi / K`` apart. A wall cell of side ``s`` at distance ``rho`` spans an angle of at least
+   ``~ s / rho``; it is certain to be crossed by a sampled direction only while ``s / rho >= pi / K``. Beyond
+   ``rho_max = s K / pi`` a thin wall end pointing at the wall point can slip between two rays, and the first
+   return then overstates the empty radius. The carve radius is therefore capped at ``rho_max``.
+2. **Where the wall point is.** The processing knows ``h1`` only from the direct-return bin: its estimate can
+   be one cell off, and the simulator's fans start at ``X1`` on the cell's face. The radius is reduced by
+   ``apex_margin_cells`` plus ``s / sqrt(2)`` (a cell counts as a wall when any part of it is hit, and we test
+   cell centres).
+3. **Which side.** The fan spans +-90 degrees about the true normal, the carve uses a normal estimated from the
+   scan's own wall hits; the carved sector is narrowed to +-(90 - sector_margin_deg) and a strip of
+   ``wall_strip_cells`` along the wall itself is left out (it is seen directly anyway).
+
+In noisy mode the first late bin is the first bin whose count exceeds a Poisson threshold chosen so that a
+ray sees a false detection in its late part with probability at most ``false_alarm_rate`` (Bonferroni over its
+late bins).
+
+Back-projection (Velten et al., 2012)
+-------------------------------------
+Each late bin votes on the ring of radius ``r(b)`` (one cell wide) about the estimated wall point, on its
+normal side, with its counts compensated for the ``1 / (d1 d2^2)`` fall-off and the sensor constants. Votes
+are first summed per (wall cell, radius bin) over every ray that shares the wall cell, and each ring is drawn
+once, only inside a window around the robot and only on cells not already known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numba
+import numpy as np
+from scipy import ndimage, stats
+
+from superex_deploy.spad import FAN_OFFSET_CELLS, SpadScan
+
+__all__ = ["NlosConfig", "LosEstimate", "NlosResult", "estimate_los", "carve", "back_project",
+           "laplacian_filter", "process_scan", "nlos_ground_truth", "wall_iou", "carve_radius_cap_m"]
+
+
+@dataclass(frozen=True)
+class NlosConfig:
+    """NLOS processing parameters.
+
+    Attributes:
+        window_m: back-projection is computed within this distance of the robot (square window, metres).
+        apex_margin_cells: carve-radius reduction for the wall point's estimate (cells).
+        sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal.
+        wall_strip_cells: cells within this distance of the wall's own line are never carved.
+        false_alarm_rate: noisy mode: probability that a ray's late part holds a false detection.
+        normal_radius_cells: observed wall hits within this radius of a wall cell estimate its normal.
+        normal_max_minor_ratio: a normal is trusted for carving only if the hits' minor/major variance ratio is
+            below this (the hits lie on a line, not around a corner).
+        normal_interior_cells: ... and only if observed hits extend at least this far on both sides of the
+            cell along the wall (wall ends and corners carry normals of their own; the margin also covers a
+            wall-cell estimate one cell off).
+        max_incidence_deg: wall points seen more obliquely than this are not carved: at grazing incidence a
+            small error in the estimated normal flips which side of the wall faces the robot.
+    """
+
+    window_m: float = 8.0
+    apex_margin_cells: float = 1.5
+    sector_margin_deg: float = 35.0
+    wall_strip_cells: float = 1.5
+    false_alarm_rate: float = 1e-3
+    normal_radius_cells: float = 5.0
+    normal_max_minor_ratio: float = 0.1
+    normal_interior_cells: float = 2.5
+    max_incidence_deg: float = 70.0
+
+    def __post_init__(self) -> None:
+        for name in ("window_m", "apex_margin_cells", "wall_strip_cells"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"NlosConfig.{name} must be finite and >= 0, got {value}")
+        if not 0.0 <= self.sector_margin_deg < 90.0:
+            raise ValueError(f"NlosConfig.sector_margin_deg must lie in [0, 90), got {self.sector_margin_deg}")
+        if not 0.0 < self.false_alarm_rate < 1.0:
+            raise ValueError(f"NlosConfig.false_alarm_rate must lie in (0, 1), got {self.false_alarm_rate}")
+        if not 0.0 < self.max_incidence_deg <= 90.0:
+            raise ValueError(f"NlosConfig.max_incidence_deg must lie in (0, 90], got {self.max_incidence_deg}")
+        if not self.normal_radius_cells >= 1.5:
+            raise ValueError(f"NlosConfig.normal_radius_cells must be >= 1.5, got {self.normal_radius_cells}")
+
+
+@dataclass(frozen=True)
+class LosEstimate:
+    """Per-ray estimates from the histograms.
+
+    Attributes:
+        los_bin: int64 ``[n_rays]`` bin of the direct return, -1 where none was detected.
+        d1_m: float64 ``[n_rays]`` distance to the wall point (bin centre; NaN where none).
+        h1_rc: int64 ``[n_rays, 2]`` estimated wall cell (-1 where none).
+        first_late_bin: int64 ``[n_rays]`` first detected late bin, -1 where the late part is empty.
+        empty_radius_m: float64 ``[n_rays]`` lower bound on the distance from the wall point to any sampled
+            hidden surface (``(bf - b1 - 1) w / 2``; the secondary range where the late part is empty; NaN where
+            there is no direct return).
+        wall_cells: int64 ``[U, 2]`` distinct estimated wall cells; ``ray_wall[i]`` indexes them (-1: none).
+        wall_normal: float64 ``[U, 2]`` unit normal (dy, dx) at each wall cell, facing the robot.
+        normal_reliable: bool ``[U]`` normals backed by enough elongated wall hits (only these are carved).
+        late_threshold: detection threshold on late-bin counts (0 in noise-free mode: any photon).
+    """
+
+    los_bin: np.ndarray
+    d1_m: np.ndarray
+    h1_rc: np.ndarray
+    first_late_bin: np.ndarray
+    empty_radius_m: np.ndarray
+    wall_cells: np.ndarray
+    ray_wall: np.ndarray
+    wall_normal: np.ndarray
+    normal_reliable: np.ndarray
+    late_threshold: float
+
+
+@dataclass(frozen=True)
+class NlosResult:
+    """Output of :func:`process_scan`: bool ``carved``, float32 ``bp`` and ``bp_filtered`` (``[H, W]``, in
+    [0, 1]), and the per-ray :class:`LosEstimate`."""
+
+    carved: np.ndarray
+    bp: np.ndarray
+    bp_filtered: np.ndarray
+    los: LosEstimate
+
+
+def carve_radius_cap_m(n_secondary: int, resolution_m: float) -> float:
+    """Largest radius (metres) within which ``n_secondary`` rays over 180 degrees must cross every cell."""
+    return resolution_m * n_secondary / np.pi
+
+
+def _check_scan(scan: SpadScan) -> None:
+    if not isinstance(scan, SpadScan):
+        raise ValueError(f"scan must be a SpadScan, got {type(scan).__name__}")
+    h = scan.histograms
+    if h.dtype != np.float32 or h.ndim != 2 or h.shape[0] != scan.angles.shape[0]:
+        raise ValueError(f"scan.histograms must be float32 [n_rays, n_bins] matching the angles, got {h.dtype} "
+                         f"{h.shape}")
+
+
+def _late_threshold(scan: SpadScan, cfg: NlosConfig, n_late_bins: int) -> tuple[float, int]:
+    """(count threshold, guard bins after the direct peak)."""
+    noise = scan.config.noise
+    if not noise.enabled:
+        return 0.0, 1
+    background = noise.background_per_bin
+    per_bin = cfg.false_alarm_rate / max(n_late_bins, 1)
+    # Smallest k with P(Poisson(background) >= k) <= per_bin; a detection is a count >= k.
+    threshold = float(stats.poisson.isf(per_bin, background)) + 1.0 if background > 0 else 1.0
+    jitter_bins = noise.jitter_s / scan.config.bin_width_s
+    return threshold - 0.5, 1 + int(np.ceil(4.0 * jitter_bins))
+
+
+@numba.njit(cache=True)
+def _first_late_bins(histograms, los_bin, guard, threshold, first_late):
+    for i in range(histograms.shape[0]):
+        first_late[i] = -1
+        if los_bin[i] < 0:
+            continue
+        for b in range(los_bin[i] + guard, histograms.shape[1]):
+            if histograms[i, b] > threshold:
+                first_late[i] = b
+                break
+
+
+def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
+    """Direct returns, wall points and their normals, and the first late bin of every ray."""
+    _check_scan(scan)
+    h = scan.histograms
+    res, w = scan.resolution_m, scan.bin_path_m
+    n_rays, n_bins = h.shape
+    threshold, guard = _late_threshold(scan, cfg, n_bins)
+    # The direct return is the earliest detection, not the strongest bin: a fan starting in a corner returns
+    # all its rays at one tiny d2, and together they can outshine the direct photons. Timing jitter spreads the
+    # direct peak over the guard bins, so with noise the peak is the strongest bin within them.
+    above = h > max(threshold, 0.0)
+    detected = above.any(axis=1)
+    first = np.argmax(above, axis=1)
+    offsets = np.arange(guard)
+    window = np.minimum(first[:, None] + offsets[None, :], n_bins - 1)
+    los_bin = (first + np.argmax(h[np.arange(n_rays)[:, None], window], axis=1)).astype(np.int64)
+    los_bin[~detected] = -1
+    d1 = np.where(detected, (los_bin + 0.5) * w / 2.0, np.nan)
+    # A point a third of a cell past the estimated distance lies inside the wall cell the ray entered.
+    reach_cells = d1 / res + 0.3
+    rows = np.floor(scan.origin_yx[0] + reach_cells * np.sin(scan.angles))
+    cols = np.floor(scan.origin_yx[1] + reach_cells * np.cos(scan.angles))
+    inside = detected & (rows >= 0) & (rows < scan.grid_shape[0]) & (cols >= 0) & (cols < scan.grid_shape[1])
+    los_bin[~inside] = -1
+    h1 = np.full((n_rays, 2), -1, np.int64)
+    h1[inside, 0] = rows[inside]
+    h1[inside, 1] = cols[inside]
+    d1[~inside] = np.nan
+
+    first_late = np.empty(n_rays, np.int64)
+    _first_late_bins(h, los_bin, guard, threshold, first_late)
+    secondary_range = scan.config.range_m
+    empty_radius = np.where(first_late >= 0, (first_late - los_bin - 1) * w / 2.0, secondary_range)
+    empty_radius = np.where(inside, np.clip(empty_radius, 0.0, secondary_range), np.nan)
+
+    linear = np.where(inside, h1[:, 0] * scan.grid_shape[1] + h1[:, 1], -1)
+    unique, inverse = np.unique(linear[inside], return_inverse=True)
+    ray_wall = np.full(n_rays, -1, np.int64)
+    ray_wall[inside] = inverse
+    wall_cells = np.stack([unique // scan.grid_shape[1], unique % scan.grid_shape[1]], axis=1).astype(np.int64)
+    wall_normal, normal_reliable = _observed_normals(wall_cells, scan, cfg)
+    return LosEstimate(los_bin=los_bin, d1_m=d1, h1_rc=h1, first_late_bin=first_late,
+                       empty_radius_m=empty_radius, wall_cells=wall_cells, ray_wall=ray_wall,
+                       wall_normal=wall_normal, normal_reliable=normal_reliable, late_threshold=threshold)
+
+
+@numba.njit(cache=True)
+def _hit_normals(points, radius, max_minor_ratio, interior, normals, reliable):
+    """Minor principal axis of the points within ``radius`` of each point (itself included); ``reliable`` where
+    there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, and
+    the point lies at least ``interior`` cells inside the extent of its neighbours along the wall."""
+    n = points.shape[0]
+    for u in range(n):
+        count = 0
+        sy = 0.0
+        sx = 0.0
+        for v in range(n):
+            dy = points[v, 0] - points[u, 0]
+            dx = points[v, 1] - points[u, 1]
+            if dy * dy + dx * dx <= radius * radius:
+                count += 1
+                sy += points[v, 0]
+                sx += points[v, 1]
+        if count < 3:
+            continue
+        my = sy / count
+        mx = sx / count
+        cyy = 0.0
+        cxx = 0.0
+        cxy = 0.0
+        for v in range(n):
+            dy = points[v, 0] - points[u, 0]
+            dx = points[v, 1] - points[u, 1]
+            if dy * dy + dx * dx <= radius * radius:
+                cyy += (points[v, 0] - my) ** 2
+                cxx += (points[v, 1] - mx) ** 2
+                cxy += (points[v, 0] - my) * (points[v, 1] - mx)
+        half_trace = 0.5 * (cyy + cxx)
+        spread = np.sqrt(0.25 * (cyy - cxx) ** 2 + cxy * cxy)
+        major = half_trace + spread
+        minor = half_trace - spread
+        if major <= 0.0 or minor > max_minor_ratio * major:
+            continue
+        vy1, vx1 = minor - cxx, cxy
+        vy2, vx2 = cxy, minor - cyy
+        if vy1 * vy1 + vx1 * vx1 >= vy2 * vy2 + vx2 * vx2:
+            vy, vx = vy1, vx1
+        else:
+            vy, vx = vy2, vx2
+        norm = np.sqrt(vy * vy + vx * vx)
+        if norm == 0.0:
+            continue
+        vy /= norm
+        vx /= norm
+        normals[u, 0] = vy
+        normals[u, 1] = vx
+        # Interior test: hits at least ``interior`` cells away on both sides along the wall. Wall ends and
+        # corners have normals of their own (a thin wall's end cell faces along the wall), so they are not
+        # trusted for carving.
+        lowest = 0.0
+        highest = 0.0
+        for v in range(n):
+            dy = points[v, 0] - points[u, 0]
+            dx = points[v, 1] - points[u, 1]
+            if dy * dy + dx * dx <= radius * radius:
+                along = -dy * vx + dx * vy
+                lowest = min(lowest, along)
+                highest = max(highest, along)
+        reliable[u] = lowest <= -interior and highest >= interior
+
+
+def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Normals from the scan's own wall hits: the minor principal axis of the hits within
+    ``normal_radius_cells`` of each wall cell, facing the robot.
+
+    Returns ``(normals float64 [U, 2], reliable bool [U])``. A normal is reliable when at least three hits
+    with a clearly linear spread (minor/major variance below ``normal_max_minor_ratio``) support it and the
+    cell lies inside that line (``normal_interior_cells`` from its observed ends); elsewhere (corners, wall
+    ends, sparse hits) the direction back to the robot stands in (for back-projection only: carving skips unreliable normals, since a wrong normal
+    would turn the carved sector onto the wall itself).
+    """
+    n_walls = len(wall_cells)
+    normals = np.zeros((n_walls, 2))
+    reliable = np.zeros(n_walls, bool)
+    if n_walls == 0:
+        return normals, reliable
+    points = wall_cells + 0.5
+    to_robot = np.asarray(scan.origin_yx) - points
+    to_robot /= np.maximum(np.linalg.norm(to_robot, axis=1, keepdims=True), 1e-12)
+    _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
+                 cfg.normal_interior_cells, normals, reliable)
+    normals[~reliable] = to_robot[~reliable]
+    flip = np.sum(normals * to_robot, axis=1) < 0.0
+    normals[flip] *= -1.0
+    return normals, reliable
+
+
+def _wall_points(los: LosEstimate) -> tuple[np.ndarray, np.ndarray]:
+    """Fan origin X1 (cells) of each wall cell: where its normal through the centre leaves the cell."""
+    normals = los.wall_normal
+    half = 0.5 / np.maximum(np.abs(normals).max(axis=1), 1e-12)
+    points = los.wall_cells + 0.5 + half[:, None] * normals
+    return points, normals
+
+
+@numba.njit(cache=True)
+def _carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, out):
+    """Mark cells whose centre lies within ``radius_cells[u]`` of ``apex[u]``, at least ``strip_cells`` in front
+    of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit`` seen from the fan origin
+    ``apex + FAN_OFFSET * normal``."""
+    n_rows, n_cols = out.shape
+    for u in range(apex.shape[0]):
+        radius = radius_cells[u]
+        if not radius > strip_cells:
+            continue
+        ay = apex[u, 0]
+        ax = apex[u, 1]
+        ny = normals[u, 0]
+        nx = normals[u, 1]
+        oy = ay + 0.75 * ny
+        ox = ax + 0.75 * nx
+        for r in range(max(0, int(np.floor(ay - radius))), min(n_rows, int(np.ceil(ay + radius)) + 1)):
+            for c in range(max(0, int(np.floor(ax - radius))), min(n_cols, int(np.ceil(ax + radius)) + 1)):
+                vy = r + 0.5 - ay
+                vx = c + 0.5 - ax
+                if vy * vy + vx * vx >= radius * radius:
+                    continue
+                if vy * ny + vx * nx < strip_cells:
+                    continue
+                wy = r + 0.5 - oy
+                wx = c + 0.5 - ox
+                norm = np.sqrt(wy * wy + wx * wx)
+                if norm == 0.0 or (wy * ny + wx * nx) / norm >= cos_limit:
+                    out[r, c] = True
+
+
+def carve(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig()) -> np.ndarray:
+    """Cells proven free by the first late photons: bool ``[H, W]`` (see the module docstring for soundness)."""
+    res = scan.resolution_m
+    n_walls = len(los.wall_cells)
+    carved = np.zeros(scan.grid_shape, bool)
+    if n_walls == 0:
+        return carved
+    # Rays sharing a wall-cell estimate may come from different true wall points: keep the smallest bound.
+    bound = np.full(n_walls, np.inf)
+    valid = los.ray_wall >= 0
+    # A ray without any late photon proves nothing: at grazing incidence (cos theta1 = 0) no three-bounce light
+    # exists however empty the space is. Such rays make their wall cell uncarvable.
+    no_photon = valid & (los.first_late_bin < 0)
+    np.minimum.at(bound, los.ray_wall[valid], los.empty_radius_m[valid])
+    bound[np.unique(los.ray_wall[no_photon])] = 0.0
+    cap = carve_radius_cap_m(scan.config.n_secondary, res)
+    radius_cells = np.minimum(bound, cap) / res - cfg.apex_margin_cells - np.sqrt(0.5)
+    radius_cells[~los.normal_reliable] = 0.0
+    to_robot = np.asarray(scan.origin_yx) - (los.wall_cells + 0.5)
+    to_robot /= np.maximum(np.linalg.norm(to_robot, axis=1, keepdims=True), 1e-12)
+    grazing = np.sum(los.wall_normal * to_robot, axis=1) < np.cos(np.deg2rad(cfg.max_incidence_deg))
+    radius_cells[grazing] = 0.0
+    apex, normals = _wall_points(los)
+    cos_limit = np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))
+    _carve_sectors(apex, normals, radius_cells, cfg.wall_strip_cells, cos_limit, carved)
+    return carved
+
+
+@numba.njit(cache=True)
+def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, threshold, background,
+                      bin_path_m, resolution_m, votes):
+    """``votes[u, q]``: compensated counts of the late bins whose radius ``d2 = (b - b1) w / 2`` rounds to ``q``
+    cells, summed over the rays of wall cell ``u``."""
+    n_bins = histograms.shape[1]
+    n_radii = votes.shape[1]
+    for i in range(histograms.shape[0]):
+        u = ray_wall[i]
+        if u < 0:
+            continue
+        b1 = los_bin[i]
+        d1 = d1_m[i]
+        for b in range(b1 + first_bin_offset, n_bins):
+            count = histograms[i, b]
+            if count <= threshold:
+                continue
+            d2 = (b - b1) * bin_path_m / 2.0
+            q = int(np.floor(d2 / resolution_m + 0.5))
+            if q < n_radii:
+                votes[u, q] += (count - background) * d1 * d2 * d2
+
+
+@numba.njit(cache=True)
+def _draw_rings(apex, normals, votes, window, known, bp):
+    """Add ``votes[u, q]`` to every cell whose centre lies at a distance in ``[q - 0.5, q + 0.5)`` cells from
+    ``apex[u]`` (the rings partition the plane), in front of the wall (normal side), inside ``window``
+    ``(r0, r1, c0, c1)`` (inclusive) and not ``known``."""
+    r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
+    for u in range(votes.shape[0]):
+        ay = apex[u, 0]
+        ax = apex[u, 1]
+        ny = normals[u, 0]
+        nx = normals[u, 1]
+        # Distances from the apex to the nearest and farthest points of the window: rings outside skip.
+        near_y = max(r_lo - ay, 0.0, ay - (r_hi + 1.0))
+        near_x = max(c_lo - ax, 0.0, ax - (c_hi + 1.0))
+        near = np.sqrt(near_y * near_y + near_x * near_x)
+        far_y = max(abs(ay - r_lo), abs(r_hi + 1.0 - ay))
+        far_x = max(abs(ax - c_lo), abs(c_hi + 1.0 - ax))
+        far = np.sqrt(far_y * far_y + far_x * far_x)
+        for j in range(votes.shape[1]):
+            vote = votes[u, j]
+            if vote == 0.0:
+                continue
+            inner = max(j - 0.5, 0.0)
+            outer = j + 0.5
+            if outer < near or inner > far:
+                continue
+            for r in range(max(r_lo, int(np.floor(ay - outer))), min(r_hi + 1, int(np.ceil(ay + outer)) + 1)):
+                vy = r + 0.5 - ay
+                rest_outer = outer * outer - vy * vy
+                if rest_outer <= 0.0:
+                    continue
+                span = np.sqrt(rest_outer)
+                rest_inner = inner * inner - vy * vy
+                gap = np.sqrt(rest_inner) if rest_inner > 0.0 else 0.0
+                # The ring meets this row in |x - ax| in [gap, span): two column intervals, widened by a cell
+                # and re-tested exactly so rounding cannot drop or add a cell.
+                for side in (-1.0, 1.0):
+                    x_near = ax + side * gap
+                    x_far = ax + side * span
+                    c_first = max(c_lo, int(np.floor(min(x_near, x_far) - 0.5)) - 1)
+                    c_last = min(c_hi, int(np.ceil(max(x_near, x_far) - 0.5)) + 1)
+                    for c in range(c_first, c_last + 1):
+                        vx = c + 0.5 - ax
+                        if (vx < 0.0) != (side < 0.0):
+                            continue
+                        dist2 = vx * vx + vy * vy
+                        if dist2 < inner * inner or dist2 >= outer * outer:
+                            continue
+                        if vy * ny + vx * nx <= 0.0 or known[r, c]:
+                            continue
+                        bp[r, c] += vote
+
+
+def _window(scan: SpadScan, cfg: NlosConfig) -> np.ndarray:
+    half = int(np.ceil(cfg.window_m / scan.resolution_m))
+    r, c = scan.pose_rc
+    return np.array([max(0, r - half), min(scan.grid_shape[0] - 1, r + half),
+                     max(0, c - half), min(scan.grid_shape[1] - 1, c + half)], np.int64)
+
+
+def back_project(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(),
+                 known: Optional[np.ndarray] = None) -> np.ndarray:
+    """Back-projection map: float32 ``[H, W]`` in [0, 1] (normalised by its maximum; all zero without votes).
+
+    Args:
+        scan, los: the scan and its :func:`estimate_los`.
+        cfg: processing parameters (``window_m``).
+        known: optional bool ``[H, W]`` of cells already known (skipped).
+    """
+    shape = scan.grid_shape
+    if known is None:
+        known = np.zeros(shape, bool)
+    known = np.asarray(known)
+    if known.dtype != np.bool_ or known.shape != tuple(shape):
+        raise ValueError(f"known must be a bool array of shape {tuple(shape)}, got {known.dtype} {known.shape}")
+    n_bins = scan.histograms.shape[1]
+    n_radii = int(np.ceil(scan.config.range_m / scan.resolution_m)) + 1
+    votes = np.zeros((len(los.wall_cells), n_radii))
+    threshold, guard = _late_threshold(scan, cfg, n_bins)
+    background = scan.config.noise.background_per_bin
+    _accumulate_votes(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), guard, threshold,
+                      background, scan.bin_path_m, scan.resolution_m, votes)
+    apex, normals = _wall_points(los)
+    bp = np.zeros(shape, np.float64)
+    _draw_rings(apex, normals, votes, _window(scan, cfg), np.ascontiguousarray(known), bp)
+    top = bp.max(initial=0.0)
+    return (bp / top if top > 0 else bp).astype(np.float32)
+
+
+def laplacian_filter(bp: np.ndarray, sigma_cells: float = 1.0) -> np.ndarray:
+    """Classic filtered back-projection: negative Laplacian of the lightly smoothed map, clipped at zero and
+    normalised to [0, 1]. float32 ``[H, W]``."""
+    bp = np.asarray(bp, np.float64)
+    if bp.ndim != 2:
+        raise ValueError(f"bp must be 2-D, got shape {bp.shape}")
+    filtered = np.clip(-ndimage.laplace(ndimage.gaussian_filter(bp, sigma_cells)), 0.0, None)
+    top = filtered.max(initial=0.0)
+    return (filtered / top if top > 0 else filtered).astype(np.float32)
+
+
+def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional[np.ndarray] = None) -> NlosResult:
+    """LOS estimates, carved free space, back-projection and its Laplacian-filtered version."""
+    los = estimate_los(scan, cfg)
+    bp = back_project(scan, los, cfg, known)
+    return NlosResult(carved=carve(scan, los, cfg), bp=bp, bp_filtered=laplacian_filter(bp), los=los)
+
+
+def nlos_ground_truth(scan: SpadScan) -> np.ndarray:
+    """Label image aligned with the BP map: bool ``[H, W]``, True at every cell a three-bounce path with
+    non-zero photons reflected from (the ``h2`` cells). Reads the simulator's ground truth."""
+    _check_scan(scan)
+    truth = np.zeros(scan.grid_shape, bool)
+    cells = scan.truth.h2_rc[scan.truth.h2_counts > 0]
+    truth[cells[:, 0], cells[:, 1]] = True
+    return truth
+
+
+def wall_iou(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two bool wall masks of equal shape; 1.0 when both are empty."""
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    if pred.dtype != np.bool_ or truth.dtype != np.bool_ or pred.shape != truth.shape:
+        raise ValueError(f"pred and truth must be bool arrays of one shape, got {pred.dtype} {pred.shape} and "
+                         f"{truth.dtype} {truth.shape}")
+    union = np.count_nonzero(pred | truth)
+    return 1.0 if union == 0 else np.count_nonzero(pred & truth) / union

@@ -1,0 +1,172 @@
+import numpy as np
+import pytest
+
+from superex_deploy.maps import OccupancyGrid
+from superex_deploy.nlos import (
+    NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _first_late_bins, _hit_normals, _late_threshold,
+    _wall_points, _window, back_project, carve_radius_cap_m, estimate_los, laplacian_filter, nlos_ground_truth,
+    process_scan, wall_iou)
+from superex_deploy.spad import SpadConfig, SpadNoise, simulate_scan
+from tests.naive import (
+    naive_back_projection, naive_carve_sectors, naive_first_late_bins, naive_hit_normals)
+
+RES = 0.1
+
+
+def _l_corner():
+    """Robot corridor rows 45-55 ending at a wall at col 40; a side corridor (cols 30-39) goes north to a
+    hidden wall at row 9; the side corridor beyond row 44 is hidden from the robot at (50, 10)."""
+    walls = np.ones((70, 60), bool)
+    walls[45:56, 1:40] = False
+    walls[10:45, 30:40] = False
+    return OccupancyGrid(walls, ~walls, RES, "l-corner")
+
+
+def test_los_estimates_recover_the_wall_points():
+    grid = _l_corner()
+    scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=720, n_secondary=64))
+    los = estimate_los(scan)
+    hit = scan.truth.h1_rc[:, 0] >= 0
+    assert np.all(los.los_bin[hit] >= 0)
+    np.testing.assert_allclose(los.d1_m[hit], scan.truth.d1_m[hit], atol=scan.bin_path_m / 2)
+    exact = np.all(los.h1_rc[hit] == scan.truth.h1_rc[hit], axis=1)
+    # Rays that clip a wall corner for less than the half-bin distance uncertainty land in the next cell.
+    assert exact.mean() > 0.85
+    assert np.all(np.abs(los.h1_rc[hit] - scan.truth.h1_rc[hit]).max(axis=1) <= 1)
+
+
+def test_l_corner_carves_hidden_free_space_and_back_projects_the_hidden_wall():
+    grid = _l_corner()
+    scan = simulate_scan(grid, (50, 12), SpadConfig(n_rays=1440, n_secondary=128))
+    result = process_scan(scan, NlosConfig(window_m=6.0))
+    assert not np.any(result.carved & grid.occupied)
+    seen = np.zeros(grid.shape, bool)
+    hits = scan.truth.h1_rc[scan.truth.h1_rc[:, 0] >= 0]
+    seen[hits[:, 0], hits[:, 1]] = True
+    hidden_free = ~grid.occupied.copy()
+    hidden_free[45:, :] = False  # the robot's corridor is in line of sight
+    assert np.any(result.carved & hidden_free), "no hidden free cell was carved"
+    assert result.carved[40, 35]  # 0.5 m up the side corridor, out of sight
+    # The back-projection's strongest hidden-region response lies near a hidden wall.
+    hidden_bp = np.where(np.arange(70)[:, None] < 44, result.bp, 0.0)
+    peak = np.unravel_index(np.argmax(hidden_bp), hidden_bp.shape)
+    truth = nlos_ground_truth(scan)
+    near = np.argwhere(truth)
+    assert np.min(np.hypot(*(near - peak).T)) <= 3.0
+
+
+def test_first_late_bins_match_naive():
+    rng = np.random.default_rng(0)
+    histograms = (rng.random((30, 50)) < 0.1).astype(np.float32) * rng.random((30, 50)).astype(np.float32)
+    los_bin = rng.integers(-1, 40, size=30)
+    for guard, threshold in [(1, 0.0), (3, 0.5)]:
+        out = np.empty(30, np.int64)
+        _first_late_bins(histograms, los_bin, guard, threshold, out)
+        np.testing.assert_array_equal(out, naive_first_late_bins(histograms, los_bin, guard, threshold))
+
+
+def test_hit_normals_match_naive():
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        points = rng.integers(0, 30, size=(60, 2)) + 0.5
+        normals = np.zeros((60, 2))
+        reliable = np.zeros(60, bool)
+        _hit_normals(points, 5.0, 0.1, 1.5, normals, reliable)
+        ref_normals, ref_reliable = naive_hit_normals(points, 5.0)
+        np.testing.assert_array_equal(reliable, ref_reliable)
+        np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
+
+
+def test_carve_sectors_match_naive():
+    rng = np.random.default_rng(2)
+    apex = rng.uniform(5, 25, size=(6, 2))
+    angles = rng.uniform(0, 2 * np.pi, size=6)
+    normals = np.stack([np.sin(angles), np.cos(angles)], axis=1)
+    radius = rng.uniform(0, 12, size=6)
+    out = np.zeros((30, 32), bool)
+    _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), out)
+    np.testing.assert_array_equal(out, naive_carve_sectors((30, 32), apex, normals, radius, 1.5,
+                                                           np.cos(np.deg2rad(70))))
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_back_projection_matches_naive(noisy):
+    walls = np.zeros((40, 40), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[10:30, 25] = True
+    walls[20, 5:15] = True
+    grid = OccupancyGrid(walls, ~walls, RES, "room")
+    noise = SpadNoise(enabled=noisy, ambient_per_bin=0.5, jitter_s=0.0)
+    scan = simulate_scan(grid, (30, 10), SpadConfig(n_rays=90, n_secondary=16, range_m=4.0, noise=noise),
+                         rng=np.random.default_rng(0))
+    cfg = NlosConfig(window_m=1.5)
+    los = estimate_los(scan, cfg)
+    known = np.zeros(grid.shape, bool)
+    known[25:35, 5:15] = True
+    fast = back_project(scan, los, cfg, known)
+    threshold, guard = _late_threshold(scan, cfg, scan.histograms.shape[1])
+    apex, normals = _wall_points(los)
+    n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
+    slow = naive_back_projection(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), apex, normals,
+                                 guard, threshold, scan.config.noise.background_per_bin, scan.bin_path_m, RES,
+                                 _window(scan, cfg), known, n_radii)
+    assert slow.max() > 0
+    np.testing.assert_allclose(fast, slow / slow.max(), rtol=1e-5, atol=1e-6)
+    assert not fast[known].any()
+    # The window bounds the map: nothing outside it.
+    r0, r1, c0, c1 = _window(scan, cfg)
+    outside = np.ones(grid.shape, bool)
+    outside[r0:r1 + 1, c0:c1 + 1] = False
+    assert not fast[outside].any()
+
+
+def test_noisy_false_alarm_rate_matches_its_setting():
+    """Background only (no walls in range): a ray detects a late photon with probability <= the stated rate."""
+    grid = OccupancyGrid(np.zeros((400, 400), bool), np.ones((400, 400), bool), RES, "void")
+    noise = SpadNoise(enabled=True, ambient_per_bin=3.0, dark_per_bin=0.1, jitter_s=0.0)
+    cfg_spad = SpadConfig(n_rays=2000, n_secondary=4, noise=noise)
+    cfg = NlosConfig(false_alarm_rate=0.05)
+    scan = simulate_scan(grid, (200, 200), cfg_spad, rng=np.random.default_rng(3))
+    threshold, _ = _late_threshold(scan, cfg, scan.histograms.shape[1])
+    rate = np.mean((scan.histograms > threshold).any(axis=1))
+    # Bonferroni makes the bound conservative; 2000 rays give a standard error of ~0.005 at 0.05.
+    assert rate <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / 2000)
+    loose = NlosConfig(false_alarm_rate=0.9)
+    assert _late_threshold(scan, loose, scan.histograms.shape[1])[0] < threshold
+
+
+def test_carve_radius_cap_follows_angular_sampling():
+    assert carve_radius_cap_m(64, 0.1) == pytest.approx(0.1 * 64 / np.pi)
+    assert carve_radius_cap_m(128, 0.1) == pytest.approx(2 * carve_radius_cap_m(64, 0.1))
+
+
+def test_wall_iou_and_laplacian():
+    a = np.zeros((4, 4), bool)
+    b = np.zeros((4, 4), bool)
+    assert wall_iou(a, b) == 1.0
+    a[0, :2] = True
+    b[0, 1:3] = True
+    assert wall_iou(a, b) == pytest.approx(1 / 3)
+    spike = np.zeros((9, 9))
+    spike[4, 4] = 1.0
+    filtered = laplacian_filter(spike)
+    assert filtered.max() == pytest.approx(1.0) and np.argmax(filtered) == 40 and filtered.min() >= 0.0
+    with pytest.raises(ValueError, match="bool"):
+        wall_iou(a.astype(int), b)
+    with pytest.raises(ValueError, match="one shape"):
+        wall_iou(a, b[:2])
+
+
+def test_bad_inputs():
+    grid = _l_corner()
+    scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=90, n_secondary=8))
+    with pytest.raises(ValueError, match="SpadScan"):
+        process_scan(scan.histograms)
+    with pytest.raises(ValueError, match="known"):
+        back_project(scan, estimate_los(scan), NlosConfig(), np.zeros((3, 3), bool))
+    with pytest.raises(ValueError, match="sector_margin_deg"):
+        NlosConfig(sector_margin_deg=90.0)
+    with pytest.raises(ValueError, match="false_alarm_rate"):
+        NlosConfig(false_alarm_rate=0.0)
+    with pytest.raises(ValueError, match="window_m"):
+        NlosConfig(window_m=-1.0)
