@@ -16,6 +16,8 @@ from importlib.metadata import entry_points
 
 COMMANDS = {
     "scan": "Simulate one SPAD scan on a map and write a figure of it",
+    "explore": "Run one exploration episode and write metrics, a final plot and a GIF",
+    "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
 }
 
 

@@ -66,3 +66,101 @@ def save_scan_figure(path: Path, grid, pose_rc, seen_free: np.ndarray, seen_wall
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def _observed_image(observed: np.ndarray) -> np.ndarray:
+    image = np.full(observed.shape, 0.5)
+    image[observed == 0] = 1.0
+    image[observed == 1] = 0.0
+    return image
+
+
+def save_episode_figure(path: Path, grid, result) -> Path:
+    """Ground truth with the driven path, the final observed map with the goals, and the final prediction."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(18, 6))
+    axes[0].imshow(~grid.occupied, cmap="gray")
+    axes[0].plot(result.poses[:, 1], result.poses[:, 0], "-", color="tab:blue", linewidth=1.2)
+    axes[0].plot(result.start_rc[1], result.start_rc[0], "g*", markersize=12)
+    axes[0].set_title(f"{grid.name}: path {result.path_length_m[-1] if len(result.path_length_m) else 0:.1f} m")
+    axes[1].imshow(_observed_image(result.final_observed), cmap="gray", vmin=0, vmax=1)
+    if result.goals:
+        goals = np.array(result.goals)
+        axes[1].plot(goals[:, 1], goals[:, 0], "rx", markersize=5)
+    coverage = result.coverage[-1] if len(result.coverage) else 0.0
+    axes[1].set_title(f"observed ({result.planner}): coverage {coverage:.1%}")
+    if result.final_prediction is not None:
+        axes[2].imshow(result.final_prediction.mean, cmap="gray_r", vmin=0, vmax=1)
+        last_iou = result.iou[-1] if result.iou else float("nan")
+        axes[2].set_title(f"prediction ({result.predictor}): map IoU {last_iou:.3f}")
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+class GifRecorder:
+    """Collects observed-map frames (robot in red, path in blue) every ``every`` steps; at most ``max_side``
+    pixels on the longer side, so GIFs of large maps stay small."""
+
+    def __init__(self, every: int = 5, max_side: int = 400):
+        self.every = every
+        self.max_side = max_side
+        self.frames: list[np.ndarray] = []
+        self._trail: list[tuple[int, int]] = []
+
+    def __call__(self, step: int, state) -> None:
+        self._trail.append(state.pose)
+        if step % self.every:
+            return
+        observed = state.mapper.observed()
+        rgb = (np.repeat(_observed_image(observed)[..., None], 3, axis=2) * 255).astype(np.uint8)
+        trail = np.array(self._trail)
+        rgb[trail[:, 0], trail[:, 1]] = (40, 110, 255)
+        r, c = state.pose
+        rgb[max(r - 2, 0):r + 3, max(c - 2, 0):c + 3] = (230, 30, 30)
+        stride = max(1, int(np.ceil(max(rgb.shape[:2]) / self.max_side)))
+        self.frames.append(rgb[::stride, ::stride])
+
+    def save(self, path: Path) -> Path:
+        import imageio.v2 as imageio
+
+        path = Path(path)
+        imageio.mimsave(path, self.frames or [np.zeros((2, 2, 3), np.uint8)], duration=0.08, loop=0)
+        return path
+
+
+def save_benchmark_plots(out_dir: Path, results: list[dict]) -> None:
+    """coverage.png (mean coverage against step per planner) and iou_vs_coverage.png (map IoU against coverage)."""
+    plt = _pyplot()
+    by_planner: dict[str, list[dict]] = {}
+    for result in results:
+        by_planner.setdefault(result["planner"], []).append(result)
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for planner, runs in sorted(by_planner.items()):
+        length = max(len(r["coverage"]) for r in runs)
+        # An episode that finished early keeps its final coverage.
+        padded = np.array([np.pad(r["coverage"], (0, length - len(r["coverage"])), mode="edge")
+                           if r["coverage"] else np.zeros(length) for r in runs])
+        ax.plot(np.arange(1, length + 1), padded.mean(axis=0), label=f"{planner} ({len(runs)})")
+    ax.set_xlabel("step")
+    ax.set_ylabel("coverage of the valid area")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(Path(out_dir) / "coverage.png", dpi=90)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for planner, runs in sorted(by_planner.items()):
+        xs = np.concatenate([r["iou"]["coverage"] for r in runs]) if runs else np.array([])
+        ys = np.concatenate([r["iou"]["iou"] for r in runs]) if runs else np.array([])
+        ax.scatter(xs, ys, s=6, alpha=0.5, label=planner)
+    ax.set_xlabel("coverage")
+    ax.set_ylabel("map IoU of the prediction (walls)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(Path(out_dir) / "iou_vs_coverage.png", dpi=90)
+    plt.close(fig)

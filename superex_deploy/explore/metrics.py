@@ -28,6 +28,10 @@ def map_iou(mean: np.ndarray, grid: OccupancyGrid, threshold: float = 0.5) -> fl
     return np.count_nonzero(predicted & truth) / union if union else 1.0
 
 
+def _mean_std(values: list) -> tuple[float, float]:
+    return (float(np.mean(values)), float(np.std(values))) if values else (float("nan"), float("nan"))
+
+
 def summarise(results: list[dict], checkpoints=(250, 500, 1000)) -> list[dict]:
     """Per-planner mean and standard deviation of coverage at step checkpoints (an episode that finished early
     keeps its final coverage), final path length and final IoU, from :meth:`EpisodeResult.to_json` dicts."""
@@ -39,10 +43,10 @@ def summarise(results: list[dict], checkpoints=(250, 500, 1000)) -> list[dict]:
         row = {"planner": planner, "episodes": len(runs)}
         for step in checkpoints:
             values = [r["coverage"][min(step, len(r["coverage"])) - 1] for r in runs if r["coverage"]]
-            row[f"coverage@{step}"] = (float(np.mean(values)), float(np.std(values)))
+            row[f"coverage@{step}"] = _mean_std(values)
         lengths = [r["path_length_m"][-1] for r in runs if r["path_length_m"]]
-        row["path_length_m"] = (float(np.mean(lengths)), float(np.std(lengths)))
+        row["path_length_m"] = _mean_std(lengths)
         ious = [r["iou"]["iou"][-1] for r in runs if r["iou"]["iou"]]
-        row["final_iou"] = (float(np.mean(ious)), float(np.std(ious))) if ious else (float("nan"), float("nan"))
+        row["final_iou"] = _mean_std(ious)
         rows.append(row)
     return rows

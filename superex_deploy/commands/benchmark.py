@@ -1,0 +1,81 @@
+"""``superex benchmark``: every start pose of a set of maps x planners, in parallel processes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--maps", default="eval", help="'eval', or comma-separated bundled eval map names")
+    parser.add_argument("--planners", default="nearest,hector,upen,mapex")
+    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle"))
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
+    parser.add_argument("--out", required=True, type=Path)
+
+
+def _episode(task: tuple) -> dict:
+    import numba
+
+    numba.set_num_threads(1)
+    from superex_deploy.commands.explore import make_predictor
+    from superex_deploy.explore.episode import ExplorationConfig, run_episode
+    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.maps import load_map
+
+    map_name, start_index, start, planner_name, predictor_name, steps, seed = task
+    grid = load_map(map_name)
+    result = run_episode(grid, start, make_planner(planner_name), make_predictor(predictor_name, grid), steps=steps,
+                         seed=seed, cfg=ExplorationConfig(iou_every=50))
+    summary = result.to_json()
+    summary["start_index"] = start_index
+    summary.pop("poses")
+    summary.pop("timings_s")
+    return summary
+
+
+def run(args: argparse.Namespace) -> int:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    from superex_deploy.explore.metrics import summarise
+    from superex_deploy.explore.planners import PLANNERS
+    from superex_deploy.maps import list_maps, start_poses
+    from superex_deploy.render import save_benchmark_plots
+
+    names = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
+    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    unknown = [p for p in planners if p not in PLANNERS]
+    if unknown:
+        raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    tasks = [(name, k, pose, planner, args.predictor, args.steps, args.seed)
+             for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
+    args.out.mkdir(parents=True, exist_ok=True)
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        results = list(tqdm(pool.map(_episode, tasks), total=len(tasks), desc="episodes", unit="episode"))
+    checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
+    table = summarise(results, checkpoints)
+    (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table}))
+    lines = ["| planner | episodes | " + " | ".join(f"coverage@{s}" for s in checkpoints)
+             + " | path length (m) | final map IoU |",
+             "|---|---:|" + "---:|" * (len(checkpoints) + 2)]
+    for row in table:
+        cells = [f"{row[f'coverage@{s}'][0]:.3f} ± {row[f'coverage@{s}'][1]:.3f}" for s in checkpoints]
+        lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells)
+                     + f" | {row['path_length_m'][0]:.1f} ± {row['path_length_m'][1]:.1f}"
+                     + f" | {row['final_iou'][0]:.3f} ± {row['final_iou'][1]:.3f} |")
+    table_text = "\n".join(lines)
+    (args.out / "results.md").write_text(
+        f"Predictor: {args.predictor}; {len(names)} maps, {len(tasks) // max(len(planners), 1)} scenarios, "
+        f"{args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios.\n\n{table_text}\n")
+    save_benchmark_plots(args.out, results)
+    print(table_text)
+    print(f"wrote {args.out / 'results.md'}, results.json, coverage.png, iou_vs_coverage.png")
+    return 0

@@ -1,0 +1,75 @@
+"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+PREDICTORS = ("observed", "oracle")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--map", required=True, help="bundled map name or an image / ROS YAML path")
+    parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
+    parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
+    parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex")
+    parser.add_argument("--predictor", default="observed", choices=PREDICTORS,
+                        help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only)")
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--gif-every", type=int, default=5, help="record a GIF frame every N steps")
+    parser.add_argument("--out", required=True, type=Path)
+
+
+def make_predictor(name: str, grid):
+    from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
+
+    if name == "observed":
+        return ObservedAsPrediction()
+    if name == "oracle":
+        return OraclePredictor(grid)
+    raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
+
+
+def resolve_start(grid, start_index: int, pose):
+    from superex_deploy.maps import start_poses
+
+    if pose is not None:
+        return grid.check_pose(pose)
+    poses = start_poses(grid.name)
+    if not 0 <= start_index < len(poses):
+        raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")
+    return poses[start_index]
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from superex_deploy.explore.episode import run_episode
+    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.maps import load_map
+    from superex_deploy.render import GifRecorder, save_episode_figure
+
+    grid = load_map(args.map)
+    start = resolve_start(grid, args.start, args.pose)
+    planner = make_planner(args.planner)
+    predictor = make_predictor(args.predictor, grid)
+    args.out.mkdir(parents=True, exist_ok=True)
+    recorder = GifRecorder(every=args.gif_every)
+    with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
+        def on_step(step, state):
+            recorder(step, state)
+            bar.update(1)
+
+        result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step)
+    metrics = result.to_json()
+    (args.out / "metrics.json").write_text(json.dumps(metrics))
+    save_episode_figure(args.out / "final.png", grid, result)
+    recorder.save(args.out / "episode.gif")
+    coverage = result.coverage[-1] if len(result.coverage) else 0.0
+    print(f"{grid.name} start {start} {args.planner}: {len(result.coverage)} steps, coverage {coverage:.1%}, "
+          f"path {metrics['path_length_m'][-1] if metrics['path_length_m'] else 0:.1f} m"
+          f"{' (explored: no frontier left)' if result.finished else ''}")
+    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}")
+    return 0
