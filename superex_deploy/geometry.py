@@ -70,6 +70,27 @@ def cell_centre(rc) -> tuple[float, float]:
     return float(rc[0]) + 0.5, float(rc[1]) + 0.5
 
 
+@numba.njit(cache=True, inline="always")
+def _dda_start(y0, x0, dy, dx):
+    """Amanatides-Woo set-up for a ray from (y0, x0) along (dy, dx): per axis the step (-1, 0, 1), the ray
+    parameter of the first cell boundary and the parameter between boundaries."""
+    r = int(np.floor(y0))
+    c = int(np.floor(x0))
+    if dy > 0.0:
+        step_r, t_next_r, t_delta_r = 1, (r + 1.0 - y0) / dy, 1.0 / dy
+    elif dy < 0.0:
+        step_r, t_next_r, t_delta_r = -1, (y0 - r) / (-dy), -1.0 / dy
+    else:
+        step_r, t_next_r, t_delta_r = 0, np.inf, np.inf
+    if dx > 0.0:
+        step_c, t_next_c, t_delta_c = 1, (c + 1.0 - x0) / dx, 1.0 / dx
+    elif dx < 0.0:
+        step_c, t_next_c, t_delta_c = -1, (x0 - c) / (-dx), -1.0 / dx
+    else:
+        step_c, t_next_c, t_delta_c = 0, np.inf, np.inf
+    return r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c
+
+
 @numba.njit(cache=True)
 def _trace_first_hit(occupied, y0, x0, dy, dx, max_t):
     """Walk one ray through the grid; return (row, col, t_entry, entry_axis) of the first occupied cell.
@@ -79,37 +100,11 @@ def _trace_first_hit(occupied, y0, x0, dy, dx, max_t):
     two walls that touch only at a corner.
     """
     n_rows, n_cols = occupied.shape
-    r = int(np.floor(y0))
-    c = int(np.floor(x0))
+    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(y0, x0, dy, dx)
     if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
         return -1, -1, 0.0, -1
     if occupied[r, c]:
         return r, c, 0.0, -1
-    inf = np.inf
-    if dy > 0.0:
-        step_r = 1
-        t_next_r = (r + 1.0 - y0) / dy
-        t_delta_r = 1.0 / dy
-    elif dy < 0.0:
-        step_r = -1
-        t_next_r = (y0 - r) / (-dy)
-        t_delta_r = -1.0 / dy
-    else:
-        step_r = 0
-        t_next_r = inf
-        t_delta_r = inf
-    if dx > 0.0:
-        step_c = 1
-        t_next_c = (c + 1.0 - x0) / dx
-        t_delta_c = 1.0 / dx
-    elif dx < 0.0:
-        step_c = -1
-        t_next_c = (x0 - c) / (-dx)
-        t_delta_c = -1.0 / dx
-    else:
-        step_c = 0
-        t_next_c = inf
-        t_delta_c = inf
     while True:
         if t_next_c <= t_next_r:
             t = t_next_c
@@ -144,26 +139,12 @@ def _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out):
     """Mark every cell a ray crosses before its first hit in ``free_out`` and the hit cell in ``hit_out``."""
     n_rows, n_cols = occupied.shape
     for i in range(angles.shape[0]):
-        dy = np.sin(angles[i])
-        dx = np.cos(angles[i])
-        r = int(np.floor(y0))
-        c = int(np.floor(x0))
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+            y0, x0, np.sin(angles[i]), np.cos(angles[i]))
         if occupied[r, c]:
             hit_out[r, c] = True
             continue
         free_out[r, c] = True
-        if dy > 0.0:
-            step_r, t_next_r, t_delta_r = 1, (r + 1.0 - y0) / dy, 1.0 / dy
-        elif dy < 0.0:
-            step_r, t_next_r, t_delta_r = -1, (y0 - r) / (-dy), -1.0 / dy
-        else:
-            step_r, t_next_r, t_delta_r = 0, np.inf, np.inf
-        if dx > 0.0:
-            step_c, t_next_c, t_delta_c = 1, (c + 1.0 - x0) / dx, 1.0 / dx
-        elif dx < 0.0:
-            step_c, t_next_c, t_delta_c = -1, (x0 - c) / (-dx), -1.0 / dx
-        else:
-            step_c, t_next_c, t_delta_c = 0, np.inf, np.inf
         while True:
             if t_next_c <= t_next_r:
                 t = t_next_c

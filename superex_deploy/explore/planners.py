@@ -18,7 +18,8 @@ from typing import ClassVar, Optional
 import numba
 import numpy as np
 
-from superex_deploy.explore.types import UNKNOWN, Frontier, PlanningContext, Planner
+from superex_deploy.explore.types import Frontier, PlanningContext, Planner
+from superex_deploy.geometry import _dda_start
 
 __all__ = [
     "VisibilityConfig", "predicted_visibility", "visible_gains",
@@ -57,26 +58,12 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, ranges):
     n_rows, n_cols = mean.shape
     for k in range(n_rays):
         angle = 2.0 * np.pi * k / n_rays
-        dy = np.sin(angle)
-        dx = np.cos(angle)
-        r = int(np.floor(y0))
-        c = int(np.floor(x0))
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+            y0, x0, np.sin(angle), np.cos(angle))
         transmittance = 1.0 - mean[r, c]
         if 1.0 - transmittance >= hit_threshold:
             ranges[k] = 0.5
             continue
-        if dy > 0.0:
-            step_r, t_next_r, t_delta_r = 1, (r + 1.0 - y0) / dy, 1.0 / dy
-        elif dy < 0.0:
-            step_r, t_next_r, t_delta_r = -1, (y0 - r) / (-dy), -1.0 / dy
-        else:
-            step_r, t_next_r, t_delta_r = 0, np.inf, np.inf
-        if dx > 0.0:
-            step_c, t_next_c, t_delta_c = 1, (c + 1.0 - x0) / dx, 1.0 / dx
-        elif dx < 0.0:
-            step_c, t_next_c, t_delta_c = -1, (x0 - c) / (-dx), -1.0 / dx
-        else:
-            step_c, t_next_c, t_delta_c = 0, np.inf, np.inf
         reach = max_t
         while True:
             if t_next_c <= t_next_r:
