@@ -22,7 +22,14 @@ needs three more arguments, each a margin below:
    cell centres).
 3. **Which side.** The fan spans +-90 degrees about the true normal, the carve uses a normal estimated from the
    scan's own wall hits; the carved sector is narrowed to +-(90 - sector_margin_deg) and a strip of
-   ``wall_strip_cells`` along the wall itself is left out (it is seen directly anyway).
+   ``wall_strip_cells`` along the wall itself is left out (it is seen directly anyway). A normal is trusted
+   only where the hits around the wall cell lie on one straight line (small minor/major variance ratio and
+   every hit within ``normal_max_residual_cells`` of the fitted line, no gap along it wider than
+   ``normal_max_gap_cells``), the cell is inside that line, and
+   the robot does not see it at grazing incidence; other wall cells are not carved from. The property test
+   found each of these cases: three hits from two walls (a thin wall's face and a wall seen past its end)
+   fitted a line tilted 25 degrees, which flipped the carved sector onto the far wall; and a wall-end cell
+   whose hits ran on, across a 4-cell gap, to a second wall carved a sector the end's own fan never covered.
 
 In noisy mode the first late bin is the first bin whose count exceeds a Poisson threshold chosen so that a
 ray sees a false detection in its late part with probability at most ``false_alarm_rate`` (Bonferroni over its
@@ -32,8 +39,10 @@ Back-projection (Velten et al., 2012)
 -------------------------------------
 Each late bin votes on the ring of radius ``r(b)`` (one cell wide) about the estimated wall point, on its
 normal side, with its counts compensated for the ``1 / (d1 d2^2)`` fall-off and the sensor constants. Votes
-are first summed per (wall cell, radius bin) over every ray that shares the wall cell, and each ring is drawn
-once, only inside a window around the robot and only on cells not already known.
+are first summed per (wall cell, radius bin) over every ray that shares the wall cell; then each wall cell's
+half-disc is swept once (every cell adds the summed vote of the ring it lies on), only inside a window around
+the robot and only on cells not already known. The cost is about one visit per (wall cell, window cell in its
+half-disc), independent of the number of rays and bins.
 """
 
 from __future__ import annotations
@@ -45,10 +54,11 @@ import numba
 import numpy as np
 from scipy import ndimage, stats
 
-from superex_deploy.spad import FAN_OFFSET_CELLS, SpadScan
+from superex_deploy.spad import SpadScan
 
 __all__ = ["NlosConfig", "LosEstimate", "NlosResult", "estimate_los", "carve", "back_project",
-           "laplacian_filter", "process_scan", "nlos_ground_truth", "wall_iou", "carve_radius_cap_m"]
+           "laplacian_filter", "process_scan", "nlos_ground_truth", "wall_iou", "wall_iou_tolerant",
+           "carve_radius_cap_m"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +74,13 @@ class NlosConfig:
         normal_radius_cells: observed wall hits within this radius of a wall cell estimate its normal.
         normal_max_minor_ratio: a normal is trusted for carving only if the hits' minor/major variance ratio is
             below this (the hits lie on a line, not around a corner).
+        normal_max_residual_cells: ... and only if every one of those hits lies within this distance of the
+            fitted line (the cells a straight wall face exposes have centres within sqrt(2)/2 of it; a larger
+            residual means hits from two walls, e.g. a thin wall's face and a wall seen past its end, whose
+            fitted line and normal can be tilted far enough to put the carved sector on the far side).
+        normal_max_gap_cells: ... and only if consecutive hits along that line are at most this far apart (a
+            wider gap can be a wall end followed by another wall, and the end's true normal turns away; the
+            property test found a wall-end cell whose line ran on to a second wall 4 cells away).
         normal_interior_cells: ... and only if observed hits extend at least this far on both sides of the
             cell along the wall (wall ends and corners carry normals of their own; the margin also covers a
             wall-cell estimate one cell off).
@@ -78,6 +95,8 @@ class NlosConfig:
     false_alarm_rate: float = 1e-3
     normal_radius_cells: float = 5.0
     normal_max_minor_ratio: float = 0.1
+    normal_max_residual_cells: float = 0.9
+    normal_max_gap_cells: float = 2.0
     normal_interior_cells: float = 2.5
     max_incidence_deg: float = 70.0
 
@@ -92,6 +111,10 @@ class NlosConfig:
             raise ValueError(f"NlosConfig.false_alarm_rate must lie in (0, 1), got {self.false_alarm_rate}")
         if not 0.0 < self.max_incidence_deg <= 90.0:
             raise ValueError(f"NlosConfig.max_incidence_deg must lie in (0, 90], got {self.max_incidence_deg}")
+        if not self.normal_max_gap_cells >= 1.0:
+            raise ValueError(f"NlosConfig.normal_max_gap_cells must be >= 1, got {self.normal_max_gap_cells}")
+        if not self.normal_max_residual_cells > 0.0:
+            raise ValueError(f"NlosConfig.normal_max_residual_cells must be > 0, got {self.normal_max_residual_cells}")
         if not self.normal_radius_cells >= 1.5:
             raise ValueError(f"NlosConfig.normal_radius_cells must be >= 1.5, got {self.normal_radius_cells}")
 
@@ -223,9 +246,11 @@ def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
 
 
 @numba.njit(cache=True)
-def _hit_normals(points, radius, max_minor_ratio, interior, normals, reliable):
+def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interior, normals, reliable):
     """Minor principal axis of the points within ``radius`` of each point (itself included); ``reliable`` where
-    there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, and
+    there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, every
+    point lies within ``max_residual`` of the fitted line, no two neighbours along it are more than ``max_gap``
+    apart, and
     the point lies at least ``interior`` cells inside the extent of its neighbours along the wall."""
     n = points.shape[0]
     for u in range(n):
@@ -275,16 +300,25 @@ def _hit_normals(points, radius, max_minor_ratio, interior, normals, reliable):
         # Interior test: hits at least ``interior`` cells away on both sides along the wall. Wall ends and
         # corners have normals of their own (a thin wall's end cell faces along the wall), so they are not
         # trusted for carving.
-        lowest = 0.0
-        highest = 0.0
+        along = np.empty(count)
+        k = 0
+        straight = True
         for v in range(n):
             dy = points[v, 0] - points[u, 0]
             dx = points[v, 1] - points[u, 1]
             if dy * dy + dx * dx <= radius * radius:
-                along = -dy * vx + dx * vy
-                lowest = min(lowest, along)
-                highest = max(highest, along)
-        reliable[u] = lowest <= -interior and highest >= interior
+                along[k] = -dy * vx + dx * vy
+                k += 1
+                if abs((points[v, 0] - my) * vy + (points[v, 1] - mx) * vx) > max_residual:
+                    straight = False
+        along.sort()
+        # Contiguous: a gap wider than ``max_gap`` may be a wall end followed by another wall, where the
+        # true normal turns.
+        contiguous = True
+        for k in range(1, count):
+            if along[k] - along[k - 1] > max_gap:
+                contiguous = False
+        reliable[u] = straight and contiguous and along[0] <= -interior and along[count - 1] >= interior
 
 
 def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -292,10 +326,11 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig) -
     ``normal_radius_cells`` of each wall cell, facing the robot.
 
     Returns ``(normals float64 [U, 2], reliable bool [U])``. A normal is reliable when at least three hits
-    with a clearly linear spread (minor/major variance below ``normal_max_minor_ratio``) support it and the
-    cell lies inside that line (``normal_interior_cells`` from its observed ends); elsewhere (corners, wall
-    ends, sparse hits) the direction back to the robot stands in (for back-projection only: carving skips unreliable normals, since a wrong normal
-    would turn the carved sector onto the wall itself).
+    with a clearly linear spread (minor/major variance below ``normal_max_minor_ratio``, every hit within
+    ``normal_max_residual_cells`` of the line, no gap along it wider than ``normal_max_gap_cells``) support it
+    and the cell lies inside that line (``normal_interior_cells`` from its observed ends); elsewhere (corners,
+    wall ends, sparse hits) the direction back to the robot stands in, for back-projection only: carving skips
+    unreliable normals, since a wrong normal would turn the carved sector onto the wall itself.
     """
     n_walls = len(wall_cells)
     normals = np.zeros((n_walls, 2))
@@ -306,7 +341,8 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig) -
     to_robot = np.asarray(scan.origin_yx) - points
     to_robot /= np.maximum(np.linalg.norm(to_robot, axis=1, keepdims=True), 1e-12)
     _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                 cfg.normal_interior_cells, normals, reliable)
+                 cfg.normal_max_residual_cells, cfg.normal_max_gap_cells, cfg.normal_interior_cells, normals,
+                 reliable)
     normals[~reliable] = to_robot[~reliable]
     flip = np.sum(normals * to_robot, axis=1) < 0.0
     normals[flip] *= -1.0
@@ -324,8 +360,9 @@ def _wall_points(los: LosEstimate) -> tuple[np.ndarray, np.ndarray]:
 @numba.njit(cache=True)
 def _carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, out):
     """Mark cells whose centre lies within ``radius_cells[u]`` of ``apex[u]``, at least ``strip_cells`` in front
-    of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit`` seen from the fan origin
-    ``apex + FAN_OFFSET * normal``."""
+    of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit`` seen from a vertex 0.75
+    cells in front of the apex (a scattering model may start its fan off the surface, as the simulator does;
+    a vertex moved forward only narrows the sector, so the choice errs on the safe side)."""
     n_rows, n_cols = out.shape
     for u in range(apex.shape[0]):
         radius = radius_cells[u]
@@ -407,53 +444,55 @@ def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, thr
 def _draw_rings(apex, normals, votes, window, known, bp):
     """Add ``votes[u, q]`` to every cell whose centre lies at a distance in ``[q - 0.5, q + 0.5)`` cells from
     ``apex[u]`` (the rings partition the plane), in front of the wall (normal side), inside ``window``
-    ``(r0, r1, c0, c1)`` (inclusive) and not ``known``."""
+    ``(r0, r1, c0, c1)`` (inclusive) and not ``known``.
+
+    The votes are dense in the radius (a wall point's fan returns at most radii), so each wall point's half-disc
+    is swept once, row by row, and every cell looks up its own ring, rather than tracing each ring apart."""
     r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
     for u in range(votes.shape[0]):
+        q_max = -1
+        for j in range(votes.shape[1]):
+            if votes[u, j] != 0.0:
+                q_max = j
+        if q_max < 0:
+            continue
         ay = apex[u, 0]
         ax = apex[u, 1]
         ny = normals[u, 0]
         nx = normals[u, 1]
-        # Distances from the apex to the nearest and farthest points of the window: rings outside skip.
-        near_y = max(r_lo - ay, 0.0, ay - (r_hi + 1.0))
-        near_x = max(c_lo - ax, 0.0, ax - (c_hi + 1.0))
-        near = np.sqrt(near_y * near_y + near_x * near_x)
-        far_y = max(abs(ay - r_lo), abs(r_hi + 1.0 - ay))
-        far_x = max(abs(ax - c_lo), abs(c_hi + 1.0 - ax))
-        far = np.sqrt(far_y * far_y + far_x * far_x)
-        for j in range(votes.shape[1]):
-            vote = votes[u, j]
-            if vote == 0.0:
+        outer = q_max + 0.5
+        for r in range(max(r_lo, int(np.floor(ay - outer))), min(r_hi + 1, int(np.ceil(ay + outer)) + 1)):
+            vy = r + 0.5 - ay
+            rest = outer * outer - vy * vy
+            if rest <= 0.0:
                 continue
-            inner = max(j - 0.5, 0.0)
-            outer = j + 0.5
-            if outer < near or inner > far:
+            span = np.sqrt(rest)
+            left = ax - span - 0.5
+            right = ax + span - 0.5
+            # In front of the wall: vy ny + (c + 0.5 - ax) nx > 0 bounds the column on one side (linear in c).
+            if nx > 1e-9:
+                left = max(left, ax - 0.5 - vy * ny / nx)
+            elif nx < -1e-9:
+                right = min(right, ax - 0.5 - vy * ny / nx)
+            elif vy * ny + (span + 2.0) * abs(nx) <= 0.0:
+                continue  # a normal along the rows: the whole row (|vx| <= span + 2 when widened) is behind
+            if right < c_lo - 1.0 or left > c_hi + 1.0 or left > right + 2.0:
                 continue
-            for r in range(max(r_lo, int(np.floor(ay - outer))), min(r_hi + 1, int(np.ceil(ay + outer)) + 1)):
-                vy = r + 0.5 - ay
-                rest_outer = outer * outer - vy * vy
-                if rest_outer <= 0.0:
+            # Widened by a cell and re-tested exactly below, so rounding cannot drop or add a cell.
+            c_first = max(c_lo, int(np.floor(max(left, c_lo - 1.0))) - 1)
+            c_last = min(c_hi, int(np.ceil(min(right, c_hi + 1.0))) + 1)
+            for c in range(c_first, c_last + 1):
+                vx = c + 0.5 - ax
+                dist2 = vx * vx + vy * vy
+                if dist2 >= outer * outer or vy * ny + vx * nx <= 0.0 or known[r, c]:
                     continue
-                span = np.sqrt(rest_outer)
-                rest_inner = inner * inner - vy * vy
-                gap = np.sqrt(rest_inner) if rest_inner > 0.0 else 0.0
-                # The ring meets this row in |x - ax| in [gap, span): two column intervals, widened by a cell
-                # and re-tested exactly so rounding cannot drop or add a cell.
-                for side in (-1.0, 1.0):
-                    x_near = ax + side * gap
-                    x_far = ax + side * span
-                    c_first = max(c_lo, int(np.floor(min(x_near, x_far) - 0.5)) - 1)
-                    c_last = min(c_hi, int(np.ceil(max(x_near, x_far) - 0.5)) + 1)
-                    for c in range(c_first, c_last + 1):
-                        vx = c + 0.5 - ax
-                        if (vx < 0.0) != (side < 0.0):
-                            continue
-                        dist2 = vx * vx + vy * vy
-                        if dist2 < inner * inner or dist2 >= outer * outer:
-                            continue
-                        if vy * ny + vx * nx <= 0.0 or known[r, c]:
-                            continue
-                        bp[r, c] += vote
+                q = int(np.sqrt(dist2) + 0.5)
+                if q > 0 and dist2 < (q - 0.5) * (q - 0.5):
+                    q -= 1
+                elif dist2 >= (q + 0.5) * (q + 0.5):
+                    q += 1
+                if q <= q_max:
+                    bp[r, c] += votes[u, q]
 
 
 def _window(scan: SpadScan, cfg: NlosConfig) -> np.ndarray:
@@ -498,7 +537,21 @@ def laplacian_filter(bp: np.ndarray, sigma_cells: float = 1.0) -> np.ndarray:
     bp = np.asarray(bp, np.float64)
     if bp.ndim != 2:
         raise ValueError(f"bp must be 2-D, got shape {bp.shape}")
-    filtered = np.clip(-ndimage.laplace(ndimage.gaussian_filter(bp, sigma_cells)), 0.0, None)
+    if not (np.isfinite(sigma_cells) and sigma_cells >= 0.0):
+        raise ValueError(f"sigma_cells must be finite and >= 0, got {sigma_cells}")
+    filtered = np.zeros(bp.shape)
+    rows = np.flatnonzero(bp.any(axis=1))
+    cols = np.flatnonzero(bp.any(axis=0))
+    if len(rows) == 0:
+        return filtered.astype(np.float32)
+    # The map is non-zero only inside the back-projection window: filter that box plus twice the stencil
+    # reach (Gaussian truncated at 4 sigma, plus the Laplacian's one cell), so the box edge's reflection only
+    # ever mirrors zeros and the result equals filtering the whole grid.
+    margin = 2 * (int(4.0 * sigma_cells + 0.5) + 1)
+    r0, r1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, bp.shape[0])
+    c0, c1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, bp.shape[1])
+    box = ndimage.gaussian_filter(bp[r0:r1, c0:c1], sigma_cells)
+    filtered[r0:r1, c0:c1] = np.clip(-ndimage.laplace(box), 0.0, None)
     top = filtered.max(initial=0.0)
     return (filtered / top if top > 0 else filtered).astype(np.float32)
 
@@ -528,3 +581,23 @@ def wall_iou(pred: np.ndarray, truth: np.ndarray) -> float:
                          f"{truth.dtype} {truth.shape}")
     union = np.count_nonzero(pred | truth)
     return 1.0 if union == 0 else np.count_nonzero(pred & truth) / union
+
+
+def wall_iou_tolerant(pred: np.ndarray, truth: np.ndarray, tolerance_cells: float) -> float:
+    """IoU that forgives misplacement by up to ``tolerance_cells`` (Euclidean, cell centres): a predicted cell
+    counts as correct within that distance of a true one, a true cell as missed only beyond that distance of
+    every prediction. ``|P & dilate(T)| / (|P| + |T - dilate(P)|)``; equals :func:`wall_iou` at tolerance 0
+    and 1.0 when both masks are empty."""
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    if pred.dtype != np.bool_ or truth.dtype != np.bool_ or pred.shape != truth.shape or pred.ndim != 2:
+        raise ValueError(f"pred and truth must be 2-D bool arrays of one shape, got {pred.dtype} {pred.shape} "
+                         f"and {truth.dtype} {truth.shape}")
+    if not (np.isfinite(tolerance_cells) and tolerance_cells >= 0.0):
+        raise ValueError(f"tolerance_cells must be finite and >= 0, got {tolerance_cells}")
+    reach = int(np.floor(tolerance_cells))
+    offsets = np.arange(-reach, reach + 1)
+    disc = offsets[:, None] ** 2 + offsets[None, :] ** 2 <= tolerance_cells ** 2
+    near_truth = ndimage.binary_dilation(truth, structure=disc)
+    near_pred = ndimage.binary_dilation(pred, structure=disc)
+    denominator = np.count_nonzero(pred) + np.count_nonzero(truth & ~near_pred)
+    return 1.0 if denominator == 0 else np.count_nonzero(pred & near_truth) / denominator

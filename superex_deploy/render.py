@@ -76,7 +76,10 @@ def _observed_image(observed: np.ndarray) -> np.ndarray:
 
 
 def save_episode_figure(path: Path, grid, result) -> Path:
-    """Ground truth with the driven path, the final observed map with the goals, and the final prediction."""
+    """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
+    frontier regions left (orange, dots at their goal cells); the final prediction."""
+    from superex_deploy.explore.frontiers import find_frontiers
+
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(18, 6))
     axes[0].imshow(~grid.occupied, cmap="gray")
@@ -84,6 +87,12 @@ def save_episode_figure(path: Path, grid, result) -> Path:
     axes[0].plot(result.start_rc[1], result.start_rc[0], "g*", markersize=12)
     axes[0].set_title(f"{grid.name}: path {result.path_length_m[-1] if len(result.path_length_m) else 0:.1f} m")
     axes[1].imshow(_observed_image(result.final_observed), cmap="gray", vmin=0, vmax=1)
+    frontiers = find_frontiers(result.final_observed, int(result.config.get("frontier_min_cells", 10)))
+    if frontiers:
+        cells = np.concatenate([f.cells for f in frontiers])
+        axes[1].plot(cells[:, 1], cells[:, 0], ",", color="tab:orange")
+        goal_cells = np.array([f.cell_rc for f in frontiers])
+        axes[1].plot(goal_cells[:, 1], goal_cells[:, 0], "o", color="tab:orange", markersize=3)
     if result.goals:
         goals = np.array(result.goals)
         axes[1].plot(goals[:, 1], goals[:, 0], "rx", markersize=5)
@@ -113,12 +122,12 @@ class GifRecorder:
         self.frames: list[np.ndarray] = []
         self._trail: list[tuple[int, int]] = []
 
-    def __call__(self, step: int, state) -> None:
+    def __call__(self, state) -> None:
+        """Record one step (an :class:`~superex_deploy.explore.episode.EpisodeState`; the episode's ``on_step``)."""
         self._trail.append(state.pose)
-        if step % self.every:
+        if state.step % self.every:
             return
-        observed = state.mapper.observed()
-        rgb = (np.repeat(_observed_image(observed)[..., None], 3, axis=2) * 255).astype(np.uint8)
+        rgb = (np.repeat(_observed_image(state.observed)[..., None], 3, axis=2) * 255).astype(np.uint8)
         trail = np.array(self._trail)
         rgb[trail[:, 0], trail[:, 1]] = (40, 110, 255)
         r, c = state.pose

@@ -159,7 +159,7 @@ def naive_first_late_bins(histograms, los_bin, guard, threshold):
     return out
 
 
-def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5):
+def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
     """numpy eigh of the covariance of the points within radius of each point (nlos._hit_normals)."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
@@ -171,7 +171,9 @@ def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5):
         if values[1] > 0 and values[0] <= max_minor_ratio * values[1]:
             normals[u] = vectors[:, 0]
             along = (near - p) @ np.array([-vectors[1, 0], vectors[0, 0]])
-            reliable[u] = along.min() <= -interior and along.max() >= interior
+            straight = np.abs((near - near.mean(axis=0)) @ vectors[:, 0]).max() <= max_residual
+            contiguous = np.all(np.diff(np.sort(along)) <= max_gap)
+            reliable[u] = straight and contiguous and along.min() <= -interior and along.max() >= interior
     return normals, reliable
 
 
@@ -215,13 +217,109 @@ def naive_back_projection(histograms, los_bin, ray_wall, d1_m, apex, normals, gu
                 for c in range(c_lo, c_hi + 1):
                     vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
                     dist2 = vy * vy + vx * vx
-                    if max(q - 0.5, 0.0) ** 2 <= dist2 < (q + 0.5) ** 2 and vy * normals[u, 0] + vx * normals[u, 1] > 0 \
-                            and not known[r, c]:
+                    front = vy * normals[u, 0] + vx * normals[u, 1] > 0
+                    if max(q - 0.5, 0.0) ** 2 <= dist2 < (q + 0.5) ** 2 and front and not known[r, c]:
                         bp[r, c] += vote
     return bp
 
 
+def naive_draw_rings(apex, normals, votes, window, known):
+    """Every window cell tested against every (wall point, radius) ring (nlos._draw_rings)."""
+    bp = np.zeros(known.shape)
+    r_lo, r_hi, c_lo, c_hi = window
+    for u, q in zip(*np.nonzero(votes)):
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
+                if max(q - 0.5, 0.0) ** 2 <= vy * vy + vx * vx < (q + 0.5) ** 2 \
+                        and vy * normals[u, 0] + vx * normals[u, 1] > 0 and not known[r, c]:
+                    bp[r, c] += votes[u, q]
+    return bp
+
+
 # --- explore ---
+
+# explore: core
+
+
+def naive_frontier_regions(observed, min_cells):
+    """Frontier regions by flood fill: [(cells sorted row-major, goal cell)], ordered by first cell.
+
+    A frontier cell is FREE (0) with an UNKNOWN (-1) 4-neighbour; regions are 8-connected; the goal is the
+    region cell nearest to the centroid, ties to the first in row-major order (explore.frontiers)."""
+    h, w = observed.shape
+    is_frontier = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            if observed[r, c] != 0:
+                continue
+            for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                if 0 <= r + dr < h and 0 <= c + dc < w and observed[r + dr, c + dc] == -1:
+                    is_frontier[r, c] = True
+    seen = np.zeros((h, w), bool)
+    regions = []
+    for r in range(h):
+        for c in range(w):
+            if not is_frontier[r, c] or seen[r, c]:
+                continue
+            stack, cells = [(r, c)], []
+            seen[r, c] = True
+            while stack:
+                cr, cc = stack.pop()
+                cells.append((cr, cc))
+                for dr in (-1, 0, 1):
+                    for dc in (-1, 0, 1):
+                        nr, nc = cr + dr, cc + dc
+                        if 0 <= nr < h and 0 <= nc < w and is_frontier[nr, nc] and not seen[nr, nc]:
+                            seen[nr, nc] = True
+                            stack.append((nr, nc))
+            if len(cells) < min_cells:
+                continue
+            cells.sort()
+            mean_r = sum(p[0] for p in cells) / len(cells)
+            mean_c = sum(p[1] for p in cells) / len(cells)
+            goal = min(cells, key=lambda p: ((p[0] - mean_r) ** 2 + (p[1] - mean_c) ** 2, p))
+            regions.append((cells, goal))
+    return regions
+
+
+def naive_travel_cost(costs, source):
+    """Dijkstra over 8-connected cells with scikit-image MCP_Geometric's edge cost: a step from a to b costs
+    (costs[a] + costs[b]) / 2 times its length (1 or sqrt 2); inf cells are impassable (explore.motion)."""
+    import heapq
+
+    h, w = costs.shape
+    best = np.full((h, w), np.inf)
+    best[source] = 0.0
+    queue = [(0.0, source)]
+    while queue:
+        d, (r, c) = heapq.heappop(queue)
+        if d > best[r, c]:
+            continue
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                nr, nc = r + dr, c + dc
+                if (dr or dc) and 0 <= nr < h and 0 <= nc < w and np.isfinite(costs[nr, nc]):
+                    step = 0.5 * (costs[r, c] + costs[nr, nc]) * np.hypot(dr, dc)
+                    if d + step < best[nr, nc]:
+                        best[nr, nc] = d + step
+                        heapq.heappush(queue, (d + step, (nr, nc)))
+    return best
+
+
+def naive_planning_costs(observed, pose, resolution_m, robot_radius_m, weight, range_m):
+    """Per-cell move cost of explore.motion's planning map, cell by cell: inf unless known FREE and farther
+    than the radius from every observed wall (the robot's cell always passes); else 1 + weight * max(0, 1 -
+    d / range) with d the distance (metres) to the nearest observed wall."""
+    h, w = observed.shape
+    walls = [(r, c) for r in range(h) for c in range(w) if observed[r, c] == 1]
+    costs = np.full((h, w), np.inf)
+    for r in range(h):
+        for c in range(w):
+            d = min((np.hypot(r - wr, c - wc) for wr, wc in walls), default=np.inf) * resolution_m
+            if (observed[r, c] == 0 and d > robot_radius_m) or (r, c) == tuple(pose):
+                costs[r, c] = 1.0 + weight * max(0.0, 1.0 - d / range_m)
+    return costs
 
 # explore: planners
 

@@ -144,7 +144,7 @@ def test_episode_finishes_when_everything_is_known():
     walls[[0, -1], :] = walls[:, [0, -1]] = True
     grid = OccupancyGrid(walls, ~walls, 0.1, "box")
     result = run_episode(grid, (6, 6), NearestFrontier(), ObservedAsPrediction(), steps=50)
-    assert result.finished and len(result.coverage) == 0 or result.coverage[-1] == 1.0
+    assert result.finished and result.coverage[-1] == 1.0
     summary = summarise([result.to_json()])
     assert summary[0]["planner"] == "nearest"
 

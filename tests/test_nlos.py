@@ -1,14 +1,16 @@
 import numpy as np
 import pytest
 
+from scipy import ndimage
+
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.nlos import (
     NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _first_late_bins, _hit_normals, _late_threshold,
     _wall_points, _window, back_project, carve_radius_cap_m, estimate_los, laplacian_filter, nlos_ground_truth,
-    process_scan, wall_iou)
+    process_scan, wall_iou, wall_iou_tolerant)
 from superex_deploy.spad import SpadConfig, SpadNoise, simulate_scan
 from tests.naive import (
-    naive_back_projection, naive_carve_sectors, naive_first_late_bins, naive_hit_normals)
+    naive_back_projection, naive_draw_rings, naive_carve_sectors, naive_first_late_bins, naive_hit_normals)
 
 RES = 0.1
 
@@ -67,12 +69,20 @@ def test_first_late_bins_match_naive():
 
 def test_hit_normals_match_naive():
     rng = np.random.default_rng(1)
-    for _ in range(5):
+    for trial in range(10):
         points = rng.integers(0, 30, size=(60, 2)) + 0.5
+        if trial % 2:  # hits along a few digitised straight walls, so that the residual bound decides
+            t = rng.uniform(0, 12, size=60)
+            starts = rng.uniform(5, 20, size=(4, 2))[rng.integers(4, size=60)]
+            direction = rng.normal(size=(4, 2))[rng.integers(4, size=60)]
+            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+            points = np.floor(starts + t[:, None] * direction) + 0.5
+        max_residual = [np.inf, 0.9, 0.6][trial % 3]
+        max_gap = [np.inf, 2.0, 1.0, 1.5][trial % 4]
         normals = np.zeros((60, 2))
         reliable = np.zeros(60, bool)
-        _hit_normals(points, 5.0, 0.1, 1.5, normals, reliable)
-        ref_normals, ref_reliable = naive_hit_normals(points, 5.0)
+        _hit_normals(points, 5.0, 0.1, max_residual, max_gap, 1.5, normals, reliable)
+        ref_normals, ref_reliable = naive_hit_normals(points, 5.0, max_residual=max_residual, max_gap=max_gap)
         np.testing.assert_array_equal(reliable, ref_reliable)
         np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
 
@@ -120,6 +130,23 @@ def test_back_projection_matches_naive(noisy):
     assert not fast[outside].any()
 
 
+def test_draw_rings_matches_naive_on_random_and_axis_aligned_wall_points():
+    rng = np.random.default_rng(6)
+    n_walls = 8
+    # Apexes on cell centres and edges and normals along the axes (and a hair off them) hit the ties.
+    apex = np.concatenate([rng.uniform(2, 28, size=(4, 2)), rng.integers(3, 27, size=(4, 2)) + [[0.5, 0.0]]])
+    angles = np.concatenate([rng.uniform(0, 2 * np.pi, size=4), np.pi / 2 * np.arange(4) + [0, 1e-12, 0, -1e-12]])
+    normals = np.stack([np.sin(angles), np.cos(angles)], axis=1)
+    normals[4:] = np.round(normals[4:], 15)
+    votes = rng.random((n_walls, 25)) * (rng.random((n_walls, 25)) < 0.4)
+    known = rng.random((30, 34)) < 0.2
+    for window in ([0, 29, 0, 33], [5, 20, 8, 30], [12, 12, 3, 3]):
+        bp = np.zeros((30, 34))
+        _draw_rings(apex, normals, votes, np.array(window, np.int64), known, bp)
+        np.testing.assert_allclose(bp, naive_draw_rings(apex, normals, votes, window, known), rtol=1e-12)
+        assert not bp[known].any()
+
+
 def test_noisy_false_alarm_rate_matches_its_setting():
     """Background only (no walls in range): a ray detects a late photon with probability <= the stated rate."""
     grid = OccupancyGrid(np.zeros((400, 400), bool), np.ones((400, 400), bool), RES, "void")
@@ -155,6 +182,44 @@ def test_wall_iou_and_laplacian():
         wall_iou(a.astype(int), b)
     with pytest.raises(ValueError, match="one shape"):
         wall_iou(a, b[:2])
+
+
+def test_laplacian_filter_on_the_nonzero_box_equals_filtering_the_whole_grid():
+    rng = np.random.default_rng(4)
+    for _ in range(60):
+        height, width = rng.integers(5, 50, size=2)
+        bp = np.zeros((height, width))
+        r0, c0 = rng.integers(0, height), rng.integers(0, width)
+        r1, c1 = rng.integers(r0, height) + 1, rng.integers(c0, width) + 1
+        bp[r0:r1, c0:c1] = rng.random((r1 - r0, c1 - c0)) * (rng.random((r1 - r0, c1 - c0)) < 0.5)
+        sigma = float(rng.choice([0.0, 0.5, 1.0, 2.0]))
+        whole = np.clip(-ndimage.laplace(ndimage.gaussian_filter(bp, sigma)), 0.0, None)
+        expected = (whole / whole.max() if whole.max() > 0 else whole).astype(np.float32)
+        np.testing.assert_array_equal(laplacian_filter(bp, sigma), expected)
+    assert not laplacian_filter(np.zeros((6, 7))).any()
+    with pytest.raises(ValueError, match="sigma_cells"):
+        laplacian_filter(np.zeros((6, 7)), -1.0)
+
+
+def test_wall_iou_tolerant():
+    pred = np.zeros((10, 10), bool)
+    truth = np.zeros((10, 10), bool)
+    assert wall_iou_tolerant(pred, truth, 1.0) == 1.0
+    truth[5, 2:6] = True
+    pred[6, 2:6] = True  # the same wall drawn one row off
+    assert wall_iou(pred, truth) == 0.0
+    assert wall_iou_tolerant(pred, truth, 1.0) == 1.0
+    assert wall_iou_tolerant(pred, truth, 0.5) == 0.0
+    pred[9, 9] = True  # a false alarm far from every wall
+    assert wall_iou_tolerant(pred, truth, 1.0) == pytest.approx(4 / 5)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        a, b = rng.random((2, 12, 12)) < 0.2
+        assert wall_iou_tolerant(a, b, 0.0) == pytest.approx(wall_iou(a, b))
+    with pytest.raises(ValueError, match="tolerance_cells"):
+        wall_iou_tolerant(pred, truth, -1.0)
+    with pytest.raises(ValueError, match="one shape"):
+        wall_iou_tolerant(pred, truth[:3], 1.0)
 
 
 def test_bad_inputs():

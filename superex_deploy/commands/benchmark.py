@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from superex_deploy.explore.metrics import summarise
+    from superex_deploy.explore.metrics import results_markdown, summarise
     from superex_deploy.explore.planners import PLANNERS
     from superex_deploy.maps import list_maps, start_poses
     from superex_deploy.render import save_benchmark_plots
@@ -63,18 +63,12 @@ def run(args: argparse.Namespace) -> int:
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)
     (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table}))
-    lines = ["| planner | episodes | " + " | ".join(f"coverage@{s}" for s in checkpoints)
-             + " | path length (m) | final map IoU |",
-             "|---|---:|" + "---:|" * (len(checkpoints) + 2)]
-    for row in table:
-        cells = [f"{row[f'coverage@{s}'][0]:.3f} ± {row[f'coverage@{s}'][1]:.3f}" for s in checkpoints]
-        lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells)
-                     + f" | {row['path_length_m'][0]:.1f} ± {row['path_length_m'][1]:.1f}"
-                     + f" | {row['final_iou'][0]:.3f} ± {row['final_iou'][1]:.3f} |")
-    table_text = "\n".join(lines)
+    table_text = results_markdown(table)
     (args.out / "results.md").write_text(
         f"Predictor: {args.predictor}; {len(names)} maps, {len(tasks) // max(len(planners), 1)} scenarios, "
-        f"{args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios.\n\n{table_text}\n")
+        f"{args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios; coverage in percent of "
+        f"the valid area (carved: counting NLOS-carved cells), coverage_auc: mean coverage over the steps.\n\n"
+        f"{table_text}")
     save_benchmark_plots(args.out, results)
     print(table_text)
     print(f"wrote {args.out / 'results.md'}, results.json, coverage.png, iou_vs_coverage.png")

@@ -58,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     recorder = GifRecorder(every=args.gif_every)
     with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
-        def on_step(step, state):
-            recorder(step, state)
+        def on_step(state):
+            recorder(state)
             bar.update(1)
 
         result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step)

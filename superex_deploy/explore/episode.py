@@ -1,4 +1,21 @@
-"""One exploration episode: scan, map, pick a frontier goal, drive towards it, repeat."""
+"""One exploration episode: scan, update the map, find frontiers, keep or choose a goal, drive, repeat.
+
+Step ``t`` of an episode, with the robot at cell ``p_t``:
+
+1. **scan**: line-of-sight LiDAR from ``p_t`` into the :class:`~superex_deploy.explore.mapper.Mapper`;
+2. **map_update**: the optional NLOS hook adds carved free cells and an evidence channel; the observed map is
+   rebuilt;
+3. **frontiers**: frontier regions of the observed map;
+4. **path / scoring / prediction**: a locked goal is kept until it is within ``goal_reached_m`` or its path
+   is blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
+   chooses a new goal from the Dijkstra cost-to-go, calling the predictor lazily (once per step at most);
+5. the robot advances ``step_cells`` cells along the path; ``p_{t+1}`` is where it stops.
+
+The log at index ``t`` describes the scan taken at ``p_t``: the pose, the coverage after that scan, and the
+metres driven before it. The episode stops when the step budget is spent or when the planner finds no goal
+(no reachable frontier farther than ``goal_reached_m``); the last logged step is then the one that found
+nothing. Everything is deterministic for a seed; the seed feeds only the planner's random generator.
+"""
 
 from __future__ import annotations
 
@@ -10,19 +27,26 @@ import numpy as np
 
 from superex_deploy.explore.frontiers import find_frontiers
 from superex_deploy.explore.mapper import LidarConfig, Mapper
-from superex_deploy.explore.metrics import map_iou
-from superex_deploy.explore.motion import MotionConfig, planning_map
-from superex_deploy.explore.types import FREE, OCCUPIED, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.explore.metrics import evaluation_area, map_iou
+from superex_deploy.explore.motion import MotionConfig, PlanningMap, advance, path_is_clear, planning_map
+from superex_deploy.explore.types import Frontier, MapPredictor, Planner, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 
-__all__ = ["ExplorationConfig", "EpisodeResult", "NlosHook", "run_episode", "STAGES"]
+__all__ = ["STAGES", "NlosHook", "ExplorationConfig", "EpisodeState", "EpisodeResult", "run_episode"]
 
 STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
+"""The stages of a step whose wall-clock time is logged (seconds per step). Metric evaluation (map IoU) is
+logged apart, as ``evaluation_s``: it is not part of the robot's loop."""
 
 
 class NlosHook(Protocol):
-    """Optional NLOS sensing in the loop: returns carved free cells (bool ``[H, W]``) and an evidence channel
-    (float32 ``[H, W]`` in the map frame, or None) for the predictor."""
+    """Optional NLOS sensing inside the loop (the SPAD simulation and processing plug in here).
+
+    Called once per step after the line-of-sight scan with the ground truth, the robot cell and the current
+    observed map (int8 ``[H, W]``, line of sight plus earlier carving). Returns ``(carved, evidence)``:
+    ``carved`` bool ``[H, W]`` cells proven free by this step's NLOS processing; ``evidence`` float32
+    ``[H, W]`` map-frame evidence handed to the predictor as its ``extra`` input, or None.
+    """
 
     def __call__(self, grid: OccupancyGrid, pose_rc: tuple[int, int], observed: np.ndarray
                  ) -> tuple[np.ndarray, Optional[np.ndarray]]: ...
@@ -33,10 +57,10 @@ class ExplorationConfig:
     """Episode parameters.
 
     Attributes:
-        lidar: line-of-sight LiDAR.
-        motion: robot motion and path planning.
-        frontier_min_cells: frontier regions smaller than this are ignored (MapEx: 10).
-        iou_every: evaluate the prediction's map IoU every this many steps (0: never).
+        lidar: the line-of-sight LiDAR.
+        motion: robot radius, proximity cost, step length, goal tolerance.
+        frontier_min_cells: frontier regions with fewer cells are ignored (MapEx: 10).
+        iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -44,20 +68,60 @@ class ExplorationConfig:
     frontier_min_cells: int = 10
     iou_every: int = 25
 
+    def __post_init__(self) -> None:
+        if int(self.frontier_min_cells) < 1:
+            raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
+        if int(self.iou_every) < 0:
+            raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
+
+
+@dataclass
+class EpisodeState:
+    """What ``on_step`` callbacks (progress bars, GIF frames) see after the planning of step ``step``.
+
+    Attributes:
+        step: step index.
+        pose: robot cell where this step's scan was taken.
+        mapper: the episode's mapper (read it, do not modify it).
+        observed: int8 ``[H, W]`` observed map after this step's scan.
+        frontiers: this step's frontier regions.
+        goal: the locked goal cell, or None.
+        path: cells from ``pose`` to ``goal`` that the robot follows (empty without a goal).
+        prediction: the prediction if one was computed this step, else None.
+        coverage: line-of-sight coverage after this step's scan.
+    """
+
+    step: int
+    pose: tuple[int, int]
+    mapper: Mapper
+    observed: np.ndarray
+    frontiers: tuple[Frontier, ...]
+    goal: Optional[tuple[int, int]]
+    path: list
+    prediction: Optional[Prediction]
+    coverage: float
+
 
 @dataclass
 class EpisodeResult:
-    """Per-step log of an episode.
+    """Log of an episode of ``T`` steps (``T`` <= the step budget).
 
     Attributes:
-        poses: int ``[T, 2]`` robot cell after each step.
-        coverage: float ``[T]`` known fraction of the valid area (line of sight only).
-        coverage_with_carving: float ``[T]`` the same with NLOS-carved cells.
-        path_length_m: float ``[T]`` distance driven so far.
-        timings_s: stage -> float ``[T]`` seconds spent per step (see :data:`STAGES`).
-        iou_steps / iou / iou_coverage: map IoU of the prediction at those steps and the coverage there.
-        goals: the goal cells chosen, in order.
-        finished: True when no reachable frontier was left before the step budget ran out.
+        map_name, planner, predictor, seed, start_rc: what ran.
+        poses: int64 ``[T, 2]`` robot cell at each step's scan.
+        coverage: float64 ``[T]`` known fraction of the valid area after each scan, line of sight only.
+        coverage_with_carving: float64 ``[T]`` the same counting NLOS-carved cells.
+        path_length_m: float64 ``[T]`` metres driven before each scan (0 at step 0).
+        timings_s: stage (see :data:`STAGES`) -> float64 ``[T]`` seconds spent in it per step.
+        evaluation_s: float64 ``[T]`` seconds spent on metric evaluation per step (not part of the loop).
+        iou_steps, iou, iou_coverage: steps where the map IoU was evaluated, its value, and the coverage (with
+            carving) there.
+        goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
+        finished: True when the planner found no goal before the budget ran out.
+        config: the :class:`ExplorationConfig` as a dict.
+        final_observed: int8 ``[H, W]`` observed map at the end.
+        final_carved: bool ``[H, W]`` carved cells at the end.
+        final_prediction: the last prediction computed (for the final figure), or None.
     """
 
     map_name: str
@@ -70,91 +134,155 @@ class EpisodeResult:
     coverage_with_carving: np.ndarray
     path_length_m: np.ndarray
     timings_s: dict
+    evaluation_s: np.ndarray
     iou_steps: list
     iou: list
     iou_coverage: list
+    goal_steps: list
     goals: list
     finished: bool
     config: dict
     final_observed: np.ndarray
+    final_carved: np.ndarray
     final_prediction: Optional[Prediction]
 
+    @property
+    def steps(self) -> int:
+        """Number of logged steps ``T``."""
+        return int(len(self.coverage))
+
     def to_json(self) -> dict:
-        """JSON-ready summary with the per-step series."""
+        """JSON-ready dict: the per-step series, IoU log, goals, mean stage times and the config."""
+        timings = {stage: np.round(values, 6).tolist() for stage, values in self.timings_s.items()}
         return {
             "map": self.map_name, "planner": self.planner, "predictor": self.predictor, "seed": self.seed,
-            "start_rc": list(self.start_rc), "steps": int(len(self.coverage)), "finished": self.finished,
-            "coverage": self.coverage.round(6).tolist(),
-            "coverage_with_carving": self.coverage_with_carving.round(6).tolist(),
-            "path_length_m": self.path_length_m.round(4).tolist(),
-            "poses": self.poses.tolist(), "goals": [list(g) for g in self.goals],
-            "iou": {"steps": self.iou_steps, "iou": self.iou, "coverage": self.iou_coverage},
-            "timings_s": {k: np.round(v, 6).tolist() for k, v in self.timings_s.items()},
-            "mean_step_s": {k: float(np.mean(v)) if len(v) else 0.0 for k, v in self.timings_s.items()},
+            "start_rc": list(self.start_rc), "steps": self.steps, "finished": self.finished,
+            "final_coverage": float(self.coverage[-1]) if self.steps else 0.0,
+            "final_coverage_with_carving": float(self.coverage_with_carving[-1]) if self.steps else 0.0,
+            "coverage": np.round(self.coverage, 6).tolist(),
+            "coverage_with_carving": np.round(self.coverage_with_carving, 6).tolist(),
+            "path_length_m": np.round(self.path_length_m, 4).tolist(),
+            "poses": self.poses.tolist(),
+            "goals": {"steps": list(self.goal_steps), "cells": [list(goal) for goal in self.goals]},
+            "iou": {"steps": list(self.iou_steps), "iou": list(self.iou), "coverage": list(self.iou_coverage)},
+            "timings_s": timings,
+            "evaluation_s": np.round(self.evaluation_s, 6).tolist(),
+            "mean_step_s": {stage: float(np.mean(values)) if len(values) else 0.0
+                            for stage, values in self.timings_s.items()},
             "config": self.config,
         }
 
 
-def _path_clear(observed: np.ndarray, path: list, radius_cells: float) -> bool:
-    """True while every remaining path cell is known free with no observed wall within the robot radius."""
-    cells = np.asarray(path, np.int64)
-    if np.any(observed[cells[:, 0], cells[:, 1]] != FREE):
-        return False
-    reach = int(np.floor(radius_cells))
-    for dr in range(-reach, reach + 1):
-        for dc in range(-reach, reach + 1):
-            if dr * dr + dc * dc > radius_cells * radius_cells:
-                continue
-            rows = np.clip(cells[:, 0] + dr, 0, observed.shape[0] - 1)
-            cols = np.clip(cells[:, 1] + dc, 0, observed.shape[1] - 1)
-            if np.any(observed[rows, cols] == OCCUPIED):
-                return False
-    return True
+class _LazyPrediction:
+    """The predictor's output for one observed map: computed on the first call, then cached. The time is
+    charged to the ``prediction`` stage when the planner asks, to evaluation otherwise."""
+
+    def __init__(self, predictor: MapPredictor, observed: np.ndarray, evidence: Optional[np.ndarray]):
+        self._predictor, self._observed, self._evidence = predictor, observed, evidence
+        self.value: Optional[Prediction] = None
+        self.seconds = 0.0
+
+    def __call__(self) -> Prediction:
+        if self.value is None:
+            started = time.perf_counter()
+            self.value = self._predictor.predict(self._observed, self._evidence)
+            self.seconds = time.perf_counter() - started
+        return self.value
+
+
+def _check_inputs(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, steps: int,
+                  cfg: ExplorationConfig, nlos) -> tuple[tuple[int, int], int]:
+    if not isinstance(grid, OccupancyGrid):
+        raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+    start = grid.check_pose(start_rc)
+    if isinstance(steps, bool) or int(steps) != steps or int(steps) < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    if not isinstance(planner, Planner):
+        raise ValueError(f"planner must be a Planner instance (see planners.make_planner), got "
+                         f"{type(planner).__name__}")
+    if not callable(getattr(predictor, "predict", None)):
+        raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
+    if not isinstance(cfg, ExplorationConfig):
+        raise ValueError(f"cfg must be an ExplorationConfig, got {type(cfg).__name__}")
+    if nlos is not None and not callable(nlos):
+        raise ValueError(f"nlos must be callable (see NlosHook), got {type(nlos).__name__}")
+    return start, int(steps)
+
+
+def _check_nlos_output(output, shape: tuple[int, int]) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    try:
+        carved, evidence = output
+    except (TypeError, ValueError):
+        raise ValueError("the NLOS hook must return a (carved, evidence) pair") from None
+    carved = np.asarray(carved)
+    if carved.dtype != np.bool_ or carved.shape != shape:
+        raise ValueError(f"the NLOS hook's carved mask must be bool {shape}, got {carved.dtype} {carved.shape}")
+    if evidence is not None:
+        evidence = np.asarray(evidence)
+        if evidence.shape != shape or not np.issubdtype(evidence.dtype, np.floating):
+            raise ValueError(f"the NLOS hook's evidence must be a float {shape} array or None, got "
+                             f"{evidence.dtype} {evidence.shape}")
+    return carved, evidence
 
 
 def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, steps: int = 1000,
                 seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), nlos: Optional[NlosHook] = None,
-                on_step: Optional[Callable[[int, "EpisodeState"], None]] = None) -> EpisodeResult:
-    """Explore ``grid`` from ``start_rc`` for up to ``steps`` steps.
+                on_step: Optional[Callable[[EpisodeState], None]] = None) -> EpisodeResult:
+    """Explore ``grid`` from ``start_rc`` for up to ``steps`` steps (see the module docstring).
 
-    Each step: scan (line of sight, plus ``nlos`` if given), update the map, find frontiers, keep or choose a
-    goal (a goal stays until it is within ``goal_reached_m`` or no longer reachable), and advance
-    ``motion.step_cells`` cells along the path. Deterministic for a seed.
+    Args:
+        grid: the ground-truth map.
+        start_rc: start cell (row, col): inside the map, not a wall.
+        planner: a :class:`~superex_deploy.explore.types.Planner` instance (``planners.make_planner(name)``).
+        predictor: a :class:`~superex_deploy.explore.types.MapPredictor`.
+        steps: step budget (>= 1).
+        seed: seed of the generator handed to the planner.
+        cfg: episode parameters.
+        nlos: optional :class:`NlosHook`.
+        on_step: optional callback, called once per step with the :class:`EpisodeState`.
+
+    Returns:
+        The :class:`EpisodeResult`.
 
     Raises:
-        ValueError: start off the map or in a wall, non-positive steps, a planner or predictor of the wrong kind.
+        ValueError: a start off the map or inside a wall, a non-positive step budget, a planner that is not a
+            Planner, a predictor without ``predict``, a malformed NLOS result.
+        RuntimeError: the planner returned a goal that no path reaches (a planner bug).
     """
-    start = grid.check_pose(start_rc)
-    if int(steps) < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    if not isinstance(planner, Planner):
-        raise ValueError(f"planner must be a Planner, got {type(planner).__name__}")
-    if not hasattr(predictor, "predict"):
-        raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
-    rng = np.random.default_rng(seed)
+    start, steps = _check_inputs(grid, start_rc, planner, predictor, steps, cfg, nlos)
     res = grid.resolution_m
+    motion = cfg.motion
+    reach_cells = motion.goal_reached_m / res
+    radius_cells = motion.robot_radius_m / res
+    rng = np.random.default_rng(seed)
     mapper = Mapper(grid.shape, cfg.lidar)
-    state = EpisodeState(pose=start, mapper=mapper)
+    iou_area = evaluation_area(grid) if cfg.iou_every else None
+
     timings = {stage: np.zeros(steps) for stage in STAGES}
-    coverage, coverage_carved, path_length = np.zeros(steps), np.zeros(steps), np.zeros(steps)
+    evaluation_s = np.zeros(steps)
     poses = np.zeros((steps, 2), np.int64)
-    iou_steps, iou_values, iou_coverage, goals = [], [], [], []
-    evidence: Optional[np.ndarray] = None
-    driven = 0.0
+    coverage, coverage_carved, path_length = np.zeros(steps), np.zeros(steps), np.zeros(steps)
+    iou_steps: list[int] = []
+    iou_values: list[float] = []
+    iou_coverage: list[float] = []
+    goal_steps: list[int] = []
+    goals: list[tuple[int, int]] = []
+    pose, driven = start, 0.0
     goal: Optional[tuple[int, int]] = None
-    path: list = []
+    path: list[tuple[int, int]] = []
+    evidence: Optional[np.ndarray] = None
+    last_prediction: Optional[Prediction] = None
     finished = False
-    reach_cells = cfg.motion.goal_reached_m / res
-    prediction: Optional[Prediction] = None
-    taken = steps
+    logged = steps
+
     for t in range(steps):
         clock = time.perf_counter()
-        mapper.integrate_scan(grid.occupied, state.pose, res)
+        mapper.integrate_scan(grid.occupied, pose, res)
         timings["scan"][t] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         if nlos is not None:
-            carved, evidence = nlos(grid, state.pose, mapper.observed())
+            carved, evidence = _check_nlos_output(nlos(grid, pose, mapper.observed()), grid.shape)
             mapper.merge_carved(carved)
         observed = mapper.observed()
         timings["map_update"][t] = time.perf_counter() - clock
@@ -163,77 +291,77 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
         frontiers = find_frontiers(observed, cfg.frontier_min_cells)
         timings["frontiers"][t] = time.perf_counter() - clock
 
-        step_prediction: list = []
-
-        def predict() -> Prediction:
-            if not step_prediction:
-                started = time.perf_counter()
-                step_prediction.append(predictor.predict(observed, evidence))
-                timings["prediction"][t] += time.perf_counter() - started
-            return step_prediction[0]
-
-        clock = time.perf_counter()
-        needs_goal = (goal is None or np.hypot(goal[0] - state.pose[0], goal[1] - state.pose[1]) <= reach_cells
-                      or not path)
-        plan = None
-        if not needs_goal and not _path_clear(observed, path[1:], cfg.motion.robot_radius_m / res):
-            plan = planning_map(observed, state.pose, res, cfg.motion)
-            path = plan.path_to(goal)
-            needs_goal = not path
-        timings["path"][t] = time.perf_counter() - clock
-        if needs_goal:
-            clock = time.perf_counter()
-            plan = plan or planning_map(observed, state.pose, res, cfg.motion)
-            timings["path"][t] += time.perf_counter() - clock
-            ctx = PlanningContext(observed=observed, pose_rc=state.pose, frontiers=frontiers,
-                                  travel_cost=plan.travel_cost, traversable=plan.traversable, resolution_m=res,
-                                  predict=predict, rng=rng)
-            clock = time.perf_counter()
-            goal = planner.choose_goal(ctx)
-            timings["scoring"][t] = time.perf_counter() - clock - timings["prediction"][t]
-            if goal is None:
-                finished = True
-                taken = t
-                break
-            goals.append(goal)
-            clock = time.perf_counter()
-            path = plan.path_to(goal)
-            timings["path"][t] += time.perf_counter() - clock
-            if not path:
-                goal = None
-        if path:
-            # path[0] is the robot's cell; advance step_cells along it.
-            advance = min(cfg.motion.step_cells, len(path) - 1)
-            for a, b in zip(path[:advance], path[1:advance + 1]):
-                driven += float(np.hypot(b[0] - a[0], b[1] - a[1])) * res
-            state.pose = path[advance]
-            path = path[advance:]
-        poses[t] = state.pose
+        poses[t] = pose
         coverage[t] = mapper.coverage(grid.valid, include_carved=False)
         coverage_carved[t] = mapper.coverage(grid.valid, include_carved=True)
         path_length[t] = driven
-        if cfg.iou_every and (t % cfg.iou_every == 0 or t == steps - 1):
-            prediction = predict()
+        prediction = _LazyPrediction(predictor, observed, evidence)
+
+        clock = time.perf_counter()
+        plan: Optional[PlanningMap] = None
+        if not frontiers:
+            goal, path, finished = None, [], True
+        if goal is not None and np.hypot(goal[0] - pose[0], goal[1] - pose[1]) <= reach_cells:
+            goal, path = None, []
+        if goal is not None and not path_is_clear(observed, path[1:], radius_cells):
+            plan = planning_map(observed, pose, res, motion)
+            path = plan.path_to(goal)
+            if not path:
+                goal = None
+        timings["path"][t] = time.perf_counter() - clock
+
+        if goal is None and not finished:
+            clock = time.perf_counter()
+            plan = plan or planning_map(observed, pose, res, motion)
+            timings["path"][t] += time.perf_counter() - clock
+            # MapEx's validity rule: a frontier within the goal tolerance counts as reached already; offering it
+            # would lock the robot onto a goal it can never leave.
+            candidates = tuple(f for f in frontiers
+                               if np.hypot(f.cell_rc[0] - pose[0], f.cell_rc[1] - pose[1]) > reach_cells)
+            ctx = PlanningContext(observed=observed, pose_rc=pose, frontiers=candidates,
+                                  travel_cost=plan.travel_cost, traversable=plan.traversable, resolution_m=res,
+                                  predict=prediction, rng=rng)
+            clock = time.perf_counter()
+            chosen = planner.choose_goal(ctx)
+            timings["scoring"][t] = time.perf_counter() - clock - prediction.seconds
+            timings["prediction"][t] = prediction.seconds
+            if chosen is not None:
+                clock = time.perf_counter()
+                goal = (int(chosen[0]), int(chosen[1]))
+                path = plan.path_to(goal)
+                timings["path"][t] += time.perf_counter() - clock
+                if not path:
+                    raise RuntimeError(f"planner {planner.name!r} chose goal {goal}, which no path reaches from "
+                                       f"{pose}; a planner must return a cell of finite travel cost")
+                goal_steps.append(t)
+                goals.append(goal)
+            else:
+                finished = True
+
+        if cfg.iou_every and (t % cfg.iou_every == 0 or t == steps - 1 or finished):
+            clock = time.perf_counter()
+            evaluated = prediction()
             iou_steps.append(t)
-            iou_values.append(map_iou(prediction.mean, grid))
-            iou_coverage.append(coverage_carved[t])
+            iou_values.append(map_iou(evaluated.mean, grid, area=iou_area))
+            iou_coverage.append(float(coverage_carved[t]))
+            evaluation_s[t] = time.perf_counter() - clock
+        if prediction.value is not None:
+            last_prediction = prediction.value
         if on_step is not None:
-            on_step(t, state)
+            on_step(EpisodeState(step=t, pose=pose, mapper=mapper, observed=observed, frontiers=frontiers,
+                                 goal=goal, path=path, prediction=prediction.value, coverage=float(coverage[t])))
+        if finished:
+            logged = t + 1
+            break
+        pose, path, metres = advance(path, motion.step_cells, res)
+        driven += metres
+
     final_observed = mapper.observed()
-    if prediction is None and cfg.iou_every:
-        prediction = predictor.predict(final_observed, evidence)
     return EpisodeResult(
         map_name=grid.name, planner=planner.name, predictor=getattr(predictor, "name", type(predictor).__name__),
-        seed=seed, start_rc=start, poses=poses[:taken], coverage=coverage[:taken],
-        coverage_with_carving=coverage_carved[:taken], path_length_m=path_length[:taken],
-        timings_s={k: v[:taken] for k, v in timings.items()}, iou_steps=iou_steps, iou=iou_values,
-        iou_coverage=iou_coverage, goals=goals, finished=finished, config=asdict(cfg),
-        final_observed=final_observed, final_prediction=prediction)
-
-
-@dataclass
-class EpisodeState:
-    """Mutable state visible to ``on_step`` callbacks (progress bars, GIF frames)."""
-
-    pose: tuple[int, int]
-    mapper: Mapper
+        seed=int(seed), start_rc=start, poses=poses[:logged], coverage=coverage[:logged],
+        coverage_with_carving=coverage_carved[:logged], path_length_m=path_length[:logged],
+        timings_s={stage: values[:logged] for stage, values in timings.items()},
+        evaluation_s=evaluation_s[:logged], iou_steps=iou_steps, iou=iou_values, iou_coverage=iou_coverage,
+        goal_steps=goal_steps, goals=goals, finished=finished, config=asdict(cfg),
+        final_observed=final_observed, final_carved=mapper.carved.copy(), final_prediction=last_prediction)

@@ -1,52 +1,142 @@
-"""Exploration metrics: coverage and map IoU, and the benchmark's results table."""
+"""Exploration metrics (coverage, map IoU) and the benchmark's aggregation into a results table.
+
+Coverage is measured on the map's valid mask (the area inside the building, see
+``superex_deploy/data/kth/README.md``). The valid mask never contains walls, so the map IoU is measured on the
+valid area grown by :data:`IOU_MARGIN_CELLS` cells, which takes in the walls that bound it (about 90 % of the
+wall cells of the eval maps; the rest are the inner cells of thick walls and walls outside the building).
+"""
 
 from __future__ import annotations
+
+from typing import Sequence
 
 import numpy as np
 from scipy import ndimage
 
 from superex_deploy.maps import OccupancyGrid
 
-__all__ = ["map_iou", "evaluation_area", "summarise"]
+__all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
+           "results_markdown", "iou_by_coverage"]
+
+IOU_MARGIN_CELLS = 2
+
+
+def coverage(known: np.ndarray, valid: np.ndarray) -> float:
+    """Fraction of the valid area that is known.
+
+    Args:
+        known: bool ``[H, W]`` cells known (seen free, seen wall or carved).
+        valid: bool ``[H, W]`` the area coverage is measured on.
+
+    Returns:
+        ``|known & valid| / |valid|`` in [0, 1]; 1.0 for an empty valid area.
+    """
+    known, valid = np.asarray(known), np.asarray(valid)
+    if known.shape != valid.shape:
+        raise ValueError(f"known has shape {known.shape}, valid has {valid.shape}")
+    total = np.count_nonzero(valid)
+    return np.count_nonzero(known & valid) / total if total else 1.0
 
 
 def evaluation_area(grid: OccupancyGrid) -> np.ndarray:
-    """bool ``[H, W]``: the valid area grown by two cells, so the walls bounding it are scored too."""
-    return ndimage.binary_dilation(grid.valid, iterations=2)
+    """bool ``[H, W]``: the valid area grown by :data:`IOU_MARGIN_CELLS` cells (8-connected), so the walls that
+    bound it are scored too."""
+    return ndimage.binary_dilation(grid.valid, structure=np.ones((3, 3), bool), iterations=IOU_MARGIN_CELLS)
 
 
-def map_iou(mean: np.ndarray, grid: OccupancyGrid, threshold: float = 0.5) -> float:
-    """Occupied-class IoU of a predicted map (``mean >= threshold`` is a wall) against the ground-truth walls,
-    within :func:`evaluation_area`."""
+def map_iou(mean: np.ndarray, grid: OccupancyGrid, threshold: float = 0.5,
+            area: np.ndarray | None = None) -> float:
+    """Occupied-class IoU of a predicted map against the ground-truth walls.
+
+    Args:
+        mean: float ``[H, W]`` predicted wall probability; ``mean >= threshold`` counts as a wall.
+        grid: the ground truth.
+        threshold: probability from which a cell is predicted to be a wall.
+        area: bool ``[H, W]`` where to score; default :func:`evaluation_area` (pass it in to avoid recomputing).
+
+    Returns:
+        ``|pred & truth| / |pred | truth|`` within the area, in [0, 1]; 1.0 when both are empty.
+    """
     mean = np.asarray(mean)
     if mean.shape != grid.shape:
         raise ValueError(f"prediction has shape {mean.shape}, the map has {grid.shape}")
-    area = evaluation_area(grid)
+    area = evaluation_area(grid) if area is None else area
     predicted = (mean >= threshold) & area
     truth = grid.occupied & area
     union = np.count_nonzero(predicted | truth)
     return np.count_nonzero(predicted & truth) / union if union else 1.0
 
 
-def _mean_std(values: list) -> tuple[float, float]:
+def coverage_at(series: Sequence[float], step: int) -> float:
+    """Coverage after ``step`` steps (1-based) of a per-step series; an episode that ended earlier (nothing left
+    to explore) keeps its last value. ``nan`` for an empty series."""
+    if len(series) == 0:
+        return float("nan")
+    return float(series[min(int(step), len(series)) - 1])
+
+
+def _mean_std(values: list[float]) -> tuple[float, float]:
+    values = [v for v in values if np.isfinite(v)]
     return (float(np.mean(values)), float(np.std(values))) if values else (float("nan"), float("nan"))
 
 
-def summarise(results: list[dict], checkpoints=(250, 500, 1000)) -> list[dict]:
-    """Per-planner mean and standard deviation of coverage at step checkpoints (an episode that finished early
-    keeps its final coverage), final path length and final IoU, from :meth:`EpisodeResult.to_json` dicts."""
+def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000)) -> list[dict]:
+    """Per-planner results table from :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts.
+
+    Each row holds ``planner``, ``episodes`` and ``(mean, std)`` pairs over episodes of: line-of-sight coverage
+    ``coverage@N`` and carving-inclusive ``coverage_carved@N`` at each checkpoint, the area under the coverage
+    curve per step ``coverage_auc``, the final ``path_length_m`` and the ``final_iou``. Rows are sorted by
+    planner name.
+    """
     by_planner: dict[str, list[dict]] = {}
     for result in results:
         by_planner.setdefault(result["planner"], []).append(result)
     rows = []
     for planner, runs in sorted(by_planner.items()):
-        row = {"planner": planner, "episodes": len(runs)}
+        row: dict = {"planner": planner, "episodes": len(runs)}
         for step in checkpoints:
-            values = [r["coverage"][min(step, len(r["coverage"])) - 1] for r in runs if r["coverage"]]
-            row[f"coverage@{step}"] = _mean_std(values)
-        lengths = [r["path_length_m"][-1] for r in runs if r["path_length_m"]]
-        row["path_length_m"] = _mean_std(lengths)
-        ious = [r["iou"]["iou"][-1] for r in runs if r["iou"]["iou"]]
-        row["final_iou"] = _mean_std(ious)
+            row[f"coverage@{step}"] = _mean_std([coverage_at(r["coverage"], step) for r in runs])
+        for step in checkpoints:
+            row[f"coverage_carved@{step}"] = _mean_std(
+                [coverage_at(r["coverage_with_carving"], step) for r in runs])
+        horizon = max(checkpoints) if checkpoints else 1
+        row["coverage_auc"] = _mean_std(
+            [float(np.mean([coverage_at(r["coverage"], s) for s in range(1, horizon + 1)])) for r in runs
+             if r["coverage"]])
+        row["path_length_m"] = _mean_std([r["path_length_m"][-1] for r in runs if r["path_length_m"]])
+        row["final_iou"] = _mean_std([r["iou"]["iou"][-1] for r in runs if r["iou"]["iou"]])
         rows.append(row)
     return rows
+
+
+def results_markdown(rows: list[dict]) -> str:
+    """A markdown table of :func:`summarise` rows, ``mean ± std`` per cell (coverage in percent)."""
+    if not rows:
+        return "(no results)\n"
+    columns = [key for key in rows[0] if key not in ("planner", "episodes")]
+    header = "| planner | episodes | " + " | ".join(columns) + " |"
+    lines = [header, "|" + "---|" * (len(columns) + 2)]
+    for row in rows:
+        cells = []
+        for key in columns:
+            mean, std = row[key]
+            scale = 100.0 if key.startswith("coverage") else 1.0
+            digits = 1 if key.startswith("coverage") or key == "path_length_m" else 3
+            cells.append(f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}")
+        lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def iou_by_coverage(results: list[dict], bin_edges: Sequence[float] = tuple(np.linspace(0.0, 1.0, 11))
+                    ) -> dict[str, list[float]]:
+    """Mean map IoU per coverage bin for each planner (``nan`` for empty bins), from the IoU log of
+    :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts (coverage with carving)."""
+    edges = np.asarray(bin_edges, float)
+    out: dict[str, list[float]] = {}
+    for planner in sorted({r["planner"] for r in results}):
+        cov = np.concatenate([np.asarray(r["iou"]["coverage"], float) for r in results if r["planner"] == planner])
+        iou = np.concatenate([np.asarray(r["iou"]["iou"], float) for r in results if r["planner"] == planner])
+        bins = np.clip(np.digitize(cov, edges) - 1, 0, len(edges) - 2)
+        out[planner] = [float(iou[bins == b].mean()) if np.any(bins == b) else float("nan")
+                        for b in range(len(edges) - 1)]
+    return out

@@ -1,99 +1,358 @@
 """Motion planning on the observed map: inflated walls, a wall-proximity cost, cost-to-go and paths.
 
-One Dijkstra pass (scikit-image's ``MCP_Geometric``, 8-connected, geometric step lengths) gives both the
-cost-to-go to every cell, which the planners need to rank frontiers, and the path to the chosen goal by
-traceback; a separate A* search would repeat that work.
+Planning map (after MapEx's ``inflate_map`` with ``use_distance_transform_for_planning``):
+
+* A cell is traversable when it is known FREE (observed or carved) and farther than the robot radius from
+  every observed wall. The default radius, 0.15 m, blocks exactly the cells 8-adjacent to a wall, i.e. MapEx's
+  dilation of the walls by a 3 x 3 square (``dilate_diam_for_planning: 3``).
+* UNKNOWN cells are never traversable (MapEx's ``unknown_as_occ``), but only observed walls are inflated:
+  frontier cells border the unknown by definition and must stay reachable.
+* The robot's own cell is always traversable, even when a wall seen later puts it inside the inflation: the
+  robot is physically there, and a planner that could not leave it would stall the episode.
+* Moving into a cell costs ``1 + w * max(0, 1 - d / range)`` per cell length, with ``d`` the distance to the
+  nearest observed wall. With ``w = 10`` and ``range = 1 m`` this is MapEx's ``clip(10 - dt, 1, 10)``
+  (``dt`` its distance to the inflated walls in cells): cost 9 on the first traversable cells, 1 from 1 m
+  on. MapEx also counts unknown cells as obstacles in that distance; we do not, since the unknown is not a
+  collision risk and frontiers (which all border it) would all pay the same penalty.
+
+One Dijkstra pass from the robot (8-connected; a step between cells ``a`` and ``b`` costs
+``(cost[a] + cost[b]) / 2`` times its length, 1 or sqrt 2, scikit-image ``MCP_Geometric``'s convention) gives
+both the cost-to-go to every cell, which the planners need to rank all frontiers, and the path to the chosen goal
+through its predecessor links. A* would only add a second search for a path the Dijkstra tree already holds.
+The search runs over the bounding box of the known free cells plus a one-cell margin, which holds every observed
+wall (each is hit from a free cell). Two compiled kernels do the work: the distance to the nearest wall, stamped
+from each wall over a disc just wider than the cost range and the robot radius (exact there, ``inf`` beyond,
+where neither rule depends on it), and an indexed-binary-heap Dijkstra over a grid padded with an impassable
+border. On the largest eval map late in an episode (437 x 915 window, 200 k reachable cells) a whole
+:func:`planning_map` takes about 50 ms, against about 200 ms with ``scipy.ndimage.distance_transform_edt`` and
+``MCP_Geometric``; it runs only when a new goal is chosen or the locked path is blocked.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from scipy import ndimage
-from skimage.graph import MCP_Geometric
 
 from superex_deploy.explore.types import FREE, OCCUPIED
 
-__all__ = ["MotionConfig", "PlanningMap", "planning_map"]
+__all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear",
+           "advance"]
 
 
 @dataclass(frozen=True)
 class MotionConfig:
-    """Robot motion.
+    """Robot motion and path planning.
 
     Attributes:
-        robot_radius_m: walls are inflated by this (MapEx dilates by a 3-cell diameter: 0.15 m).
-        wall_cost_weight: extra cost per cell next to a wall, falling linearly to zero at ``wall_cost_range_m``
-            (the Hector-style danger ramp MapEx uses for planning).
-        wall_cost_range_m: reach of the wall-proximity cost.
-        step_cells: cells advanced along the path per step (0.3 m).
-        goal_reached_m: a goal counts as reached within this distance.
+        robot_radius_m: walls are inflated by this (metres); the default reproduces MapEx's 3 x 3 dilation.
+        wall_cost_weight: extra cost per cell right at a wall, falling linearly to zero at
+            ``wall_cost_range_m`` (0 disables the proximity cost).
+        wall_cost_range_m: reach of the wall-proximity cost (metres, > 0).
+        step_cells: path cells advanced per step (3 cells = 0.3 m, MapEx's ``ind_to_move_per_step``).
+        goal_reached_m: a goal counts as reached within this straight-line distance (MapEx: 1 m); frontiers
+            this close to the robot are not offered to the planner either.
     """
 
     robot_radius_m: float = 0.15
-    wall_cost_weight: float = 5.0
+    wall_cost_weight: float = 10.0
     wall_cost_range_m: float = 1.0
     step_cells: int = 3
     goal_reached_m: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.robot_radius_m < 0 or self.wall_cost_weight < 0 or self.wall_cost_range_m <= 0:
-            raise ValueError("MotionConfig: radius and weight must be >= 0, the cost range > 0")
-        if self.step_cells < 1 or self.goal_reached_m < 0:
-            raise ValueError("MotionConfig: step_cells must be >= 1 and goal_reached_m >= 0")
+        if not (self.robot_radius_m >= 0 and self.wall_cost_weight >= 0 and self.wall_cost_range_m > 0):
+            raise ValueError(f"MotionConfig: robot_radius_m and wall_cost_weight must be >= 0 and "
+                             f"wall_cost_range_m > 0, got {self.robot_radius_m}, {self.wall_cost_weight}, "
+                             f"{self.wall_cost_range_m}")
+        if int(self.step_cells) < 1 or not self.goal_reached_m >= 0:
+            raise ValueError(f"MotionConfig: step_cells must be >= 1 and goal_reached_m >= 0, got "
+                             f"{self.step_cells}, {self.goal_reached_m}")
+
+
+@numba.njit(cache=True)
+def _wall_distance(walls, reach_cells, distance):
+    """Euclidean distance (cells, centre to centre) from every cell to the nearest wall cell, where it is at
+    most ``reach_cells``; ``distance`` (float64, same shape as ``walls``) must be preset to ``inf`` and keeps it
+    elsewhere."""
+    n_rows, n_cols = walls.shape
+    reach = int(np.floor(reach_cells))
+    reach_sq = reach_cells * reach_cells
+    for r in range(n_rows):
+        for c in range(n_cols):
+            if not walls[r, c]:
+                continue
+            for dr in range(-reach, reach + 1):
+                rr = r + dr
+                if rr < 0 or rr >= n_rows:
+                    continue
+                for dc in range(-reach, reach + 1):
+                    cc = c + dc
+                    d_sq = dr * dr + dc * dc
+                    if cc < 0 or cc >= n_cols or d_sq > reach_sq:
+                        continue
+                    d = np.sqrt(d_sq)
+                    if d < distance[rr, cc]:
+                        distance[rr, cc] = d
+
+
+@numba.njit(cache=True)
+def _dijkstra(costs, source, width, distance, parent):
+    """Single-source Dijkstra on a flattened grid padded with a one-cell border of ``inf`` cost.
+
+    ``costs``: float64 ``[n]`` move cost per cell (``inf``: impassable); ``source``: flat index of the start;
+    ``width``: padded row length; ``distance`` (preset to ``inf``) and ``parent`` (preset to -1) are filled in
+    place with the cost-to-go and the flat index of each reached cell's predecessor. Indexed binary heap with
+    decrease-key: at most one heap entry per cell.
+    """
+    n = costs.shape[0]
+    heap_key = np.empty(n, np.float64)
+    heap_cell = np.empty(n, np.int64)
+    position = np.full(n, -1, np.int64)  # heap slot; -1 never queued, -2 settled
+    diagonal = np.sqrt(2.0)
+    offsets = np.array([-width - 1, -width, -width + 1, -1, 1, width - 1, width, width + 1], np.int64)
+    lengths = np.array([diagonal, 1.0, diagonal, 1.0, 1.0, diagonal, 1.0, diagonal])
+    distance[source] = 0.0
+    heap_key[0] = 0.0
+    heap_cell[0] = source
+    position[source] = 0
+    size = 1
+    while size > 0:
+        u = heap_cell[0]
+        du = heap_key[0]
+        position[u] = -2
+        size -= 1
+        if size > 0:  # sift the last entry down from the root
+            moved_cell = heap_cell[size]
+            moved_key = heap_key[size]
+            i = 0
+            while True:
+                child = 2 * i + 1
+                if child >= size:
+                    break
+                if child + 1 < size and heap_key[child + 1] < heap_key[child]:
+                    child += 1
+                if heap_key[child] >= moved_key:
+                    break
+                heap_key[i] = heap_key[child]
+                heap_cell[i] = heap_cell[child]
+                position[heap_cell[i]] = i
+                i = child
+            heap_key[i] = moved_key
+            heap_cell[i] = moved_cell
+            position[moved_cell] = i
+        cu = costs[u]
+        for k in range(8):
+            v = u + offsets[k]
+            cv = costs[v]
+            if cv == np.inf or position[v] == -2:
+                continue
+            candidate = du + 0.5 * (cu + cv) * lengths[k]
+            if candidate < distance[v]:
+                distance[v] = candidate
+                parent[v] = u
+                i = position[v]
+                if i == -1:
+                    i = size
+                    size += 1
+                while i > 0:  # sift up
+                    up = (i - 1) // 2
+                    if heap_key[up] <= candidate:
+                        break
+                    heap_key[i] = heap_key[up]
+                    heap_cell[i] = heap_cell[up]
+                    position[heap_cell[i]] = i
+                    i = up
+                heap_key[i] = candidate
+                heap_cell[i] = v
+                position[v] = i
+
+
+def wall_distance(walls: np.ndarray, reach_cells: float) -> np.ndarray:
+    """Distance from each cell to the nearest wall, up to a reach.
+
+    Args:
+        walls: bool ``[H, W]``.
+        reach_cells: largest distance computed (cells, >= 0).
+
+    Returns:
+        float64 ``[H, W]``: Euclidean centre-to-centre distance (cells) to the nearest wall cell where it is
+        ``<= reach_cells``, ``inf`` elsewhere (0 on walls).
+    """
+    walls = np.ascontiguousarray(walls)
+    if walls.dtype != np.bool_ or walls.ndim != 2:
+        raise ValueError(f"walls must be a bool [H, W] array, got {walls.dtype} {walls.shape}")
+    if not (float(reach_cells) >= 0.0 and np.isfinite(reach_cells)):
+        raise ValueError(f"reach_cells must be finite and >= 0, got {reach_cells}")
+    distance = np.full(walls.shape, np.inf)
+    _wall_distance(walls, float(reach_cells), distance)
+    return distance
+
+
+def dijkstra(costs: np.ndarray, source_rc) -> tuple[np.ndarray, np.ndarray]:
+    """Cost-to-go from one cell over an 8-connected grid (``MCP_Geometric``'s edge cost, see the module doc).
+
+    Args:
+        costs: float64 ``[H, W]`` move cost per cell, finite and > 0, or ``inf`` for impassable cells.
+        source_rc: start cell (row, col); its cost must be finite.
+
+    Returns:
+        ``(cost_to_go float64 [H, W], parent int64 [H, W])``: ``inf`` / -1 where unreachable; ``parent`` holds
+        the flat index ``row * W + col`` of each cell's predecessor on a least-cost path (-1 at the source).
+    """
+    costs = np.asarray(costs, dtype=np.float64)
+    if costs.ndim != 2 or min(costs.shape) < 1:
+        raise ValueError(f"costs must be a non-empty [H, W] array, got shape {costs.shape}")
+    if np.any(np.isnan(costs)) or np.any(costs <= 0.0):
+        raise ValueError("costs must be > 0 (inf for impassable cells), without NaN")
+    r, c = int(source_rc[0]), int(source_rc[1])
+    if not (0 <= r < costs.shape[0] and 0 <= c < costs.shape[1]):
+        raise ValueError(f"source {(r, c)} lies outside the grid of shape {costs.shape}")
+    if not np.isfinite(costs[r, c]):
+        raise ValueError(f"source {(r, c)} is impassable (infinite cost)")
+    n_rows, n_cols = costs.shape
+    width = n_cols + 2
+    padded = np.full((n_rows + 2, width), np.inf)
+    padded[1:-1, 1:-1] = costs
+    distance = np.full(padded.size, np.inf)
+    parent = np.full(padded.size, -1, np.int64)
+    _dijkstra(padded.ravel(), (r + 1) * width + c + 1, width, distance, parent)
+    cost_to_go = distance.reshape(padded.shape)[1:-1, 1:-1].copy()
+    parent = parent.reshape(padded.shape)[1:-1, 1:-1]
+    reached = parent >= 0
+    # Padded flat index -> unpadded flat index.
+    parent = np.where(reached, (parent // width - 1) * n_cols + parent % width - 1, -1)
+    return cost_to_go, parent
 
 
 @dataclass(frozen=True)
 class PlanningMap:
-    """Cost-to-go from the robot.
+    """Cost-to-go from the robot on the planning map.
 
     Attributes:
-        traversable: bool ``[H, W]``: known free and farther than the robot radius from every observed wall;
-            unknown cells are never traversable; the robot's own cell always is.
-        travel_cost: float64 ``[H, W]`` cost-to-go from the robot (cells times the proximity factor); ``inf``
-            where unreachable.
-        origin_rc: offset of the planning window (the bounding box of known free cells) in the full map.
+        traversable: bool ``[H, W]`` cells the robot may occupy (see the module docstring).
+        travel_cost: float64 ``[H, W]`` cost-to-go from the robot's cell (cell lengths weighted by the
+            proximity cost; 0 at the robot); ``inf`` where unreachable.
+        origin_rc: offset of the search window in the full map (row, col).
     """
 
     traversable: np.ndarray
     travel_cost: np.ndarray
     origin_rc: tuple[int, int]
-    _mcp: MCP_Geometric
+    _parent: np.ndarray  # int64 [h, w] of the window: flat window index of each cell's predecessor, -1 if none
 
-    def path_to(self, goal_rc: tuple[int, int]) -> list[tuple[int, int]]:
-        """Cells (row, col) from the robot to ``goal_rc``; empty if unreachable."""
-        if not np.isfinite(self.travel_cost[goal_rc]):
+    def path_to(self, goal_rc) -> list[tuple[int, int]]:
+        """Least-cost 8-connected path from the robot's cell to ``goal_rc``, both included; empty if the goal
+        is unreachable or off the map."""
+        r, c = int(goal_rc[0]), int(goal_rc[1])
+        shape = self.travel_cost.shape
+        if not (0 <= r < shape[0] and 0 <= c < shape[1]) or not np.isfinite(self.travel_cost[r, c]):
             return []
         r0, c0 = self.origin_rc
-        local = self._mcp.traceback((goal_rc[0] - r0, goal_rc[1] - c0))
-        return [(int(r + r0), int(c + c0)) for r, c in local]
+        n_cols = self._parent.shape[1]
+        cell = (r - r0) * n_cols + (c - c0)
+        path = []
+        while cell >= 0:
+            path.append((int(cell // n_cols + r0), int(cell % n_cols + c0)))
+            cell = int(self._parent.flat[cell])
+        return path[::-1]
 
 
-def planning_map(observed: np.ndarray, pose_rc: tuple[int, int], resolution_m: float,
+def _check_observed_and_pose(observed: np.ndarray, pose_rc) -> tuple[np.ndarray, tuple[int, int]]:
+    observed = np.asarray(observed)
+    if observed.dtype != np.int8 or observed.ndim != 2 or min(observed.shape) < 1:
+        raise ValueError(f"observed must be a non-empty int8 [H, W] array, got {observed.dtype} {observed.shape}")
+    r, c = int(pose_rc[0]), int(pose_rc[1])
+    if not (0 <= r < observed.shape[0] and 0 <= c < observed.shape[1]):
+        raise ValueError(f"robot cell {(r, c)} lies outside the map of shape {observed.shape}")
+    return observed, (r, c)
+
+
+def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
                  cfg: MotionConfig = MotionConfig()) -> PlanningMap:
-    """Build the planning map and run Dijkstra from ``pose_rc`` over the bounding box of known free cells."""
+    """Build the planning map and run Dijkstra from the robot's cell.
+
+    Args:
+        observed: int8 ``[H, W]`` observed map (UNKNOWN / FREE / OCCUPIED).
+        pose_rc: robot cell (row, col).
+        resolution_m: metres per cell.
+        cfg: robot radius, proximity cost.
+
+    Returns:
+        The :class:`PlanningMap` (full-map arrays; the search itself ran on the known bounding box).
+    """
+    observed, (pr, pc) = _check_observed_and_pose(observed, pose_rc)
+    if not (float(resolution_m) > 0.0 and np.isfinite(resolution_m)):
+        raise ValueError(f"resolution_m must be positive and finite, got {resolution_m}")
     free = observed == FREE
-    free[pose_rc] = True
-    rows, cols = np.nonzero(free)
-    r0, r1 = max(rows.min() - 1, 0), min(rows.max() + 2, observed.shape[0])
-    c0, c1 = max(cols.min() - 1, 0), min(cols.max() + 2, observed.shape[1])
-    window = observed[r0:r1, c0:c1]
-    # Unknown cells are not traversable, but only observed walls are inflated: frontier cells border the
-    # unknown by definition and must stay reachable.
-    passable = window == FREE
-    passable[pose_rc[0] - r0, pose_rc[1] - c0] = True
-    observed_walls = window == OCCUPIED
-    wall_distance_m = (ndimage.distance_transform_edt(~observed_walls) * resolution_m if observed_walls.any()
-                       else np.full(window.shape, np.inf))
-    traversable_local = passable & (wall_distance_m > cfg.robot_radius_m)
-    traversable_local[pose_rc[0] - r0, pose_rc[1] - c0] = True
-    proximity = np.clip((cfg.wall_cost_range_m - wall_distance_m) / cfg.wall_cost_range_m, 0.0, 1.0)
-    costs = np.where(traversable_local, 1.0 + cfg.wall_cost_weight * proximity, np.inf)
-    mcp = MCP_Geometric(costs)
-    local_cost, _ = mcp.find_costs([(pose_rc[0] - r0, pose_rc[1] - c0)])
+    free[pr, pc] = True
+    rows = np.flatnonzero(free.any(axis=1))
+    cols = np.flatnonzero(free.any(axis=0))
+    r0, r1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, observed.shape[0])
+    c0, c1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, observed.shape[1])
+    local_free = free[r0:r1, c0:c1]
+    local_walls = observed[r0:r1, c0:c1] == OCCUPIED
+    radius_cells = cfg.robot_radius_m / float(resolution_m)
+    range_cells = cfg.wall_cost_range_m / float(resolution_m)
+    # Exact up to a reach beyond both the radius and the cost range; farther cells are traversable and pay no
+    # proximity cost whatever their true distance, so inf is as good as the true value there.
+    wall_distance_cells = wall_distance(local_walls, np.floor(max(radius_cells, range_cells)) + 1.0)
+    local_traversable = local_free & (wall_distance_cells > radius_cells)
+    local_traversable[pr - r0, pc - c0] = True
+    proximity = np.maximum(1.0 - wall_distance_cells / range_cells, 0.0)
+    costs = np.where(local_traversable, 1.0 + cfg.wall_cost_weight * proximity, np.inf)
+    local_cost, parent = dijkstra(costs, (pr - r0, pc - c0))
     travel_cost = np.full(observed.shape, np.inf)
     travel_cost[r0:r1, c0:c1] = local_cost
     traversable = np.zeros(observed.shape, bool)
-    traversable[r0:r1, c0:c1] = traversable_local
-    return PlanningMap(traversable=traversable, travel_cost=travel_cost, origin_rc=(int(r0), int(c0)), _mcp=mcp)
+    traversable[r0:r1, c0:c1] = local_traversable
+    return PlanningMap(traversable=traversable, travel_cost=travel_cost, origin_rc=(r0, c0), _parent=parent)
+
+
+def path_is_clear(observed: np.ndarray, path, radius_cells: float) -> bool:
+    """Whether a previously planned path is still safe on the current map, without a new search.
+
+    Args:
+        observed: int8 ``[H, W]`` current observed map.
+        path: the remaining path cells ``[(row, col), ...]`` (the robot's own cell excluded).
+        radius_cells: robot radius in cells.
+
+    Returns:
+        True when every path cell is known FREE with no observed wall within ``radius_cells`` (the traversable
+        rule of :func:`planning_map`); True for an empty path.
+    """
+    if len(path) == 0:
+        return True
+    cells = np.asarray(path, np.int64).reshape(-1, 2)
+    if np.any(observed[cells[:, 0], cells[:, 1]] != FREE):
+        return False
+    reach = int(np.floor(radius_cells))
+    for dr in range(-reach, reach + 1):
+        for dc in range(-reach, reach + 1):
+            if dr * dr + dc * dc > radius_cells * radius_cells:
+                continue
+            rows = np.clip(cells[:, 0] + dr, 0, observed.shape[0] - 1)
+            cols = np.clip(cells[:, 1] + dc, 0, observed.shape[1] - 1)
+            if np.any(observed[rows, cols] == OCCUPIED):
+                return False
+    return True
+
+
+def advance(path: list[tuple[int, int]], step_cells: int, resolution_m: float
+            ) -> tuple[tuple[int, int], list[tuple[int, int]], float]:
+    """Move along a path.
+
+    Args:
+        path: cells from the robot's cell (``path[0]``) to the goal, 8-connected.
+        step_cells: cells to advance (fewer if the path ends sooner).
+        resolution_m: metres per cell.
+
+    Returns:
+        ``(new cell, remaining path starting at the new cell, metres driven)``.
+    """
+    if not path:
+        raise ValueError("cannot advance along an empty path")
+    steps = min(int(step_cells), len(path) - 1)
+    driven = sum(float(np.hypot(b[0] - a[0], b[1] - a[1])) for a, b in zip(path[:steps], path[1:steps + 1]))
+    return path[steps], path[steps:], driven * float(resolution_m)

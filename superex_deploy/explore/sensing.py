@@ -1,0 +1,48 @@
+"""NLOS sensing inside an episode: a SPAD scan at every step, its carved cells and filtered evidence."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.explore.types import UNKNOWN
+from superex_deploy.maps import OccupancyGrid
+from superex_deploy.nlos import NlosConfig, process_scan
+from superex_deploy.spad import SpadConfig, simulate_scan
+
+__all__ = ["SpadSensing"]
+
+
+@dataclass
+class SpadSensing:
+    """The :class:`~superex_deploy.explore.episode.NlosHook` of the SPAD pipeline.
+
+    Each call simulates a scan at the robot's cell, processes it with the currently known cells masked out of
+    the back-projection, and returns ``(carved bool [H, W], evidence float32 [H, W])``. The evidence is the
+    running maximum of the Laplacian-filtered back-projection over the episode, so hidden walls glimpsed
+    earlier stay available to the predictor.
+
+    Attributes:
+        spad: sensor configuration.
+        nlos: processing configuration.
+        seed: seed of the noise generator (used only when ``spad.noise.enabled``).
+    """
+
+    spad: SpadConfig = field(default_factory=SpadConfig)
+    nlos: NlosConfig = field(default_factory=NlosConfig)
+    seed: int = 0
+    _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False)
+    _rng: Optional[np.random.Generator] = field(default=None, init=False, repr=False)
+
+    def __call__(self, grid: OccupancyGrid, pose_rc: tuple[int, int], observed: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        if self._rng is None:
+            self._rng = np.random.default_rng(self.seed)
+        scan = simulate_scan(grid, pose_rc, self.spad, rng=self._rng if self.spad.noise.enabled else None)
+        result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
+        if self._evidence is None or self._evidence.shape != grid.shape:
+            self._evidence = np.zeros(grid.shape, np.float32)
+        np.maximum(self._evidence, result.bp_filtered, out=self._evidence)
+        return result.carved, self._evidence

@@ -1,0 +1,166 @@
+import json
+
+import numpy as np
+import pytest
+
+from superex_deploy.explore.episode import STAGES, ExplorationConfig, run_episode
+from superex_deploy.explore.frontiers import find_frontiers
+from superex_deploy.explore.types import FREE, OCCUPIED, Planner, Prediction
+from superex_deploy.maps import OccupancyGrid, load_map, start_poses
+
+
+class _Closest(Planner):
+    """The frontier with the lowest cost-to-go (the engine's tests do not depend on planners.py)."""
+
+    name = "closest"
+
+    def choose_goal(self, ctx):
+        reachable = [f for f in ctx.frontiers if np.isfinite(ctx.travel_cost[f.cell_rc])]
+        if not reachable:
+            return None
+        return min(reachable, key=lambda f: (ctx.travel_cost[f.cell_rc], f.cell_rc)).cell_rc
+
+
+class _AsksForPrediction(_Closest):
+    name = "asks"
+
+    def choose_goal(self, ctx):
+        assert ctx.predict() is ctx.predict()  # cached within a step
+        return super().choose_goal(ctx)
+
+
+class _CountingPredictor:
+    """Unknown cells predicted free; records every call and the evidence it was given."""
+
+    name = "counting"
+
+    def __init__(self):
+        self.calls = 0
+        self.extras = []
+
+    def predict(self, observed, extra=None):
+        self.calls += 1
+        self.extras.append(extra)
+        mean = (observed == OCCUPIED).astype(np.float32)
+        return Prediction(mean=mean, variance=np.zeros_like(mean))
+
+
+def _two_rooms():
+    """A 30 x 40 box split by a wall with a 0.6 m door: most of the right room is hidden from (5, 5)."""
+    walls = np.zeros((30, 40), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[:, 20] = True
+    walls[12:18, 20] = False
+    return OccupancyGrid(walls, ~walls, 0.1, "two rooms")
+
+
+class _CarveRightRoom:
+    """A stand-in NLOS hook: reveals a 5 x 5 block of the hidden room from the first step on."""
+
+    def __init__(self, shape):
+        self.carved = np.zeros(shape, bool)
+        self.carved[5:10, 30:35] = True
+        self.evidence = np.full(shape, 0.25, np.float32)
+        self.calls = 0
+
+    def __call__(self, grid, pose_rc, observed):
+        self.calls += 1
+        assert observed.dtype == np.int8 and observed.shape == grid.shape
+        return self.carved, self.evidence
+
+
+def test_two_rooms_are_explored_completely():
+    grid = _two_rooms()
+    result = run_episode(grid, (5, 5), _Closest(), _CountingPredictor(), steps=300, seed=0)
+    assert result.finished and result.steps < 300
+    # It stops because no frontier region of 10 cells or more is left: only pockets beside the door remain.
+    assert find_frontiers(result.final_observed, min_cells=10) == ()
+    assert 0 < len(find_frontiers(result.final_observed, min_cells=1)) and result.coverage[-1] > 0.98
+    assert np.all(np.diff(result.coverage) >= 0)
+    assert result.poses[:, 1].max() >= 20  # drove into the door
+    assert not grid.occupied[result.poses[:, 0], result.poses[:, 1]].any()
+    steps = np.diff(result.poses, axis=0)
+    assert np.abs(steps).max() <= 3  # at most step_cells cells per step
+    driven = np.diff(result.path_length_m)  # along the 8-connected path: at least the displacement
+    assert np.all(driven >= 0.1 * np.hypot(steps[:, 0], steps[:, 1]) - 1e-9)
+    assert np.all(driven <= 0.3 * np.sqrt(2) + 1e-9)
+    assert result.path_length_m[0] == 0.0
+
+
+def test_the_nlos_hook_feeds_carving_and_evidence():
+    grid = _two_rooms()
+    hook = _CarveRightRoom(grid.shape)
+    predictor = _CountingPredictor()
+    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, nlos=hook,
+                         cfg=ExplorationConfig(iou_every=0))
+    assert hook.calls == result.steps
+    assert np.all(result.coverage_with_carving >= result.coverage)
+    extra = 25 / grid.valid.sum()
+    assert result.coverage_with_carving[0] == pytest.approx(result.coverage[0] + extra)
+    assert result.final_carved[5:10, 30:35].all() and result.final_observed[7, 32] == FREE
+    assert all(e is hook.evidence for e in predictor.extras) and predictor.calls > 0
+    # Computed once per step at most (the planner asks twice), and only on steps where a goal was chosen.
+    asked = np.flatnonzero(result.timings_s["prediction"] > 0)
+    assert predictor.calls == len(asked) and set(result.goal_steps) <= set(asked.tolist())
+
+
+def test_predictions_are_lazy_and_iou_is_logged_every_k_steps():
+    grid = _two_rooms()
+    predictor = _CountingPredictor()
+    result = run_episode(grid, (5, 5), _Closest(), predictor, steps=60, seed=0, cfg=ExplorationConfig(iou_every=0))
+    assert predictor.calls == 0 and result.iou == [] and result.final_prediction is None
+    predictor = _CountingPredictor()
+    result = run_episode(grid, (5, 5), _Closest(), predictor, steps=60, seed=0, cfg=ExplorationConfig(iou_every=10))
+    expected_steps = sorted(set(range(0, result.steps, 10)) | {result.steps - 1})
+    assert result.iou_steps == expected_steps and predictor.calls == len(expected_steps)
+    assert all(0.0 <= v <= 1.0 for v in result.iou)
+    assert result.iou_coverage == [pytest.approx(result.coverage_with_carving[t]) for t in expected_steps]
+    assert result.iou[-1] > result.iou[0]  # observed walls are predicted walls: IoU grows with coverage
+
+
+def test_on_step_sees_every_step_and_the_log_is_json_ready():
+    grid = _two_rooms()
+    seen = []
+    result = run_episode(grid, (5, 5), _Closest(), _CountingPredictor(), steps=25,
+                         on_step=lambda state: seen.append((state.step, state.pose, state.coverage)))
+    assert [s for s, _, _ in seen] == list(range(result.steps))
+    assert [p for _, p, _ in seen] == [tuple(p) for p in result.poses.tolist()]
+    assert [c for _, _, c in seen] == result.coverage.tolist()
+    log = json.loads(json.dumps(result.to_json()))
+    assert set(log["timings_s"]) == set(STAGES) and all(len(v) == result.steps for v in log["timings_s"].values())
+    assert log["steps"] == result.steps == len(log["coverage"]) == len(log["path_length_m"])
+    assert log["config"]["motion"]["step_cells"] == 3 and log["config"]["lidar"]["n_rays"] == 2500
+
+
+def test_episodes_are_deterministic_on_a_bundled_map():
+    grid = load_map("50052750")
+    start = start_poses("50052750")[3]
+    a, b = (run_episode(grid, start, _Closest(), _CountingPredictor(), steps=60, seed=7) for _ in range(2))
+    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_array_equal(a.coverage, b.coverage)
+    assert a.goals == b.goals and a.iou == b.iou
+
+
+def test_bad_inputs_raise_value_error():
+    grid = _two_rooms()
+    planner, predictor = _Closest(), _CountingPredictor()
+    with pytest.raises(ValueError, match="inside a wall"):
+        run_episode(grid, (0, 0), planner, predictor)
+    with pytest.raises(ValueError, match="outside"):
+        run_episode(grid, (30, 5), planner, predictor)
+    with pytest.raises(ValueError, match="OccupancyGrid"):
+        run_episode(grid.occupied, (5, 5), planner, predictor)
+    with pytest.raises(ValueError, match="Planner"):
+        run_episode(grid, (5, 5), "nearest", predictor)
+    with pytest.raises(ValueError, match="predict"):
+        run_episode(grid, (5, 5), planner, object())
+    with pytest.raises(ValueError, match="steps"):
+        run_episode(grid, (5, 5), planner, predictor, steps=2.5)
+    with pytest.raises(ValueError, match="nlos"):
+        run_episode(grid, (5, 5), planner, predictor, nlos="spad")
+    with pytest.raises(ValueError, match="carved"):
+        run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: (np.zeros((3, 3), bool), None))
+    with pytest.raises(ValueError, match="pair"):
+        run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: None)
+    with pytest.raises(ValueError, match="frontier_min_cells"):
+        ExplorationConfig(frontier_min_cells=0)
