@@ -34,6 +34,13 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
     assert (out / "coverage.png").exists() and (out / "iou_vs_coverage.png").exists()
 
 
+def test_explore_with_spad_reports_carved_coverage(tmp_path):
+    out = tmp_path / "spad"
+    assert main(["explore", "--map", "50052750", "--start", "2", "--steps", "25", "--spad", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["coverage_with_carving"][-1] > metrics["coverage"][-1]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["explore", "--map", "50052750", "--planner", "frontier", "--steps", "5"], "unknown planner"),
     (["explore", "--map", "50052750", "--start", "7", "--steps", "5"], "--start must lie in 0..3"),

@@ -18,6 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--spad", action="store_true",
+                        help="also scan with the SPAD LiDAR every step and merge its carved free space "
+                             "(coverage is reported with and without carving)")
     parser.add_argument("--gif-every", type=int, default=5, help="record a GIF frame every N steps")
     parser.add_argument("--out", required=True, type=Path)
 
@@ -62,7 +65,13 @@ def run(args: argparse.Namespace) -> int:
             recorder(state)
             bar.update(1)
 
-        result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step)
+        nlos = None
+        if args.spad:
+            from superex_deploy.explore.sensing import SpadSensing
+
+            nlos = SpadSensing(seed=args.seed)
+        result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step,
+                             nlos=nlos)
     metrics = result.to_json()
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)

@@ -22,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
 
     from superex_deploy.geometry import cell_centre, mark_rays
     from superex_deploy.maps import load_map, start_poses
-    from superex_deploy.nlos import NlosConfig, nlos_ground_truth, process_scan, wall_iou
+    from superex_deploy.nlos import NlosConfig, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant
     from superex_deploy.render import save_scan_figure
     from superex_deploy.spad import SpadConfig, SpadNoise, simulate_scan
 
@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     mark_rays(grid.occupied, cell_centre(pose), scan.angles, cfg.range_m / grid.resolution_m, seen_free, seen_wall)
     result = process_scan(scan, NlosConfig(), known=seen_free | seen_wall)
     truth = nlos_ground_truth(scan)
+    hidden = ~(seen_free | seen_wall)
     args.out.mkdir(parents=True, exist_ok=True)
     figure = save_scan_figure(args.out / "scan.png", grid, pose, seen_free, seen_wall, scan, result, truth)
     summary = {
@@ -49,8 +50,11 @@ def run(args: argparse.Namespace) -> int:
         "carved_cells": int(result.carved.sum()),
         "carved_beyond_line_of_sight": int((result.carved & ~seen_free).sum()),
         "carved_walls": int((result.carved & grid.occupied).sum()),
-        "bp_wall_iou_raw": wall_iou(result.bp > 0.5, truth),
-        "bp_wall_iou_laplacian": wall_iou(result.bp_filtered > 0.5, truth),
+        # Scored like scripts/bench_spad.py: cells out of sight, filtered maps thresholded at 0.3.
+        "bp_wall_iou_raw": wall_iou((result.bp > 0.3) & hidden, truth & hidden),
+        "bp_wall_iou_laplacian": wall_iou((result.bp_filtered > 0.3) & hidden, truth & hidden),
+        "bp_wall_iou_laplacian_within_1_cell": wall_iou_tolerant((result.bp_filtered > 0.3) & hidden,
+                                                                 truth & hidden, 1),
     }
     (args.out / "scan.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps(summary, indent=2))
