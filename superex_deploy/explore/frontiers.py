@@ -32,7 +32,7 @@ def _frontier_regions(observed):
     the map.
     """
     n_rows, n_cols = observed.shape
-    index = np.full((n_rows, n_cols), -1, np.int64)
+    index = np.full((n_rows, n_cols), -1, np.int32)
     n = 0
     for r in range(n_rows):
         for c in range(n_cols):

@@ -75,26 +75,34 @@ class MotionConfig:
 def _wall_distance(walls, reach_cells, distance):
     """Euclidean distance (cells, centre to centre) from every cell to the nearest wall cell, where it is at
     most ``reach_cells``; ``distance`` (float64, same shape as ``walls``) must be preset to ``inf`` and keeps it
-    elsewhere."""
+    elsewhere. Walls whose four neighbours are all walls are skipped: one of those neighbours is always nearer
+    to any cell outside the wall."""
     n_rows, n_cols = walls.shape
     reach = int(np.floor(reach_cells))
-    reach_sq = reach_cells * reach_cells
+    n_offsets = 0
+    offset_r = np.empty((2 * reach + 1) ** 2, np.int64)
+    offset_c = np.empty((2 * reach + 1) ** 2, np.int64)
+    offset_d = np.empty((2 * reach + 1) ** 2, np.float64)
+    for dr in range(-reach, reach + 1):
+        for dc in range(-reach, reach + 1):
+            if dr * dr + dc * dc <= reach_cells * reach_cells:
+                offset_r[n_offsets] = dr
+                offset_c[n_offsets] = dc
+                offset_d[n_offsets] = np.sqrt(dr * dr + dc * dc)
+                n_offsets += 1
     for r in range(n_rows):
         for c in range(n_cols):
             if not walls[r, c]:
                 continue
-            for dr in range(-reach, reach + 1):
-                rr = r + dr
-                if rr < 0 or rr >= n_rows:
-                    continue
-                for dc in range(-reach, reach + 1):
-                    cc = c + dc
-                    d_sq = dr * dr + dc * dc
-                    if cc < 0 or cc >= n_cols or d_sq > reach_sq:
-                        continue
-                    d = np.sqrt(d_sq)
-                    if d < distance[rr, cc]:
-                        distance[rr, cc] = d
+            if (0 < r < n_rows - 1 and 0 < c < n_cols - 1 and walls[r - 1, c] and walls[r + 1, c]
+                    and walls[r, c - 1] and walls[r, c + 1]):
+                distance[r, c] = 0.0
+                continue
+            for k in range(n_offsets):
+                rr = r + offset_r[k]
+                cc = c + offset_c[k]
+                if 0 <= rr < n_rows and 0 <= cc < n_cols and offset_d[k] < distance[rr, cc]:
+                    distance[rr, cc] = offset_d[k]
 
 
 @numba.njit(cache=True)
@@ -190,6 +198,20 @@ def wall_distance(walls: np.ndarray, reach_cells: float) -> np.ndarray:
     return distance
 
 
+def _search(costs: np.ndarray, source_rc: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, int]:
+    """Run :func:`_dijkstra` on ``costs`` padded with an impassable border. Returns the padded cost-to-go and
+    parent grids (flat padded indices) and the padded row length."""
+    n_rows, n_cols = costs.shape
+    width = n_cols + 2
+    padded = np.full((n_rows + 2, width), np.inf)
+    padded[1:-1, 1:-1] = costs
+    distance = np.full(padded.shape, np.inf)
+    parent = np.full(padded.shape, -1, np.int64)
+    _dijkstra(padded.reshape(-1), (source_rc[0] + 1) * width + source_rc[1] + 1, width, distance.reshape(-1),
+              parent.reshape(-1))
+    return distance, parent, width
+
+
 def dijkstra(costs: np.ndarray, source_rc) -> tuple[np.ndarray, np.ndarray]:
     """Cost-to-go from one cell over an 8-connected grid (``MCP_Geometric``'s edge cost, see the module doc).
 
@@ -211,19 +233,10 @@ def dijkstra(costs: np.ndarray, source_rc) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"source {(r, c)} lies outside the grid of shape {costs.shape}")
     if not np.isfinite(costs[r, c]):
         raise ValueError(f"source {(r, c)} is impassable (infinite cost)")
-    n_rows, n_cols = costs.shape
-    width = n_cols + 2
-    padded = np.full((n_rows + 2, width), np.inf)
-    padded[1:-1, 1:-1] = costs
-    distance = np.full(padded.size, np.inf)
-    parent = np.full(padded.size, -1, np.int64)
-    _dijkstra(padded.ravel(), (r + 1) * width + c + 1, width, distance, parent)
-    cost_to_go = distance.reshape(padded.shape)[1:-1, 1:-1].copy()
-    parent = parent.reshape(padded.shape)[1:-1, 1:-1]
-    reached = parent >= 0
-    # Padded flat index -> unpadded flat index.
-    parent = np.where(reached, (parent // width - 1) * n_cols + parent % width - 1, -1)
-    return cost_to_go, parent
+    distance, parent, width = _search(costs, (r, c))
+    parent = parent[1:-1, 1:-1]
+    unpadded = (parent // width - 1) * costs.shape[1] + parent % width - 1
+    return distance[1:-1, 1:-1].copy(), np.where(parent >= 0, unpadded, -1)
 
 
 @dataclass(frozen=True)
@@ -240,7 +253,8 @@ class PlanningMap:
     traversable: np.ndarray
     travel_cost: np.ndarray
     origin_rc: tuple[int, int]
-    _parent: np.ndarray  # int64 [h, w] of the window: flat window index of each cell's predecessor, -1 if none
+    # int64 [h + 2, w + 2]: predecessor links of the search window padded by one cell, as flat padded indices.
+    _parent: np.ndarray
 
     def path_to(self, goal_rc) -> list[tuple[int, int]]:
         """Least-cost 8-connected path from the robot's cell to ``goal_rc``, both included; empty if the goal
@@ -249,12 +263,13 @@ class PlanningMap:
         shape = self.travel_cost.shape
         if not (0 <= r < shape[0] and 0 <= c < shape[1]) or not np.isfinite(self.travel_cost[r, c]):
             return []
-        r0, c0 = self.origin_rc
-        n_cols = self._parent.shape[1]
-        cell = (r - r0) * n_cols + (c - c0)
+        # Padded window index (r - r0 + 1, c - c0 + 1) is full-map cell (r, c): shift by origin - 1.
+        r_shift, c_shift = self.origin_rc[0] - 1, self.origin_rc[1] - 1
+        width = self._parent.shape[1]
+        cell = (r - r_shift) * width + (c - c_shift)
         path = []
         while cell >= 0:
-            path.append((int(cell // n_cols + r0), int(cell % n_cols + c0)))
+            path.append((int(cell // width + r_shift), int(cell % width + c_shift)))
             cell = int(self._parent.flat[cell])
         return path[::-1]
 
@@ -302,9 +317,9 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
     local_traversable[pr - r0, pc - c0] = True
     proximity = np.maximum(1.0 - wall_distance_cells / range_cells, 0.0)
     costs = np.where(local_traversable, 1.0 + cfg.wall_cost_weight * proximity, np.inf)
-    local_cost, parent = dijkstra(costs, (pr - r0, pc - c0))
+    distance, parent, _ = _search(costs, (pr - r0, pc - c0))
     travel_cost = np.full(observed.shape, np.inf)
-    travel_cost[r0:r1, c0:c1] = local_cost
+    travel_cost[r0:r1, c0:c1] = distance[1:-1, 1:-1]
     traversable = np.zeros(observed.shape, bool)
     traversable[r0:r1, c0:c1] = local_traversable
     return PlanningMap(traversable=traversable, travel_cost=travel_cost, origin_rc=(r0, c0), _parent=parent)
