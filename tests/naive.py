@@ -324,7 +324,7 @@ def naive_planning_costs(observed, pose, resolution_m, robot_radius_m, weight, r
 # explore: planners
 
 
-def _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle, max_t):
+def _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle):
     """(t_entry, row, col) of every cell a ray enters after its start cell, from a sorted list of crossings."""
     dy, dx = np.sin(angle), np.cos(angle)
     crossings = []
@@ -341,26 +341,28 @@ def _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle, max_t):
     return out
 
 
-def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold):
-    """Per-ray visible range of the probabilistic raycast (planners._ray_visible_ranges)."""
+def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate):
+    """Per-ray visible range of the probabilistic raycast (planners._ray_visible_ranges): a cell blocks when its
+    probability (or, accumulating, 1 - prod(1 - p) from the start cell on) reaches the threshold; the range
+    ends at the blocking cell's entry + 0.5, at max_t or at the border; all zero from a blocking start cell."""
     n_rows, n_cols = mean.shape
+    own = float(mean[int(np.floor(y0)), int(np.floor(x0))])
+    if own >= hit_threshold:
+        return np.zeros(n_rays)
     ranges = np.empty(n_rays)
     for k in range(n_rays):
         angle = 2.0 * np.pi * k / n_rays
-        blocked = float(mean[int(np.floor(y0)), int(np.floor(x0))])
-        if blocked >= hit_threshold:
-            ranges[k] = 0.5
-            continue
-        transmittance = 1.0 - blocked
+        probabilities = [own]
         reach = max_t
-        for t, r, c in _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle, max_t):
+        for t, r, c in _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle):
             if t >= max_t:
                 break
             if not (0 <= r < n_rows and 0 <= c < n_cols):
                 reach = t
                 break
-            transmittance *= 1.0 - float(mean[r, c])
-            if 1.0 - transmittance >= hit_threshold:
+            probabilities.append(float(mean[r, c]))
+            blocked_probability = 1.0 - np.prod(1.0 - np.array(probabilities)) if accumulate else probabilities[-1]
+            if blocked_probability >= hit_threshold:
                 reach = min(t + 0.5, max_t)
                 break
         ranges[k] = reach
@@ -368,29 +370,45 @@ def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold):
 
 
 def naive_fill_visibility(ranges, y0, x0, observed, variance):
-    """Visible mask, visible-unknown count and variance sum by testing every cell (planners._fill_visibility)."""
+    """Visible mask, visible-unknown count and variance sum (planners._fill_visibility), testing every cell
+    centre against the triangle (viewpoint, end point k, end point k + 1) of its angular sector by barycentric
+    coordinates."""
     n_rays = len(ranges)
     visible = np.zeros(observed.shape, bool)
+    if max(ranges) <= 0:
+        return visible, 0, 0.0
     step = 2.0 * np.pi / n_rays
+    ends = [(ranges[k] * np.sin(step * k), ranges[k] * np.cos(step * k)) for k in range(n_rays)]
     for r in range(observed.shape[0]):
         for c in range(observed.shape[1]):
             vy, vx = r + 0.5 - y0, c + 0.5 - x0
-            rho = np.hypot(vy, vx)
-            phi = np.arctan2(vy, vx) % (2.0 * np.pi)
-            k0 = int(np.floor(phi / step)) % n_rays
-            k1 = (k0 + 1) % n_rays
-            visible[r, c] = rho <= max(ranges) and (rho <= min(ranges[k0], ranges[k1]) or rho < 0.75)
+            if np.hypot(vy, vx) > max(ranges):
+                continue
+            k0 = int((np.arctan2(vy, vx) % (2.0 * np.pi)) / step) % n_rays
+            (ay, ax), (by, bx) = ends[k0], ends[(k0 + 1) % n_rays]
+            # v = s a + u b inside the sector; inside the triangle when s + u <= 1.
+            det = ax * by - ay * bx
+            s = (vx * by - vy * bx) / det
+            u = (ax * vy - ay * vx) / det
+            visible[r, c] = s + u <= 1.0
     unknown = visible & (observed == -1)
     return visible, int(unknown.sum()), float(variance[unknown].astype(np.float64).sum())
 
 
-def naive_grow_rrt(traversable, start_y, start_x, samples, expand_cells):
-    """Pure-Python RRT with the same steering and collision rule as planners._grow_rrt."""
+def naive_grow_rrt(passable, reachable, start_y, start_x, samples, expand_cells, variance):
+    """Pure-Python RRT with planners._grow_rrt's steering and collision rule; for every node the whole
+    root-to-node path is walked again to sum its variance and find its exit (last cell before the first one
+    outside ``reachable``)."""
 
     def segment_free(y0, x0, y1, x1):
         n = int(np.ceil(np.hypot(y1 - y0, x1 - x0) / 0.5)) + 1
-        return all(traversable[int(np.floor(y0 + i / n * (y1 - y0))), int(np.floor(x0 + i / n * (x1 - x0)))]
+        return all(passable[int(np.floor(y0 + i / n * (y1 - y0))), int(np.floor(x0 + i / n * (x1 - x0)))]
                    for i in range(n + 1))
+
+    def edge_cells(a, b):
+        n = max(1, int(np.ceil(max(abs(b[0] - a[0]), abs(b[1] - a[1])))))
+        return [(int(np.floor(a[0] + i / n * (b[0] - a[0]))), int(np.floor(a[1] + i / n * (b[1] - a[1]))))
+                for i in range(1, n + 1)]
 
     nodes, parents, depths = [(start_y, start_x)], [-1], [0]
     for sy, sx in samples:
@@ -406,4 +424,16 @@ def naive_grow_rrt(traversable, start_y, start_x, samples, expand_cells):
             nodes.append(new)
             parents.append(best)
             depths.append(depths[best] + 1)
-    return np.array(nodes), np.array(parents), np.array(depths)
+    path_variance, exits = [], []
+    for node in range(len(nodes)):
+        chain = [node]
+        while parents[chain[-1]] >= 0:
+            chain.append(parents[chain[-1]])
+        chain.reverse()
+        cells = [(int(np.floor(start_y)), int(np.floor(start_x)))]
+        for a, b in zip(chain[:-1], chain[1:]):
+            cells += edge_cells(nodes[a], nodes[b])
+        path_variance.append(sum(float(variance[cell]) for cell in cells[1:]))
+        outside = [k for k, cell in enumerate(cells) if not reachable[cell]]
+        exits.append(cells[outside[0] - 1] if outside else cells[-1])
+    return np.array(nodes), np.array(parents), np.array(depths), np.array(path_variance), np.array(exits)

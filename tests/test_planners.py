@@ -1,9 +1,11 @@
 import numpy as np
 import pytest
 
+from superex_deploy.explore.episode import run_episode
 from superex_deploy.explore.planners import (
-    PLANNERS, HectorPlanner, MapexPlanner, NearestFrontier, UpenPlanner, VisibilityConfig, _fill_visibility,
-    _grow_rrt, _ray_visible_ranges, grow_rrt, make_planner, predicted_visibility, visible_gains)
+    PLANNERS, HectorConfig, HectorPlanner, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
+    VisibilityConfig, _fill_visibility, _grow_rrt, _ray_visible_ranges, connected_unknown_gains, grow_rrt,
+    make_planner, predicted_visibility, visible_gains, visible_ranges)
 from superex_deploy.explore.prediction import OraclePredictor
 from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
@@ -20,6 +22,13 @@ def _context(observed, frontiers, travel_cost, prediction, pose=(20, 20), seed=0
                            predict=lambda: prediction, rng=np.random.default_rng(seed))
 
 
+def _manhattan_travel(observed, pose):
+    travel = np.full(observed.shape, np.inf)
+    rows, cols = np.nonzero(observed == FREE)
+    travel[rows, cols] = np.abs(rows - pose[0]) + np.abs(cols - pose[1])
+    return travel
+
+
 def _corridor_scene(right_room_big):
     """41x41 world: a known corridor (rows 18-22, cols 15-25) between a big unknown room on the left and, on the
     right, either a big room or a 3x3 closet. Frontier cells at (20, 15) and (20, 25), 5 cells from the robot."""
@@ -31,11 +40,8 @@ def _corridor_scene(right_room_big):
         walls[17:19, 26:29] = walls[22:24, 26:29] = True
     observed = np.full(walls.shape, UNKNOWN, np.int8)
     observed[17:24, 14:27] = np.where(walls[17:24, 14:27], OCCUPIED, FREE)
-    travel = np.full(walls.shape, np.inf)
-    rows, cols = np.nonzero(observed == FREE)
-    travel[rows, cols] = np.abs(cols - 20) + np.abs(rows - 20)
     grid = OccupancyGrid(walls, ~walls, 0.1, "corridor")
-    return grid, observed, travel, [_frontier(20, 15), _frontier(20, 25)]
+    return grid, observed, _manhattan_travel(observed, (20, 20)), [_frontier(20, 15), _frontier(20, 25)]
 
 
 def test_nearest_picks_least_travel_cost_and_skips_unreachable():
@@ -52,37 +58,78 @@ def test_nearest_picks_least_travel_cost_and_skips_unreachable():
     assert NearestFrontier().choose_goal(_context(observed, [], travel, None)) is None
 
 
-def test_probabilistic_ray_stops_when_blocking_probability_reaches_threshold():
+def test_probabilistic_ray_stops_at_the_hit_threshold():
     mean = np.zeros((3, 12), np.float32)
-    mean[1, 2:] = 0.5  # accumulated blocking 0.5, 0.75, 0.875: the third such cell (col 4) stops the ray
-    ranges = np.empty(4)
-    _ray_visible_ranges(mean, 1.5, 0.5, 4, 100.0, 0.8, ranges)
-    assert ranges[0] == pytest.approx(4.0)  # enters col 4 at t = 3.5, stops at its centre
-    _ray_visible_ranges(mean, 1.5, 0.5, 4, 100.0, 0.9, ranges)
-    assert ranges[0] == pytest.approx(5.0)  # 0.9375 only at col 5
-    mean[1, 0] = 0.85  # a viewpoint inside a likely wall sees only its own cell
-    _ray_visible_ranges(mean, 1.5, 0.5, 4, 100.0, 0.8, ranges)
-    np.testing.assert_allclose(ranges, 0.5)
+    mean[1, 2:] = 0.5
+    mean[1, 6] = 0.85
+    ranges = np.empty(4)  # ray 0 along +col from the centre of (1, 0); ray 1 along +row
+
+    def ray_range(threshold, accumulate, max_t=100.0):
+        _ray_visible_ranges(mean, 1.5, 0.5, 4, max_t, threshold, accumulate, ranges)
+        return ranges[0]
+
+    # Per cell (MapEx as run): the first cell of probability >= 0.8 is col 6, entered at t = 5.5.
+    assert ray_range(0.8, False) == 6.0
+    assert ray_range(0.5, False) == 2.0  # the threshold itself blocks
+    assert ray_range(0.8, False, max_t=3.0) == 3.0
+    # Accumulated: 1 - 0.5^k reaches 0.875 at col 4 and 0.9375 at col 5.
+    assert ray_range(0.8, True) == 4.0
+    assert ray_range(0.9, True) == 5.0
+    assert ranges[1] == 1.5  # down through row 2, out of the grid at t = 1.5
+    mean[1, 6] = 0.0
+    assert ray_range(0.8, False) == 11.5  # out of the grid at the east border
+    # From inside a likely wall nothing is visible (MapEx returns an empty mask).
+    mean[1, 0] = 0.85
+    np.testing.assert_array_equal(visible_ranges(mean, (1, 0), VisibilityConfig(n_rays=4), 0.1), 0.0)
+    assert not predicted_visibility(mean, (1, 0), VisibilityConfig(n_rays=4), 0.1).any()
+    assert predicted_visibility(mean, (1, 0), VisibilityConfig(n_rays=4, hit_threshold=0.9), 0.1).any()
+
+
+def _fill(ranges, observed, variance=None):
+    variance = np.ones(observed.shape, np.float32) if variance is None else variance
+    visible = np.zeros(observed.shape, bool)
+    count, var_sum = _fill_visibility(np.asarray(ranges, float), 5.5, 5.5, observed, variance, visible, True)
+    return visible, count, var_sum
+
+
+def test_visible_region_is_the_filled_polygon_of_the_ray_ends():
+    observed = np.full((11, 11), UNKNOWN, np.int8)
+    rows, cols = np.mgrid[:11, :11]
+    visible, count, var_sum = _fill([3.2] * 4, observed)  # a diamond |dr| + |dc| <= 3.2
+    np.testing.assert_array_equal(visible, np.abs(rows - 5) + np.abs(cols - 5) <= 3)
+    assert count == 25 and var_sum == 25.0
+    observed[5, :] = FREE  # only unknown cells count
+    visible, count, var_sum = _fill([3.2, 1.2, 3.2, 1.2], observed)  # |dc| / 3.2 + |dr| / 1.2 <= 1
+    expected = np.zeros((11, 11), bool)
+    expected[5, 2:9] = expected[4, 5] = expected[6, 5] = True
+    np.testing.assert_array_equal(visible, expected)
+    assert count == 2 and var_sum == 2.0
+    # A room behind a door seen by one ray alone is still seen along that ray (a sector-wise minimum of the
+    # ranges would drop it): 8 rays, the one pointing down (+row) reaching 5.2 cells.
+    visible, _, _ = _fill([1.0, 1.0, 5.2, 1.0, 1.0, 1.0, 1.0, 1.0], observed)
+    assert visible[6:11, 5].all() and not visible[7:, [4, 6]].any()
+    assert _fill([0.0] * 8, observed)[1:] == (0, 0.0) and not _fill([0.0] * 8, observed)[0].any()
 
 
 def test_visibility_of_a_walled_room_is_exactly_the_room():
     mean = np.ones((15, 15), np.float32)
     mean[3:9, 4:12] = 0.0
     visible = predicted_visibility(mean, (5, 6), VisibilityConfig(n_rays=720, range_m=5.0), 0.1)
-    expected = np.zeros_like(visible)
-    expected[3:9, 4:12] = True
-    assert np.all(visible[expected])
-    # Beyond the room, only wall cells 4-adjacent to it may appear (a ray stops at its blocking cell's centre).
-    touching = expected.copy()
-    touching[1:] |= expected[:-1]
-    touching[:-1] |= expected[1:]
-    touching[:, 1:] |= expected[:, :-1]
-    touching[:, :-1] |= expected[:, 1:]
+    room = np.zeros_like(visible)
+    room[3:9, 4:12] = True
+    assert np.all(visible[room])
+    # Beyond the room, only wall cells 4-adjacent to it may appear (a ray ends inside its blocking cell).
+    touching = room.copy()
+    touching[1:] |= room[:-1]
+    touching[:-1] |= room[1:]
+    touching[:, 1:] |= room[:, :-1]
+    touching[:, :-1] |= room[:, 1:]
     assert not np.any(visible & ~touching)
 
 
-def test_visibility_kernels_match_naive_on_random_maps():
-    rng = np.random.default_rng(3)
+@pytest.mark.parametrize("accumulate", [False, True])
+def test_visibility_kernels_match_naive_on_random_maps(accumulate):
+    rng = np.random.default_rng(3 + accumulate)
     for _ in range(12):
         shape = tuple(rng.integers(5, 18, size=2))
         mean = (rng.random(shape) * (rng.random(shape) < 0.3)).astype(np.float32)
@@ -93,47 +140,94 @@ def test_visibility_kernels_match_naive_on_random_maps():
         y0, x0 = rng.uniform(0, shape[0]), rng.uniform(0, shape[1])
         n_rays, max_t, threshold = int(rng.integers(8, 40)), float(rng.uniform(2, 20)), float(rng.uniform(0.3, 1))
         ranges = np.empty(n_rays)
-        _ray_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, ranges)
-        np.testing.assert_allclose(ranges, naive_visible_ranges(mean, y0, x0, n_rays, max_t, threshold), atol=1e-9)
+        _ray_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate, ranges)
+        np.testing.assert_allclose(ranges, naive_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate),
+                                   atol=1e-9)
         visible = np.zeros(shape, bool)
-        count, var_sum = _fill_visibility(ranges, y0, x0, shape[0], shape[1], observed, variance, visible, True)
+        count, var_sum = _fill_visibility(ranges, y0, x0, observed, variance, visible, True)
         ref_visible, ref_count, ref_var = naive_fill_visibility(ranges, y0, x0, observed, variance)
         np.testing.assert_array_equal(visible, ref_visible)
         assert count == ref_count and var_sum == pytest.approx(ref_var, rel=1e-6)
+        # Counting without the mask gives the same numbers.
+        assert _fill_visibility(ranges, y0, x0, observed, variance, np.zeros((1, 1), bool), False) == (
+            count, pytest.approx(var_sum))
 
 
-def test_rrt_kernel_matches_naive_and_stays_on_traversable_cells():
+def test_rrt_kernel_matches_naive_and_stays_on_passable_cells():
     rng = np.random.default_rng(5)
-    traversable = np.ones((30, 30), bool)
-    traversable[10:20, 5:25] = False
+    passable = np.ones((30, 30), bool)
+    passable[10:20, 5:25] = False
+    reachable = np.zeros((30, 30), bool)
+    reachable[:10, :12] = True
+    variance = rng.random((30, 30)).astype(np.float32)
     samples = rng.random((200, 2)) * 30
-    node_yx = np.empty((201, 2))
-    parent = np.empty(201, np.int64)
-    depth = np.empty(201, np.int64)
-    n = _grow_rrt(traversable, 2.5, 2.5, samples, 4.0, node_yx, parent, depth)
-    ref_nodes, ref_parent, ref_depth = naive_grow_rrt(traversable, 2.5, 2.5, samples, 4.0)
+    node_yx, parent, depth, path_var, exit_rc = (np.empty((201, 2)), np.empty(201, np.int64),
+                                                 np.empty(201, np.int64), np.empty(201), np.empty((201, 2), np.int64))
+    n = _grow_rrt(passable, reachable, 2.5, 2.5, samples, 4.0, variance, node_yx, parent, depth, path_var, exit_rc)
+    ref_nodes, ref_parent, ref_depth, ref_var, ref_exit = naive_grow_rrt(passable, reachable, 2.5, 2.5, samples,
+                                                                         4.0, variance)
+    assert n > 100
     np.testing.assert_allclose(node_yx[:n], ref_nodes)
     np.testing.assert_array_equal(parent[:n], ref_parent)
     np.testing.assert_array_equal(depth[:n], ref_depth)
-    assert traversable[node_yx[:n, 0].astype(int), node_yx[:n, 1].astype(int)].all()
-    with pytest.raises(ValueError, match="not traversable"):
-        grow_rrt(traversable, (15, 15), 10, 4.0, rng)
+    np.testing.assert_allclose(path_var[:n], ref_var, rtol=1e-9)
+    np.testing.assert_array_equal(exit_rc[:n], ref_exit)
+    assert passable[node_yx[:n, 0].astype(int), node_yx[:n, 1].astype(int)].all()
+    assert reachable[exit_rc[:n, 0], exit_rc[:n, 1]].all() and (exit_rc[:n, 1] >= 12).sum() == 0
+    # The public wrapper: its path cells are the ones the variance was summed over.
+    tree = grow_rrt(passable, (2, 2), 300, 4.0, np.random.default_rng(1), variance)
+    for node in np.flatnonzero(tree.depth >= 3)[:10]:
+        cells = tree.path_cells(node)
+        assert tuple(cells[0]) == (2, 2) and tuple(cells[-1]) == tuple(np.floor(tree.nodes_yx[node]).astype(int))
+        assert tree.path_variance[node] == pytest.approx(variance[cells[1:, 0], cells[1:, 1]].sum(dtype=float))
+        assert tuple(tree.exit_rc[node]) == tuple(cells[-1])  # everything reachable: the node's own cell
+    with pytest.raises(ValueError, match="not passable"):
+        grow_rrt(passable, (15, 15), 10, 4.0, rng)
+    with pytest.raises(ValueError, match="variance must be"):
+        grow_rrt(passable, (2, 2), 10, 4.0, rng, variance.astype(np.float64))
 
 
 def test_hector_and_mapex_prefer_the_frontier_facing_the_larger_unknown_area():
     grid, observed, travel, frontiers = _corridor_scene(right_room_big=False)
     prediction = OraclePredictor(grid).predict(observed)
     ctx = _context(observed, frontiers, travel, prediction)
-    counts, _ = visible_gains(prediction.mean, prediction.variance, observed, [(20, 15), (20, 25)],
-                              VisibilityConfig(), 0.1)
+    counts, _ = visible_gains(prediction, observed, [(20, 15), (20, 25)], VisibilityConfig(), 0.1)
     assert counts[0] > 2 * counts[1] > 0
     assert HectorPlanner().choose_goal(ctx) == (20, 15)
-    assert MapexPlanner().choose_goal(ctx) == (20, 15)  # zero variance: falls back to visible unknown cells
-    # Mirror the scene: the preference must follow the big room, not a fixed side.
+    assert MapexPlanner().choose_goal(ctx) == (20, 15)  # zero variance: counts the visible unknown cells
+    # Mirror the scene: the preference follows the big room, not a fixed side.
     mirrored = _context(observed[:, ::-1].copy(), [_frontier(20, 15), _frontier(20, 25)], travel[:, ::-1].copy(),
                         Prediction(prediction.mean[:, ::-1].copy(), prediction.variance[:, ::-1].copy()))
     assert HectorPlanner().choose_goal(mirrored) == (20, 25)
     assert MapexPlanner().choose_goal(mirrored) == (20, 25)
+    # The info-gain term is worth floor(200 * (sqrt(IG max) - sqrt(IG))) (MapEx's int()): a detour longer than
+    # that outweighs it, a shorter one does not.
+    seed_gap = 200 * (np.sqrt(counts[0]) - np.sqrt(counts[1]))
+    assert seed_gap % 1 > 0.1  # so that the truncation matters below
+    for extra, expected in ((-0.5, (20, 15)), (0.5 * (seed_gap % 1), (20, 25)), (1.0, (20, 25))):
+        travel[20, 15] = 5 + np.floor(seed_gap) + extra
+        assert HectorPlanner().choose_goal(_context(observed, frontiers, travel, prediction)) == expected
+
+
+def test_hector_as_coded_in_mapex_counts_the_connected_predicted_free_region():
+    grid, observed, travel, frontiers = _corridor_scene(right_room_big=False)
+    mean = OraclePredictor(grid).predict(observed).mean
+    # Both frontiers open onto the same predicted-free region through the known corridor: equal IG, the
+    # unknown cells of the left room (13 x 39) and of the closet (3 x 2), so the nearer frontier wins.
+    gains = connected_unknown_gains(mean, observed, [(20, 15), (20, 25), (0, 0), (5, 27)])
+    np.testing.assert_array_equal(gains, [13 * 39 + 3 * 2, 13 * 39 + 3 * 2, 0, 16 * 2])  # (0, 0): a wall;
+    # (5, 27): a sealed pocket of 16 x 2 cells beside the closet.
+    travel[20, 25] = 4
+    planner = HectorPlanner(HectorConfig(visibility=None))
+    assert planner.choose_goal(_context(observed, frontiers, travel, Prediction(mean, np.zeros_like(mean)))) \
+        == (20, 25)
+    # A predicted wall across the closet's mouth leaves it its own 3 x 2 unknown cells; values up to the
+    # threshold (0.5) count as free.
+    sealed = mean.copy()
+    sealed[19:22, 26] = 0.6
+    assert connected_unknown_gains(sealed, observed, [(20, 27), (20, 15)]).tolist() == [6, 13 * 39]
+    sealed[19:22, 26] = 0.5
+    assert connected_unknown_gains(sealed, observed, [(20, 27)]).tolist() == [13 * 39 + 6]
 
 
 def test_mapex_prefers_high_variance_unknown_regions():
@@ -143,8 +237,7 @@ def test_mapex_prefers_high_variance_unknown_regions():
     variance[:, 30:] = 0.2
     ctx = _context(observed, frontiers, travel, Prediction(mean, variance))
     assert MapexPlanner().choose_goal(ctx) == (20, 25)
-    variance = variance[:, ::-1].copy()
-    ctx = _context(observed, frontiers, travel, Prediction(mean, variance))
+    ctx = _context(observed, frontiers, travel, Prediction(mean, variance[:, ::-1].copy()))
     assert MapexPlanner().choose_goal(ctx) == (20, 15)
     # Variance on known cells is worthless: only unknown cells count.
     variance = np.zeros(grid.shape, np.float32)
@@ -152,30 +245,86 @@ def test_mapex_prefers_high_variance_unknown_regions():
     variance[:, 30:] = 0.01
     ctx = _context(observed, frontiers, travel, Prediction(mean, variance))
     assert MapexPlanner().choose_goal(ctx) == (20, 25)
+    # Score = visible variance / travel cost: doubling one frontier's cost halves its score exactly.
+    frontiers_out, costs, scores = MapexPlanner().score(ctx)
+    travel[20, 25] *= 2
+    _, _, halved = MapexPlanner().score(_context(observed, frontiers, travel, Prediction(mean, variance)))
+    assert [f.cell_rc for f in frontiers_out] == [(20, 15), (20, 25)]
+    assert halved[1] == pytest.approx(scores[1] / 2) and halved[0] == scores[0]
 
 
-def test_upen_is_deterministic_and_returns_reachable_goals():
-    grid, observed, travel, frontiers = _corridor_scene(right_room_big=True)
-    observed[17:24, 14:27] = FREE
-    observed[1:40, 1:14] = FREE  # a known left room for the tree to grow in
-    rows, cols = np.nonzero(observed == FREE)
-    travel = np.full(grid.shape, np.inf)
-    travel[rows, cols] = np.hypot(rows - 20, cols - 20)
-    variance = np.zeros(grid.shape, np.float32)
-    variance[1:8, 1:14] = 0.3  # uncertain top of the left room
-    prediction = Prediction(np.zeros(grid.shape, np.float32), variance)
-    goals = [UpenPlanner().choose_goal(_context(observed, frontiers, travel, prediction, seed=11)) for _ in range(2)]
+def _long_corridor():
+    """41 x 81: a known corridor (rows 18-22, cols 10-70) between two unknown rooms; the robot at (20, 40)."""
+    walls = np.zeros((41, 81), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[:18, 10:71] = walls[23:, 10:71] = True
+    observed = np.full(walls.shape, UNKNOWN, np.int8)
+    observed[17:24, 10:71] = np.where(walls[17:24, 10:71], OCCUPIED, FREE)
+    return observed, _manhattan_travel(observed, (20, 40))
+
+
+def test_upen_heads_for_the_uncertain_room_deterministically():
+    observed, travel = _long_corridor()
+    frontiers = [_frontier(20, 10), _frontier(20, 70)]
+    variance = np.zeros(observed.shape, np.float32)
+    variance[:, 71:] = 0.3  # the right room is uncertain
+    prediction = Prediction(np.zeros(observed.shape, np.float32), variance)
+    # No frontiers offered: the nearest-frontier fall-back would return None, so these goals are UPEN's own.
+    goals = [UpenPlanner().choose_goal(_context(observed, [], travel, prediction, (20, 40), seed=11))
+             for _ in range(2)]
     assert goals[0] == goals[1]
-    assert np.isfinite(travel[goals[0]]) and goals[0][0] < 14
-    # Zero variance: UPEN has no signal and documents its fall back to the nearest frontier.
-    flat = Prediction(np.zeros(grid.shape, np.float32), np.zeros(grid.shape, np.float32))
-    ctx = _context(observed, frontiers, travel, flat)
-    assert UpenPlanner().choose_goal(ctx) == NearestFrontier().choose_goal(ctx)
+    # The goal is where the best path leaves the known corridor on the right: reachable, at its east end.
+    assert np.isfinite(travel[goals[0]]) and goals[0][1] >= 66
+    prediction = Prediction(prediction.mean, variance[:, ::-1].copy())
+    goal = UpenPlanner().choose_goal(_context(observed, [], travel, prediction, (20, 40), seed=11))
+    assert np.isfinite(travel[goal]) and goal[1] <= 14
+    # Zero variance: UPEN has no signal and falls back to the nearest frontier.
+    flat = Prediction(prediction.mean, np.zeros(observed.shape, np.float32))
+    travel[20, 70] = 5
+    ctx = _context(observed, frontiers, travel, flat, (20, 40))
+    assert UpenPlanner().choose_goal(ctx) == NearestFrontier().choose_goal(ctx) == (20, 70)
+
+
+def test_upen_never_returns_unreachable_or_too_close_goals():
+    observed, travel = _long_corridor()
+    rng = np.random.default_rng(0)
+    goals = set()
+    for seed in range(8):
+        variance = (rng.random(observed.shape) * (rng.random(observed.shape) < 0.2)).astype(np.float32)
+        ctx = _context(observed, [], travel, Prediction(np.zeros_like(variance), variance), (20, 40), seed)
+        goal = UpenPlanner(UpenConfig(rrt_samples=400)).choose_goal(ctx)
+        assert goal is not None and np.isfinite(travel[goal]) and np.hypot(goal[0] - 20, goal[1] - 40) > 10
+        goals.add(goal)
+    assert len(goals) > 1  # the seeds and variance maps do steer it
+
+
+def _closet_and_hall():
+    """5 x 14 m: a corridor (rows 30-48) below a wall with two 1 m doors: the west one, nearer the start, opens
+    onto a 4 x 3 m closet, the east one onto a 10 x 3 m hall."""
+    walls = np.zeros((50, 140), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[29, :] = True
+    walls[29, 10:20] = walls[29, 100:110] = False
+    walls[:29, 40] = True
+    return OccupancyGrid(walls, ~walls, 0.1, "closet and hall")
+
+
+def test_with_the_oracle_information_gain_covers_more_than_nearest_frontier():
+    grid = _closet_and_hall()
+    oracle = OraclePredictor(grid)
+    nearest = run_episode(grid, (40, 50), NearestFrontier(), oracle, steps=40, seed=0)
+    assert nearest.goals[0][1] < 40  # the closet first: its door is nearer
+    for planner in (MapexPlanner(), HectorPlanner()):
+        informed = run_episode(grid, (40, 50), planner, oracle, steps=40, seed=0)
+        assert informed.steps == nearest.steps == 40
+        assert informed.goals[0][1] > 40  # the hall first: far more to see per unit of travel
+        assert informed.coverage[-1] > nearest.coverage[-1] + 0.1
+        assert informed.coverage.sum() > nearest.coverage.sum()  # area under the coverage curve
 
 
 def test_registry_and_bad_inputs():
     assert set(PLANNERS) == {"nearest", "hector", "upen", "mapex"}
-    assert make_planner("mapex").name == "mapex"
+    assert all(make_planner(name).name == name for name in PLANNERS)
     assert make_planner("upen", rrt_samples=10).cfg.rrt_samples == 10
     with pytest.raises(ValueError, match="unknown planner 'frontier'; choose one of hector, mapex, nearest, upen"):
         make_planner("frontier")
@@ -183,10 +332,17 @@ def test_registry_and_bad_inputs():
         make_planner("mapex", no_such_field=1)
     with pytest.raises(ValueError, match="takes no configuration"):
         make_planner("nearest", weight=2)
+    with pytest.raises(ValueError, match="rrt_samples"):
+        make_planner("upen", rrt_samples=0)
     with pytest.raises(ValueError, match="hit_threshold"):
         VisibilityConfig(hit_threshold=0.0)
+    with pytest.raises(ValueError, match="n_rays"):
+        VisibilityConfig(n_rays=2)
     mean = np.zeros((4, 4), np.float32)
     with pytest.raises(ValueError, match="outside the map"):
         predicted_visibility(mean, (4, 0), VisibilityConfig(), 0.1)
     with pytest.raises(ValueError, match="float32"):
-        visible_gains(mean.astype(np.float64), mean, np.zeros((4, 4), np.int8), [(0, 0)], VisibilityConfig(), 0.1)
+        visible_gains(Prediction(mean.astype(np.float64), mean), np.zeros((4, 4), np.int8), [(0, 0)],
+                      VisibilityConfig(), 0.1)
+    with pytest.raises(ValueError, match="observed has shape"):
+        connected_unknown_gains(mean, np.zeros((4, 5), np.int8), [(0, 0)])

@@ -1,69 +1,92 @@
 """Goal selection for exploration: nearest frontier, IG-Hector, UPEN and MapEx.
 
-These reproduce the line-of-sight planners of the MapEx benchmark (castacks/MapEx, ICRA 2025) in our own
-code, one class per method (MapEx selects them with mode strings: ``nearest``, ``hectoraug``, ``upen``,
+These reproduce the line-of-sight planners of the MapEx benchmark (castacks/MapEx, ICRA 2025; its
+``scripts/explore.py``, ``sim_utils.py``, ``simple_mask_utils.py`` and ``upen_baseline.py``) in our own code,
+one class per method where MapEx selects them with mode strings (``nearest``, ``hectoraug``, ``upen``,
 ``visvarprob``). Each planner reads a :class:`~superex_deploy.explore.types.PlanningContext` and returns a goal
-cell; the episode loop plans the path to it with A* and keeps it until reached or unreachable.
+cell of finite travel cost; the episode loop drives there and keeps the goal until it is reached or blocked.
 
-Shared machinery: :func:`predicted_visibility` casts rays from a cell on the predicted mean map and fills the
-visibility polygon they bound (MapEx's "probabilistic raycast + flood fill"); a ray stops once the accumulated
-probability that it has been blocked, ``1 - prod(1 - p_i)``, reaches the hit threshold (0.8 in MapEx).
+Differences common to all planners, and why:
+
+* Distances are the engine's cost-to-go (``ctx.travel_cost``: path length weighted by the wall-proximity cost),
+  not MapEx's straight-line distance from the robot to the frontier centre: a frontier behind a wall is not
+  near, and an unreachable one (``inf``) is never chosen (MapEx picks by straight line, then drops goals that A*
+  cannot reach).
+* Ties are broken by travel cost, then by cell, so a choice never depends on the order of the frontiers.
+
+Shared machinery, the **predicted visibility** of a viewpoint (MapEx's ``get_vis_mask`` in ``probabilistic``
+mode): rays are cast on the predicted mean wall probability and stop at the first cell that blocks them; the
+visible region is the polygon through the rays' end points, filled. MapEx rasterises that polygon's outline
+(grown by one cell) and flood-fills inside it from the viewpoint; we fill the polygon by scanlines
+(:func:`_fill_visibility`): a cell is visible when its centre lies inside, with no outline to leak through and
+no seed to re-pick, at a cost proportional to the visible area. A cell blocks a ray when its own
+probability reaches the hit threshold (0.8): that is what MapEx's ``get_free_points(use_prob=True)`` computes,
+since it resets its "accumulated" probability at every cell. The accumulated rule that MapEx's paper describes,
+``1 - prod(1 - p_i) >= threshold``, is available as ``VisibilityConfig(accumulate=True)``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import ClassVar, Optional
+from typing import Optional
 
 import numba
 import numpy as np
+from scipy import ndimage
 
-from superex_deploy.explore.types import Frontier, PlanningContext, Planner
+from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Frontier, Planner, PlanningContext, Prediction
 from superex_deploy.geometry import _dda_start
 
 __all__ = [
-    "VisibilityConfig", "predicted_visibility", "visible_gains",
+    "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "connected_unknown_gains",
+    "RandomTree", "grow_rrt",
     "NearestFrontier", "HectorConfig", "HectorPlanner", "UpenConfig", "UpenPlanner", "MapexConfig", "MapexPlanner",
-    "PLANNERS", "make_planner", "grow_rrt",
+    "PLANNERS", "make_planner",
 ]
 
 
 @dataclass(frozen=True)
 class VisibilityConfig:
-    """Predicted-visibility raycast (MapEx ``pred_vis_configs``).
+    """Predicted-visibility raycast (MapEx ``pred_vis_configs`` and ``hit_prob_threshold``).
 
     Attributes:
-        n_rays: rays cast over a full turn from each candidate cell (MapEx: 250).
+        n_rays: rays over a full turn from each viewpoint (MapEx: 250).
         range_m: ray range in metres (MapEx: 20).
-        hit_threshold: a ray stops once its accumulated blocking probability reaches this (MapEx: 0.8).
+        hit_threshold: probability at which a cell blocks a ray (MapEx: 0.8), in (0, 1].
+        accumulate: False: a cell blocks when its own wall probability reaches the threshold (MapEx as run).
+            True: when the accumulated blocking probability ``1 - prod(1 - p_i)`` along the ray, the viewpoint's
+            cell included, reaches it (MapEx as described in its paper).
     """
 
     n_rays: int = 250
     range_m: float = 20.0
     hit_threshold: float = 0.8
+    accumulate: bool = False
 
     def __post_init__(self) -> None:
-        if self.n_rays < 3:
-            raise ValueError(f"n_rays must be >= 3, got {self.n_rays}")
-        if not self.range_m > 0:
-            raise ValueError(f"range_m must be positive, got {self.range_m}")
+        if int(self.n_rays) != self.n_rays or self.n_rays < 3:
+            raise ValueError(f"n_rays must be an integer >= 3, got {self.n_rays}")
+        if not (np.isfinite(self.range_m) and self.range_m > 0):
+            raise ValueError(f"range_m must be positive and finite, got {self.range_m}")
         if not 0.0 < self.hit_threshold <= 1.0:
             raise ValueError(f"hit_threshold must lie in (0, 1], got {self.hit_threshold}")
 
 
 @numba.njit(cache=True)
-def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, ranges):
-    """Visible range (cells) of each of ``n_rays`` rays: up to the centre of the cell where the accumulated
-    blocking probability reaches ``hit_threshold``, or to ``max_t`` / the grid border."""
+def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, ranges):
+    """Visible range (cells) of ray ``k`` at angle ``2 pi k / n_rays``: to the centre of the first blocking cell
+    (entry + 0.5 cells), to ``max_t``, or to the grid border, whichever comes first. All zero when the
+    viewpoint's own cell blocks (MapEx: nothing is visible from inside a wall)."""
     n_rows, n_cols = mean.shape
+    own = mean[int(np.floor(y0)), int(np.floor(x0))]
+    if own >= hit_threshold:
+        ranges[:] = 0.0
+        return
     for k in range(n_rays):
         angle = 2.0 * np.pi * k / n_rays
         r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
             y0, x0, np.sin(angle), np.cos(angle))
-        transmittance = 1.0 - mean[r, c]
-        if 1.0 - transmittance >= hit_threshold:
-            ranges[k] = 0.5
-            continue
+        transmittance = 1.0 - own
         reach = max_t
         while True:
             if t_next_c <= t_next_r:
@@ -79,42 +102,78 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, ranges):
             if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
                 reach = t
                 break
-            transmittance *= 1.0 - mean[r, c]
-            if 1.0 - transmittance >= hit_threshold:
+            p = mean[r, c]
+            if accumulate:
+                transmittance *= 1.0 - p
+                blocked = 1.0 - transmittance >= hit_threshold
+            else:
+                blocked = p >= hit_threshold
+            if blocked:
                 reach = min(t + 0.5, max_t)
                 break
         ranges[k] = reach
 
 
 @numba.njit(cache=True)
-def _fill_visibility(ranges, y0, x0, n_rows, n_cols, observed, variance, visible_out, write_mask):
-    """Fill the polygon bounded by the ray ranges: a cell centre at polar (rho, phi) from the origin is visible
-    when rho is within the smaller range of the two rays that bracket phi. Returns the number of visible
-    UNKNOWN cells and their summed variance."""
+def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask):
+    """Cells whose centre lies inside the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 +
+    ranges[k] cos a_k)``, ``a_k = 2 pi k / n``, by scanline fill: each row's centre line crosses the polygon's
+    edges (half-open in y, so a vertex on the line counts once) and the cells whose centres lie between
+    crossings ``2j`` and ``2j + 1`` are inside. The work is the edges' row spans plus the visible cells.
+
+    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
+    is UNKNOWN (-1) and the sum of their ``variance``. Nothing is visible when every range is zero."""
     n_rays = ranges.shape[0]
-    reach = 0.0
-    for k in range(n_rays):
-        reach = max(reach, ranges[k])
-    r_lo = max(0, int(np.floor(y0 - reach)))
-    r_hi = min(n_rows - 1, int(np.ceil(y0 + reach)))
-    c_lo = max(0, int(np.floor(x0 - reach)))
-    c_hi = min(n_cols - 1, int(np.ceil(x0 + reach)))
+    n_rows, n_cols = observed.shape
+    if ranges.max() <= 0.0:
+        return 0, 0.0
     step = 2.0 * np.pi / n_rays
+    vert_y = np.empty(n_rays)
+    vert_x = np.empty(n_rays)
+    for k in range(n_rays):
+        vert_y[k] = y0 + ranges[k] * np.sin(step * k)
+        vert_x[k] = x0 + ranges[k] * np.cos(step * k)
+    # Row r is scanned along y = r + 0.5; an edge meets it when min(y) <= r + 0.5 < max(y).
+    row_lo = max(0, int(np.ceil(vert_y.min() - 0.5)))
+    row_hi = min(n_rows - 1, int(np.ceil(vert_y.max() - 0.5)) - 1)
+    if row_hi < row_lo:
+        return 0, 0.0
+    n_scan = row_hi - row_lo + 1
+    offsets = np.zeros(n_scan + 1, np.int64)
+    for k in range(n_rays):
+        k1 = (k + 1) % n_rays
+        first = max(row_lo, int(np.ceil(min(vert_y[k], vert_y[k1]) - 0.5)))
+        last = min(row_hi, int(np.ceil(max(vert_y[k], vert_y[k1]) - 0.5)) - 1)
+        for r in range(first, last + 1):
+            offsets[r - row_lo + 1] += 1
+    for i in range(n_scan):
+        offsets[i + 1] += offsets[i]
+    crossings = np.empty(offsets[n_scan])
+    filled = offsets[:n_scan].copy()
+    for k in range(n_rays):
+        k1 = (k + 1) % n_rays
+        first = max(row_lo, int(np.ceil(min(vert_y[k], vert_y[k1]) - 0.5)))
+        last = min(row_hi, int(np.ceil(max(vert_y[k], vert_y[k1]) - 0.5)) - 1)
+        for r in range(first, last + 1):
+            fraction = (r + 0.5 - vert_y[k]) / (vert_y[k1] - vert_y[k])
+            crossings[filled[r - row_lo]] = vert_x[k] + fraction * (vert_x[k1] - vert_x[k])
+            filled[r - row_lo] += 1
     count = 0
     var_sum = 0.0
-    for r in range(r_lo, r_hi + 1):
-        for c in range(c_lo, c_hi + 1):
-            vy = r + 0.5 - y0
-            vx = c + 0.5 - x0
-            rho = np.sqrt(vy * vy + vx * vx)
-            if rho > reach:
-                continue
-            phi = np.arctan2(vy, vx)
-            if phi < 0.0:
-                phi += 2.0 * np.pi
-            k0 = int(np.floor(phi / step)) % n_rays
-            k1 = (k0 + 1) % n_rays
-            if rho <= min(ranges[k0], ranges[k1]) or rho < 0.75:
+    for i in range(n_scan):
+        r = row_lo + i
+        lo, hi = offsets[i], offsets[i + 1]
+        for a in range(lo + 1, hi):  # insertion sort: a row crosses few edges
+            x = crossings[a]
+            b = a - 1
+            while b >= lo and crossings[b] > x:
+                crossings[b + 1] = crossings[b]
+                b -= 1
+            crossings[b + 1] = x
+        for j in range(lo, hi - 1, 2):
+            c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
+            c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+            for c in range(c_first, c_last + 1):
                 if write_mask:
                     visible_out[r, c] = True
                 if observed[r, c] == -1:
@@ -123,117 +182,190 @@ def _fill_visibility(ranges, y0, x0, n_rows, n_cols, observed, variance, visible
     return count, var_sum
 
 
-def _check_maps(mean: np.ndarray, observed: np.ndarray, variance: np.ndarray) -> None:
-    for name, array, dtype in (("mean", mean, np.float32), ("variance", variance, np.float32),
-                               ("observed", observed, np.int8)):
-        if not isinstance(array, np.ndarray) or array.dtype != dtype or array.ndim != 2:
-            raise ValueError(f"{name} must be a {np.dtype(dtype).name} [H, W] array")
-        if array.shape != mean.shape:
-            raise ValueError(f"{name} has shape {array.shape}, mean has {mean.shape}")
+def _check_map(name: str, array, dtype, shape=None) -> np.ndarray:
+    if not isinstance(array, np.ndarray) or array.dtype != dtype or array.ndim != 2 or min(array.shape) < 1:
+        found = f"{array.dtype} {array.shape}" if isinstance(array, np.ndarray) else type(array).__name__
+        raise ValueError(f"{name} must be a non-empty {np.dtype(dtype).name} [H, W] array, got {found}")
+    if shape is not None and array.shape != tuple(shape):
+        raise ValueError(f"{name} has shape {array.shape}, expected {tuple(shape)}")
+    return np.ascontiguousarray(array)
 
 
-def _check_cell(cell_rc, shape) -> tuple[int, int]:
-    r, c = int(cell_rc[0]), int(cell_rc[1])
-    if not (0 <= r < shape[0] and 0 <= c < shape[1]):
-        raise ValueError(f"cell {(r, c)} lies outside the map of shape {shape}")
-    return r, c
+def _check_cells(cells_rc, shape) -> np.ndarray:
+    cells = np.asarray(cells_rc, dtype=np.int64).reshape(-1, 2)
+    outside = (cells[:, 0] < 0) | (cells[:, 0] >= shape[0]) | (cells[:, 1] < 0) | (cells[:, 1] >= shape[1])
+    if outside.any():
+        raise ValueError(f"cell {tuple(int(v) for v in cells[np.argmax(outside)])} lies outside the map of "
+                         f"shape {tuple(shape)}")
+    return cells
 
 
-def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
-    """Region predicted visible from a cell: probabilistic raycast on the mean map, polygon filled.
+def _max_range_cells(cfg: VisibilityConfig, resolution_m: float) -> float:
+    if not (np.isfinite(resolution_m) and resolution_m > 0):
+        raise ValueError(f"resolution_m must be positive and finite, got {resolution_m}")
+    return cfg.range_m / float(resolution_m)
+
+
+def visible_ranges(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
+    """Per-ray visible range from the centre of a cell on the predicted mean map.
 
     Args:
         mean: float32 ``[H, W]`` predicted wall probability.
-        cell_rc: viewpoint cell (row, col); rays start at its centre.
-        cfg: ray count, range (m) and hit threshold.
+        cell_rc: viewpoint cell (row, col).
+        cfg: ray count, range, hit rule.
         resolution_m: metres per cell.
 
     Returns:
-        bool ``[H, W]`` visible cells.
+        float64 ``[cfg.n_rays]`` ranges in cells; ray ``k`` points at angle ``2 pi k / n_rays`` (geometry's
+        convention: 0 along +col, pi/2 along +row).
     """
-    shape = mean.shape
-    blank_observed = np.zeros(shape, np.int8)
-    _check_maps(mean, blank_observed, np.zeros(shape, np.float32))
-    r, c = _check_cell(cell_rc, shape)
+    mean = _check_map("mean", mean, np.float32)
+    (r, c), = _check_cells([cell_rc], mean.shape)
     ranges = np.empty(cfg.n_rays, np.float64)
-    _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, cfg.range_m / resolution_m, cfg.hit_threshold, ranges)
-    visible = np.zeros(shape, bool)
-    _fill_visibility(ranges, r + 0.5, c + 0.5, shape[0], shape[1], blank_observed,
-                     np.zeros(shape, np.float32), visible, True)
+    _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, _max_range_cells(cfg, resolution_m), cfg.hit_threshold,
+                        cfg.accumulate, ranges)
+    return ranges
+
+
+def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
+    """Region predicted visible from a cell: the filled polygon of :func:`visible_ranges`.
+
+    Returns:
+        bool ``[H, W]`` visible cells (empty when the viewpoint's own cell blocks).
+    """
+    ranges = visible_ranges(mean, cell_rc, cfg, resolution_m)
+    r, c = int(cell_rc[0]), int(cell_rc[1])
+    visible = np.zeros(mean.shape, bool)
+    _fill_visibility(ranges, r + 0.5, c + 0.5, np.zeros(mean.shape, np.int8), np.zeros(mean.shape, np.float32),
+                     visible, True)
     return visible
 
 
-def visible_gains(mean: np.ndarray, variance: np.ndarray, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
+def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
                   resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Information gain of viewpoints: currently unknown cells predicted visible from each.
+    """Information of viewpoints: the currently unknown cells predicted visible from each.
 
     Args:
-        mean, variance: float32 ``[H, W]`` prediction.
+        prediction: float32 ``[H, W]`` mean and variance.
         observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
-        cells_rc: ``[N, 2]`` viewpoint cells.
-        cfg, resolution_m: as in :func:`predicted_visibility`.
+        cells_rc: ``[N, 2]`` viewpoint cells (row, col).
+        cfg, resolution_m: as in :func:`visible_ranges`.
 
     Returns:
-        ``(unknown_count int64 [N], variance_sum float64 [N])``.
+        ``(unknown_count int64 [N], variance_sum float64 [N])`` over the visible unknown cells.
     """
-    _check_maps(mean, observed, variance)
-    cells = np.asarray(cells_rc, dtype=np.int64).reshape(-1, 2)
+    mean = _check_map("prediction.mean", prediction.mean, np.float32)
+    variance = _check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
+    observed = _check_map("observed", observed, np.int8, mean.shape)
+    cells = _check_cells(cells_rc, mean.shape)
     counts = np.zeros(len(cells), np.int64)
     var_sums = np.zeros(len(cells), np.float64)
     ranges = np.empty(cfg.n_rays, np.float64)
     no_mask = np.zeros((1, 1), bool)
-    for i, cell in enumerate(cells):
-        r, c = _check_cell(cell, mean.shape)
-        _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, cfg.range_m / resolution_m, cfg.hit_threshold,
-                            ranges)
-        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, mean.shape[0], mean.shape[1],
-                                                  observed, variance, no_mask, False)
+    max_t = _max_range_cells(cfg, resolution_m)
+    for i, (r, c) in enumerate(cells):
+        _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate, ranges)
+        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False)
     return counts, var_sums
 
 
-def _reachable(frontiers: tuple[Frontier, ...], travel_cost: np.ndarray) -> list[tuple[Frontier, float]]:
-    out = []
-    for frontier in frontiers:
-        cost = float(travel_cost[frontier.cell_rc])
+def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,
+                            wall_threshold: float = 0.5) -> np.ndarray:
+    """Unknown cells in the predicted-free region 4-connected to each cell (MapEx ``hectoraug`` as coded).
+
+    The prediction is binarised (a wall where ``mean > wall_threshold``; MapEx: its visualised prediction above
+    128 of 255) and each cell's 4-connected non-wall component is taken whole, with no ray range.
+
+    Args:
+        mean: float32 ``[H, W]`` predicted wall probability.
+        observed: int8 ``[H, W]`` observed map.
+        cells_rc: ``[N, 2]`` cells (row, col).
+        wall_threshold: binarisation threshold.
+
+    Returns:
+        int64 ``[N]``; 0 for a cell predicted to be a wall.
+    """
+    mean = _check_map("mean", mean, np.float32)
+    observed = _check_map("observed", observed, np.int8, mean.shape)
+    cells = _check_cells(cells_rc, mean.shape)
+    labels, n_labels = ndimage.label(mean <= wall_threshold)
+    unknown_per_label = np.bincount(labels[observed == UNKNOWN], minlength=n_labels + 1)
+    unknown_per_label[0] = 0
+    return unknown_per_label[labels[cells[:, 0], cells[:, 1]]].astype(np.int64)
+
+
+def _reachable(ctx: PlanningContext) -> tuple[list[Frontier], np.ndarray]:
+    """The frontiers of finite travel cost and those costs (float64 ``[N]``)."""
+    frontiers, costs = [], []
+    for frontier in ctx.frontiers:
+        cost = float(ctx.travel_cost[frontier.cell_rc])
         if np.isfinite(cost):
-            out.append((frontier, cost))
-    return out
+            frontiers.append(frontier)
+            costs.append(cost)
+    return frontiers, np.asarray(costs, np.float64)
+
+
+def _best(values: np.ndarray, costs: np.ndarray, frontiers: list[Frontier]) -> tuple[int, int]:
+    """Cell of the frontier with the least value; ties to the lower travel cost, then the lower cell."""
+    best = min(range(len(frontiers)), key=lambda i: (values[i], costs[i], frontiers[i].cell_rc))
+    return frontiers[best].cell_rc
 
 
 class NearestFrontier(Planner):
-    """Nearest frontier (MapEx ``nearest``): the reachable frontier with the least travel cost."""
+    """Nearest frontier (MapEx ``nearest``): the frontier of least travel cost.
+
+    MapEx ranks frontier centres by straight-line distance and skips those A* cannot reach; we rank by the
+    cost-to-go, which already says which are reachable and how far they really are.
+    """
 
     name = "nearest"
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
-        candidates = _reachable(ctx.frontiers, ctx.travel_cost)
-        if not candidates:
+        frontiers, costs = _reachable(ctx)
+        if not frontiers:
             return None
-        best = min(candidates, key=lambda fc: (fc[1], fc[0].cell_rc))
-        return best[0].cell_rc
+        return _best(costs, costs, frontiers)
 
 
 @dataclass(frozen=True)
 class HectorConfig:
-    """IG-Hector (Shrestha et al. ICRA 2019; MapEx ``hectoraug``).
+    """IG-Hector (Shrestha et al., ICRA 2019, as MapEx runs it: ``hectoraug``).
 
     Attributes:
-        visibility: predicted-visibility raycast used for the information gain.
-        info_gain_weight: weight of ``sqrt(max IG) - sqrt(IG)`` against travel cost in cells (MapEx: 200).
+        visibility: information gain region: the unknown cells predicted visible from the frontier (default),
+            or None for MapEx's code path, which skips the raycast and counts the whole predicted-free region
+            connected to the frontier (:func:`connected_unknown_gains`).
+        info_gain_weight: weight ``w`` of ``floor(w * (sqrt(max IG) - sqrt(IG)))`` against travel cost
+            (MapEx: 200).
+        wall_threshold: binarisation of the prediction for the connected region (MapEx: 0.5).
     """
 
-    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+    visibility: Optional[VisibilityConfig] = field(default_factory=VisibilityConfig)
     info_gain_weight: float = 200.0
+    wall_threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.info_gain_weight) and self.info_gain_weight >= 0):
+            raise ValueError(f"info_gain_weight must be finite and >= 0, got {self.info_gain_weight}")
 
 
 class HectorPlanner(Planner):
-    """IG-Hector: exploration transform seeded at the frontiers with an information-gain cost.
+    """IG-Hector: the exploration transform seeded at the frontiers with an information-gain cost.
 
-    The information gain IG of a frontier is the number of currently unknown cells predicted visible from it.
-    MapEx seeds a BFS exploration transform at the frontiers with ``w * (sqrt(max IG) - sqrt(IG))`` and descends
-    its gradient from the robot; the robot's value in that transform is the minimum over frontiers of seed cost
-    plus travel cost, so we pick that minimising frontier directly and let A* drive there (the same goal,
-    without a second whole-map BFS per step).
+    MapEx seeds a BFS over the observed free cells at each frontier centre with ``floor(w * (sqrt(max IG) -
+    sqrt(IG)))`` and descends its gradient from the robot. The robot's value in that transform is the least,
+    over frontiers, of seed plus travel cost, so we pick that frontier directly and let the engine drive there.
+    Differences, and why:
+
+    * IG counts the currently unknown cells predicted *visible* from the frontier (MapEx's ``score_frontiers``
+      with ``hectoraug`` casts the rays but then skips them, ``skip_raycast=True``, and counts the whole
+      predicted-free region connected to the frontier). That region holds the known free space, so every
+      frontier the robot can reach gets the same IG and the IG term vanishes: plain Hector. Visibility keeps the
+      method the paper describes; ``HectorConfig(visibility=None)`` gives MapEx's code path.
+    * Travel cost is the engine's (1 per cell far from walls, up to about 10 beside them) where MapEx's
+      transform adds Hector's danger cost, ``5 (15 - d)`` per cell within 15 cells of a wall; the weight of 200
+      therefore counts for more against distance here than in MapEx, most in narrow corridors.
+    * MapEx re-plans Hector at every step; the episode loop keeps a goal until it is reached or blocked.
     """
 
     name = "hector"
@@ -241,43 +373,56 @@ class HectorPlanner(Planner):
     def __init__(self, cfg: HectorConfig = HectorConfig()):
         self.cfg = cfg
 
+    def information_gain(self, prediction: Prediction, observed: np.ndarray, cells_rc,
+                         resolution_m: float) -> np.ndarray:
+        """int64 ``[N]`` IG of each cell (see :class:`HectorConfig`)."""
+        if self.cfg.visibility is None:
+            return connected_unknown_gains(prediction.mean, observed, cells_rc, self.cfg.wall_threshold)
+        counts, _ = visible_gains(prediction, observed, cells_rc, self.cfg.visibility, resolution_m)
+        return counts
+
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
-        candidates = _reachable(ctx.frontiers, ctx.travel_cost)
-        if not candidates:
+        frontiers, costs = _reachable(ctx)
+        if not frontiers:
             return None
-        prediction = ctx.predict()
-        cells = [f.cell_rc for f, _ in candidates]
-        gains, _ = visible_gains(prediction.mean, prediction.variance, ctx.observed, cells, self.cfg.visibility,
-                                 ctx.resolution_m)
+        gains = self.information_gain(ctx.predict(), ctx.observed, [f.cell_rc for f in frontiers],
+                                      ctx.resolution_m)
         root_gain = np.sqrt(gains.astype(np.float64))
-        totals = [cost + self.cfg.info_gain_weight * (root_gain.max() - root_gain[i])
-                  for i, (_, cost) in enumerate(candidates)]
-        best = min(range(len(candidates)), key=lambda i: (totals[i], candidates[i][0].cell_rc))
-        return candidates[best][0].cell_rc
+        seeds = np.floor(self.cfg.info_gain_weight * (root_gain.max() - root_gain))
+        return _best(costs + seeds, costs, frontiers)
 
 
 @dataclass(frozen=True)
 class MapexConfig:
-    """MapEx (``visvarprob``): visibility-masked variance per unit distance.
+    """MapEx (``visvarprob``): predicted-visible variance per unit distance.
 
     Attributes:
-        visibility: probabilistic raycast (MapEx: 250 rays over 20 m, hit threshold 0.8).
-        min_distance_cells: floor on the travel cost used as divisor (a frontier under the robot would
-            otherwise divide by zero).
+        visibility: the probabilistic raycast (MapEx: 250 rays over 20 m, hit threshold 0.8).
+        min_distance_cells: floor on the travel cost used as divisor. Frontiers within the goal tolerance (1 m)
+            are never offered, so it only guards against a zero cost.
     """
 
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
     min_distance_cells: float = 1.0
 
+    def __post_init__(self) -> None:
+        if not self.min_distance_cells > 0:
+            raise ValueError(f"min_distance_cells must be positive, got {self.min_distance_cells}")
+
 
 class MapexPlanner(Planner):
-    """MapEx: score each frontier by the summed predicted variance over currently unknown cells predicted
-    visible from it, divided by the travel cost; pick the best.
+    """MapEx: each frontier scores the predicted variance summed over the currently unknown cells predicted
+    visible from it, divided by its distance; the best score wins.
 
-    Where the predictor has no variance at all (a deterministic predictor such as
-    :class:`~superex_deploy.explore.prediction.ObservedAsPrediction`), every score would be zero; the planner then
-    uses the number of visible unknown cells instead (MapEx's ``visunk`` ablation) rather than a blind tie.
-    SuperEx reuses :meth:`score` with its own predictor and evidence.
+    As MapEx, visibility comes from the probabilistic raycast on the ensemble mean and the variance from the
+    ensemble. Differences: the divisor is the travel cost rather than the straight-line distance (see the
+    module docstring); and when the prediction carries no variance at all (a deterministic predictor such as
+    :class:`~superex_deploy.explore.prediction.ObservedAsPrediction` or the oracle), where MapEx would tie every
+    frontier at zero and take the first, the visible unknown cells are counted instead (MapEx's ``visunk``).
+
+    Reuse: the predictor and its evidence reach the planner only through ``ctx.predict``, so a SuperEx variant
+    is this class run with another predictor; :meth:`information` is the hook for a different information
+    measure and :meth:`score` gives every reachable frontier's score.
     """
 
     name = "mapex"
@@ -285,48 +430,63 @@ class MapexPlanner(Planner):
     def __init__(self, cfg: MapexConfig = MapexConfig()):
         self.cfg = cfg
 
-    def score(self, ctx: PlanningContext, candidates: list[tuple[Frontier, float]]) -> np.ndarray:
-        """float64 ``[N]`` information per unit travel cost of each (frontier, travel cost) candidate."""
-        prediction = ctx.predict()
-        counts, var_sums = visible_gains(prediction.mean, prediction.variance, ctx.observed,
-                                         [f.cell_rc for f, _ in candidates], self.cfg.visibility, ctx.resolution_m)
-        information = var_sums if np.any(var_sums > 0.0) else counts.astype(np.float64)
-        distances = np.maximum([cost for _, cost in candidates], self.cfg.min_distance_cells)
-        return information / distances
+    def information(self, prediction: Prediction, observed: np.ndarray, cells_rc, resolution_m: float
+                    ) -> np.ndarray:
+        """float64 ``[N]``: visible-unknown variance of each viewpoint, or the visible unknown count when the
+        prediction has no variance anywhere."""
+        counts, var_sums = visible_gains(prediction, observed, cells_rc, self.cfg.visibility, resolution_m)
+        if np.any(prediction.variance > 0.0):
+            return var_sums
+        return counts.astype(np.float64)
+
+    def score(self, ctx: PlanningContext) -> tuple[list[Frontier], np.ndarray, np.ndarray]:
+        """The reachable frontiers, their travel costs and their scores (information per unit travel cost),
+        float64 ``[N]`` each."""
+        frontiers, costs = _reachable(ctx)
+        if not frontiers:
+            return [], costs, np.zeros(0)
+        information = self.information(ctx.predict(), ctx.observed, [f.cell_rc for f in frontiers],
+                                       ctx.resolution_m)
+        return frontiers, costs, information / np.maximum(costs, self.cfg.min_distance_cells)
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
-        candidates = _reachable(ctx.frontiers, ctx.travel_cost)
-        if not candidates:
+        frontiers, costs, scores = self.score(ctx)
+        if not frontiers:
             return None
-        scores = self.score(ctx, candidates)
-        best = max(range(len(candidates)), key=lambda i: (scores[i], -candidates[i][1]))
-        return candidates[best][0].cell_rc
+        return _best(-scores, costs, frontiers)
 
 
 @numba.njit(cache=True)
-def _segment_free(traversable, y0, x0, y1, x1):
-    length = np.hypot(y1 - y0, x1 - x0)
-    n = int(np.ceil(length / 0.5)) + 1
+def _segment_free(passable, y0, x0, y1, x1):
+    """Whether every point sampled every half cell or less along the segment lies on a passable cell."""
+    n = int(np.ceil(np.hypot(y1 - y0, x1 - x0) / 0.5)) + 1
     for i in range(n + 1):
         f = i / n
-        r = int(np.floor(y0 + f * (y1 - y0)))
-        c = int(np.floor(x0 + f * (x1 - x0)))
-        if not traversable[r, c]:
+        if not passable[int(np.floor(y0 + f * (y1 - y0))), int(np.floor(x0 + f * (x1 - x0)))]:
             return False
     return True
 
 
 @numba.njit(cache=True)
-def _grow_rrt(traversable, start_y, start_x, samples, expand_cells, node_yx, parent, depth):
-    """Grow an RRT from the start over ``samples`` ([n, 2] points in cells); returns the number of nodes.
+def _grow_rrt(passable, reachable, start_y, start_x, samples, expand_cells, variance, node_yx, parent, depth,
+              path_variance, exit_rc):
+    """Grow an RRT from ``(start_y, start_x)`` over ``samples`` ([n, 2] points, cells); returns the node count.
 
-    Each sample pulls the nearest node up to ``expand_cells`` towards it; the new node is kept when the segment
-    stays on traversable cells. ``node_yx`` / ``parent`` / ``depth`` are filled in place (node 0 = start).
+    Each sample pulls its nearest node (first in insertion order on ties) at most ``expand_cells`` towards it;
+    the new node is kept when the segment stays on passable cells. Arrays are filled in place, node 0 being the
+    start. Each edge is sampled at the points ``i / n`` along it, ``i = 1..n``, ``n`` its Chebyshev length in
+    cells rounded up (at least 1); over the cells of those points along the root-to-node path, ``path_variance``
+    is the variance summed and ``exit_rc`` the last cell before the first one outside ``reachable`` (the node's
+    own cell if there is none): a node inherits its parent's exit once the path has left ``reachable``.
     """
     node_yx[0, 0] = start_y
     node_yx[0, 1] = start_x
     parent[0] = -1
     depth[0] = 0
+    path_variance[0] = 0.0
+    exit_rc[0, 0] = int(np.floor(start_y))
+    exit_rc[0, 1] = int(np.floor(start_x))
+    has_left = np.zeros(node_yx.shape[0], np.bool_)
     n_nodes = 1
     for s in range(samples.shape[0]):
         sy = samples[s, 0]
@@ -342,62 +502,165 @@ def _grow_rrt(traversable, start_y, start_x, samples, expand_cells, node_yx, par
         if dist < 1e-9:
             continue
         scale = min(1.0, expand_cells / dist)
-        ny = node_yx[best, 0] + scale * (sy - node_yx[best, 0])
-        nx = node_yx[best, 1] + scale * (sx - node_yx[best, 1])
-        if _segment_free(traversable, node_yx[best, 0], node_yx[best, 1], ny, nx):
-            node_yx[n_nodes, 0] = ny
-            node_yx[n_nodes, 1] = nx
-            parent[n_nodes] = best
-            depth[n_nodes] = depth[best] + 1
-            n_nodes += 1
+        by = node_yx[best, 0]
+        bx = node_yx[best, 1]
+        ny = by + scale * (sy - by)
+        nx = bx + scale * (sx - bx)
+        if not _segment_free(passable, by, bx, ny, nx):
+            continue
+        new = n_nodes
+        node_yx[new, 0] = ny
+        node_yx[new, 1] = nx
+        parent[new] = best
+        depth[new] = depth[best] + 1
+        n = max(1, int(np.ceil(max(abs(ny - by), abs(nx - bx)))))
+        total = 0.0
+        exit_r = exit_rc[best, 0]
+        exit_c = exit_rc[best, 1]
+        left = has_left[best]
+        for i in range(1, n + 1):
+            f = i / n
+            r = int(np.floor(by + f * (ny - by)))
+            c = int(np.floor(bx + f * (nx - bx)))
+            total += variance[r, c]
+            if not left:
+                if reachable[r, c]:
+                    exit_r = r
+                    exit_c = c
+                else:
+                    left = True
+        path_variance[new] = path_variance[best] + total
+        exit_rc[new, 0] = exit_r
+        exit_rc[new, 1] = exit_c
+        has_left[new] = left
+        n_nodes += 1
     return n_nodes
 
 
-def grow_rrt(traversable: np.ndarray, start_rc, n_samples: int, expand_cells: float,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """RRT over the traversable cells from the centre of ``start_rc``.
+@dataclass(frozen=True)
+class RandomTree:
+    """An RRT from :func:`grow_rrt`.
 
-    Returns ``(node_yx float64 [n, 2] in cells, parent int64 [n] (-1 at the root), depth int64 [n])``.
+    Attributes:
+        nodes_yx: float64 ``[n, 2]`` node positions (y, x) in cells; node 0 is the root.
+        parent: int64 ``[n]`` parent index, -1 at the root (a parent always precedes its children).
+        depth: int64 ``[n]`` edges from the root.
+        path_variance: float64 ``[n]`` variance summed over the cells of the root-to-node path (see
+            :meth:`path_cells`), the root's cell excluded.
+        exit_rc: int64 ``[n, 2]`` the last cell of that path before it first leaves the reachable cells (the
+            node's own cell when it never does).
     """
-    traversable = np.ascontiguousarray(traversable)
-    if traversable.dtype != np.bool_ or traversable.ndim != 2:
-        raise ValueError("traversable must be a bool [H, W] array")
-    r, c = _check_cell(start_rc, traversable.shape)
-    if not traversable[r, c]:
-        raise ValueError(f"RRT start {(r, c)} is not traversable")
-    if n_samples < 1 or not expand_cells > 0:
-        raise ValueError("n_samples must be >= 1 and expand_cells > 0")
-    samples = rng.random((n_samples, 2)) * np.array(traversable.shape, np.float64)
-    node_yx = np.empty((n_samples + 1, 2), np.float64)
-    parent = np.empty(n_samples + 1, np.int64)
-    depth = np.empty(n_samples + 1, np.int64)
-    n = _grow_rrt(traversable, r + 0.5, c + 0.5, samples, float(expand_cells), node_yx, parent, depth)
-    return node_yx[:n].copy(), parent[:n].copy(), depth[:n].copy()
+
+    nodes_yx: np.ndarray
+    parent: np.ndarray
+    depth: np.ndarray
+    path_variance: np.ndarray
+    exit_rc: np.ndarray
+
+    def path_cells(self, node: int) -> np.ndarray:
+        """int64 ``[m, 2]`` cells of the root-to-``node`` path: the root's cell, then for each edge the cells
+        of the points ``i / n`` along it, ``i = 1..n``, ``n`` its Chebyshev length in cells rounded up."""
+        chain = [int(node)]
+        while self.parent[chain[-1]] >= 0:
+            chain.append(int(self.parent[chain[-1]]))
+        chain.reverse()
+        cells = [np.floor(self.nodes_yx[chain[0]]).astype(np.int64)[None]]
+        for a, b in zip(chain[:-1], chain[1:]):
+            start, end = self.nodes_yx[a], self.nodes_yx[b]
+            n = max(1, int(np.ceil(np.abs(end - start).max())))
+            fractions = np.arange(1, n + 1)[:, None] / n
+            cells.append(np.floor(start + fractions * (end - start)).astype(np.int64))
+        return np.concatenate(cells)
+
+
+def grow_rrt(passable: np.ndarray, start_rc, n_samples: int, expand_cells: float, rng: np.random.Generator,
+             variance: Optional[np.ndarray] = None, reachable: Optional[np.ndarray] = None) -> RandomTree:
+    """RRT over the passable cells from the centre of ``start_rc``, samples uniform over the whole map.
+
+    Args:
+        passable: bool ``[H, W]`` cells the tree may cross.
+        start_rc: root cell (row, col), passable.
+        n_samples: samples drawn (each adds at most one node).
+        expand_cells: the longest edge, in cells.
+        rng: source of the samples.
+        variance: float32 ``[H, W]`` summed along the paths, or None (zeros).
+        reachable: bool ``[H, W]`` cells whose exit the tree reports (``RandomTree.exit_rc``), or None (all).
+
+    Returns:
+        The :class:`RandomTree`.
+    """
+    passable = _check_map("passable", passable, np.bool_)
+    variance = (np.zeros(passable.shape, np.float32) if variance is None
+                else _check_map("variance", variance, np.float32, passable.shape))
+    reachable = (np.ones(passable.shape, np.bool_) if reachable is None
+                 else _check_map("reachable", reachable, np.bool_, passable.shape))
+    (r, c), = _check_cells([start_rc], passable.shape)
+    if not passable[r, c]:
+        raise ValueError(f"RRT start {(int(r), int(c))} is not passable")
+    if int(n_samples) != n_samples or n_samples < 1 or not (np.isfinite(expand_cells) and expand_cells > 0):
+        raise ValueError(f"n_samples must be an integer >= 1 and expand_cells positive, got {n_samples}, "
+                         f"{expand_cells}")
+    size = int(n_samples) + 1
+    samples = rng.random((size - 1, 2)) * np.array(passable.shape, np.float64)
+    node_yx, parent, depth = np.empty((size, 2)), np.empty(size, np.int64), np.empty(size, np.int64)
+    path_variance, exit_rc = np.empty(size), np.empty((size, 2), np.int64)
+    n = _grow_rrt(passable, reachable, r + 0.5, c + 0.5, samples, float(expand_cells), variance, node_yx, parent,
+                  depth, path_variance, exit_rc)
+    return RandomTree(node_yx[:n].copy(), parent[:n].copy(), depth[:n].copy(), path_variance[:n].copy(),
+                      exit_rc[:n].copy())
 
 
 @dataclass(frozen=True)
 class UpenConfig:
-    """UPEN (Georgakis et al. ICRA 2022, as run in the MapEx benchmark: ``upen_config`` of its base.yaml).
+    """UPEN (Georgakis et al., ICRA 2022) as MapEx runs it (``upen_config`` of its ``base.yaml``).
 
     Attributes:
         rrt_samples: RRT iterations (MapEx: 2500).
         expand_cells: RRT step length in cells (MapEx: 5).
-        reach_horizon: path length in RRT edges that is scored and whose end becomes the goal (MapEx: 50).
+        reach_horizon: the longest path scored, in RRT edges (MapEx: 50).
+        min_goal_distance_m: a goal this close to the robot counts as reached already (MapEx's
+            ``cur_pose_dist_threshold_m``: 1 m).
     """
 
     rrt_samples: int = 2500
     expand_cells: float = 5.0
     reach_horizon: int = 50
+    min_goal_distance_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        if int(self.rrt_samples) != self.rrt_samples or self.rrt_samples < 1:
+            raise ValueError(f"rrt_samples must be an integer >= 1, got {self.rrt_samples}")
+        if not (np.isfinite(self.expand_cells) and self.expand_cells > 0):
+            raise ValueError(f"expand_cells must be positive, got {self.expand_cells}")
+        if int(self.reach_horizon) != self.reach_horizon or self.reach_horizon < 1:
+            raise ValueError(f"reach_horizon must be an integer >= 1, got {self.reach_horizon}")
+        if not self.min_goal_distance_m >= 0:
+            raise ValueError(f"min_goal_distance_m must be >= 0, got {self.min_goal_distance_m}")
 
 
 class UpenPlanner(Planner):
-    """UPEN: grow an RRT on the traversable map, score each root-to-node path of up to ``reach_horizon`` edges by
-    the ensemble variance summed along it, and take the end of the best path as the goal.
+    """UPEN: grow an RRT from the robot through everything not known to be a wall, score each root-to-node path
+    of up to ``reach_horizon`` edges by the ensemble variance summed along it, and head along the best path.
 
-    MapEx keeps only paths of exactly ``reach_horizon`` edges; early in an episode the known free space is too
-    small for such paths, so we score the deepest available nodes (depth ``min(reach_horizon, max depth)``).
-    With a zero-variance predictor all paths tie and UPEN has no signal; it then falls back to the nearest
-    frontier (documented, so such runs are not mistaken for UPEN proper).
+    As MapEx: the tree crosses unknown cells (only observed walls block it), 2500 samples of 5-cell steps, and
+    the score is the summed variance of the ensemble's occupancy. Differences, and why:
+
+    * A plain RRT: MapEx grows an RRT* whose rewiring radius, ``min(5, 20 sqrt(log n / n))`` cells, is half the
+      step or less from about 400 nodes on (1.1 cells at 2500), so rewiring only reaches near-duplicate nodes.
+    * Samples cover the map; MapEx's cover a square of the map's height on a side (its ``rand_area``).
+    * MapEx scores only paths of exactly ``reach_horizon`` edges and, when the tree has none (common while
+      little is known), drives towards the map's bottom-right corner; we score every root-to-node path of at
+      most ``reach_horizon`` edges. The summed variance only grows along a path, so long paths through
+      uncertain space still win, and a shallow tree still has a choice.
+    * MapEx samples each edge's cells with the end's column but the start's row throughout (a slip in
+      ``eval_path_expl``); we sample along the edge.
+    * MapEx plans A* through unknown cells to reach a goal there; the engine drives on known free cells only,
+      so the goal is the path's exit: its last cell of finite travel cost before it first leaves them (where
+      the robot starts to see into the chosen unknown). Paths whose exit lies within ``min_goal_distance_m``
+      of the robot are passed over for the next best.
+    * MapEx re-chooses UPEN's goal every 10 steps; the episode loop keeps it until reached or blocked.
+    * With no variance anywhere (deterministic predictors) UPEN has no signal; it then falls back to the
+      nearest frontier, as it does when no path finds variance.
     """
 
     name = "upen"
@@ -407,32 +670,18 @@ class UpenPlanner(Planner):
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         variance = ctx.predict().variance
-        if ctx.traversable[ctx.pose_rc] and np.any(variance > 0.0):
-            nodes, parent, depth = grow_rrt(ctx.traversable, ctx.pose_rc, self.cfg.rrt_samples,
-                                            self.cfg.expand_cells, ctx.rng)
-            target_depth = min(self.cfg.reach_horizon, int(depth.max()))
-            best_node, best_value = -1, 0.0
-            for node in np.flatnonzero(depth == target_depth):
-                value = self._path_variance(nodes, parent, node, variance)
-                if value > best_value:
-                    best_node, best_value = int(node), value
-            if best_node >= 0:
-                goal = (int(nodes[best_node, 0]), int(nodes[best_node, 1]))
-                if np.isfinite(ctx.travel_cost[goal]):
-                    return goal
+        passable = ctx.observed != OCCUPIED
+        if np.any(variance > 0.0) and passable[ctx.pose_rc]:
+            tree = grow_rrt(passable, ctx.pose_rc, self.cfg.rrt_samples, self.cfg.expand_cells, ctx.rng, variance,
+                            reachable=np.isfinite(ctx.travel_cost))
+            far_enough = np.hypot(tree.exit_rc[:, 0] - ctx.pose_rc[0], tree.exit_rc[:, 1] - ctx.pose_rc[1]) > (
+                self.cfg.min_goal_distance_m / ctx.resolution_m)
+            candidates = np.flatnonzero((tree.depth <= self.cfg.reach_horizon) & (tree.path_variance > 0.0)
+                                        & far_enough)
+            if len(candidates):
+                best = candidates[np.argmax(tree.path_variance[candidates])]  # first of equals: the oldest node
+                return int(tree.exit_rc[best, 0]), int(tree.exit_rc[best, 1])
         return NearestFrontier().choose_goal(ctx)
-
-    @staticmethod
-    def _path_variance(nodes: np.ndarray, parent: np.ndarray, node: int, variance: np.ndarray) -> float:
-        total = 0.0
-        while parent[node] >= 0:
-            a, b = nodes[node], nodes[parent[node]]
-            n = int(np.ceil(np.hypot(*(a - b)))) + 1
-            rows = np.floor(np.linspace(a[0], b[0], n)).astype(np.int64)
-            cols = np.floor(np.linspace(a[1], b[1], n)).astype(np.int64)
-            total += float(variance[rows[:-1], cols[:-1]].sum())
-            node = int(parent[node])
-        return total
 
 
 PLANNERS: dict[str, type[Planner]] = {
@@ -446,7 +695,11 @@ _CONFIGS = {HectorPlanner: HectorConfig, UpenPlanner: UpenConfig, MapexPlanner: 
 
 
 def make_planner(name: str, **config_overrides) -> Planner:
-    """Create a planner by name (``nearest``, ``hector``, ``upen``, ``mapex``), overriding config fields."""
+    """Create a planner by name (``nearest``, ``hector``, ``upen``, ``mapex``), overriding its config fields.
+
+    Raises:
+        ValueError: an unknown name (the message lists the valid ones), or overrides the config does not take.
+    """
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose one of {', '.join(sorted(PLANNERS))}")
     planner_class = PLANNERS[name]
@@ -456,6 +709,7 @@ def make_planner(name: str, **config_overrides) -> Planner:
             raise ValueError(f"planner {name!r} takes no configuration, got {sorted(config_overrides)}")
         return planner_class()
     try:
-        return planner_class(replace(config_class(), **config_overrides))
+        config = replace(config_class(), **config_overrides)
     except TypeError as error:
         raise ValueError(f"bad configuration for planner {name!r}: {error}") from None
+    return planner_class(config)
