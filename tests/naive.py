@@ -85,6 +85,19 @@ def _naive_facing_normal(scene, r, c, entry_axis, dy, dx, towards):
     return ny, nx
 
 
+def naive_group_fans(hit_rc, entry_axis, n_cols):
+    """Fans of spad._group_fans with a dict: distinct hit cells sorted by row * n_cols + col, each with the
+    entry axis of the first ray (in ray order) that hit it; the fan index of every ray (-1 for no hit)."""
+    first_axis = {}
+    for (r, c), axis in zip(hit_rc.tolist(), entry_axis.tolist()):
+        if r >= 0:
+            first_axis.setdefault((r, c), axis)
+    cells = sorted(first_axis, key=lambda rc: rc[0] * n_cols + rc[1])
+    index = {cell: u for u, cell in enumerate(cells)}
+    hit_fan = np.array([index[(r, c)] if r >= 0 else -1 for r, c in hit_rc.tolist()])
+    return hit_fan, np.array(cells, int).reshape(-1, 2), np.array([first_axis[cell] for cell in cells], int)
+
+
 def naive_simulate_histograms(scene, pose_rc, cfg):
     """Noise-free histograms by brute force: every primary ray traces its own fan with naive_first_hit.
 

@@ -1,10 +1,12 @@
 import numpy as np
 import pytest
 
+from superex_deploy.geometry import cast_rays, ray_angles
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.spad import (
-    FAN_OFFSET_CELLS, SpadConfig, SpadNoise, _thin_wall_normals, prepare_scene, simulate_scan)
-from tests.naive import naive_simulate_histograms, naive_thin_wall_normals
+    BLOCK_CELLS, FAN_OFFSET_CELLS, SpadConfig, SpadNoise, _cast_primaries, _group_fans, _thin_wall_normals,
+    _trace_first_hit_blocks, prepare_scene, simulate_scan)
+from tests.naive import naive_first_hit, naive_group_fans, naive_simulate_histograms, naive_thin_wall_normals
 
 RES = 0.1
 
@@ -98,19 +100,112 @@ def test_thin_vertical_wall_gets_horizontal_normal():
     np.testing.assert_allclose(np.abs(scene.normals[5, 6]), [0.0, 1.0], atol=1e-9)
 
 
-@pytest.mark.parametrize("seed", range(4))
+def _rooms(rng, shape, n_walls):
+    """Random axis-aligned and diagonal wall segments in a walled box: long open stretches (wall-free blocks)
+    next to walled blocks."""
+    walls = np.zeros(shape, bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    for _ in range(n_walls):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        length = rng.integers(3, max(shape) // 2)
+        dr, dc = [(0, 1), (1, 0), (1, 1), (1, -1)][rng.integers(4)]
+        for k in range(length):
+            if 0 <= r + k * dr < shape[0] and 0 <= c + k * dc < shape[1]:
+                walls[r + k * dr, c + k * dc] = True
+    return walls
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_block_tracer_matches_naive_first_hit(seed):
+    """Hit cell, entry axis and entry distance of the two-level tracer equal the exact DDA's, through wall-free
+    blocks, walled blocks, grid edges that cut blocks (shapes not multiples of 4) and short ranges."""
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(9, 40)), int(rng.integers(9, 40)))
+    walls = _rooms(rng, shape, n_walls=int(rng.integers(0, 6))) if seed % 3 else rng.random(shape) < 0.04
+    if seed == 5:
+        walls[:] = False  # no wall at all: every ray leaves the grid
+    scene = prepare_scene(_grid(walls))
+    assert scene.wall_blocks.shape == (-(-shape[0] // BLOCK_CELLS), -(-shape[1] // BLOCK_CELLS))
+    assert (~scene.wall_blocks).any() or walls.mean() > 0.2
+    free = np.argwhere(~walls)
+    for _ in range(150):
+        r, c = free[rng.integers(len(free))]
+        y0, x0 = r + rng.random(), c + rng.random()
+        angle = rng.uniform(0, 2 * np.pi) if rng.random() < 0.9 else rng.integers(4) * np.pi / 2
+        max_t = rng.uniform(1.0, 60.0)
+        expected = naive_first_hit(walls, y0, x0, angle, max_t)
+        got = _trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, y0, x0, np.sin(angle), np.cos(angle),
+                                      max_t)
+        assert got[:2] == expected[:2]
+        if expected[0] >= 0:
+            assert got[3] == expected[3]
+            assert got[2] == pytest.approx(expected[2], abs=1e-9)
+    # A start inside a wall is a hit at distance 0.
+    wall = np.argwhere(walls)
+    if len(wall):
+        r, c = wall[0]
+        assert _trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, r + 0.5, c + 0.5, 0.6, 0.8, 10.0) == (
+            r, c, 0.0, -1)
+
+
+def test_cast_primaries_match_geometry_cast_rays():
+    rng = np.random.default_rng(11)
+    walls = _rooms(rng, (57, 83), n_walls=12)
+    scene = prepare_scene(_grid(walls))
+    free = np.argwhere(~walls)
+    angles = ray_angles(997, offset_rad=0.123)
+    for r, c in free[rng.choice(len(free), 5, replace=False)]:
+        origin = (r + 0.5, c + 0.5)
+        reference = cast_rays(walls, origin, angles, 45.0)
+        hit_rc = np.empty((len(angles), 2), np.int32)
+        distance = np.empty(len(angles))
+        entry_axis = np.empty(len(angles), np.int8)
+        direction = np.empty((len(angles), 2))
+        _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, 45.0, hit_rc, distance,
+                        entry_axis, direction)
+        np.testing.assert_array_equal(hit_rc, reference.hit_rc)
+        np.testing.assert_array_equal(entry_axis, reference.entry_axis)
+        hit = reference.hit_mask
+        np.testing.assert_allclose(distance[hit], reference.distance_cells[hit], atol=1e-9)
+        np.testing.assert_allclose(direction, np.stack([np.sin(angles), np.cos(angles)], axis=1), atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_group_fans_matches_naive(seed):
+    rng = np.random.default_rng(seed)
+    n_rays, n_cols = 300, 17
+    # Runs of repeated cells, cells that come back after other cells, and misses.
+    cells = rng.integers(0, 6, size=(n_rays // 5, 2)).repeat(5, axis=0)
+    cells[rng.random(n_rays) < 0.2] = -1
+    entry_axis = rng.integers(-1, 2, size=n_rays).astype(np.int8)
+    hit_fan, fan_cells, fan_axis = _group_fans(cells.astype(np.int32), entry_axis, n_cols)
+    expected = naive_group_fans(cells, entry_axis, n_cols)
+    np.testing.assert_array_equal(hit_fan, expected[0])
+    np.testing.assert_array_equal(fan_cells, expected[1])
+    np.testing.assert_array_equal(fan_axis, expected[2])
+    none = _group_fans(np.full((4, 2), -1, np.int32), np.zeros(4, np.int8), n_cols)
+    assert (none[0] == -1).all() and none[1].shape == (0, 2) and none[2].shape == (0,)
+
+
+@pytest.mark.parametrize("seed", range(6))
 def test_simulate_scan_matches_naive_on_small_random_grids(seed):
     rng = np.random.default_rng(seed)
-    walls = rng.random((20, 20)) < 0.12
+    if seed >= 4:  # sparse rooms: fans cross wall-free blocks
+        walls = _rooms(rng, (26, 30), n_walls=4)
+    else:
+        walls = rng.random((20, 20)) < 0.12
     walls[[0, -1], :] = walls[:, [0, -1]] = True
     free = np.argwhere(~walls)
     pose = tuple(free[rng.integers(len(free))])
     grid = _grid(walls)
+    scene = prepare_scene(grid)
+    if seed >= 4:
+        assert (~scene.wall_blocks).sum() >= 4
     # 47 primaries and an even fan: no exact diagonals from a cell centre or a 45-degree wall corner, where
     # float rounding (not geometry) breaks the tie.
     cfg = SpadConfig(n_rays=47, n_secondary=12, range_m=3.0)
     scan = simulate_scan(grid, pose, cfg)
-    reference = naive_simulate_histograms(prepare_scene(grid), pose, cfg)
+    reference = naive_simulate_histograms(scene, pose, cfg)
     # Same photons per ray; a path may only move to a neighbouring bin: with 0.1 m cells and 0.1 m bins, grid
     # paths often end exactly on a bin edge, where the two methods' rounding decides.
     actual = scan.histograms.astype(np.float64)
@@ -219,6 +314,20 @@ def test_bad_inputs_raise_clear_errors():
         SpadConfig(bin_width_s=1e-15)
     with pytest.raises(ValueError, match="ambient_per_bin"):
         SpadNoise(ambient_per_bin=-1.0)
+    with pytest.raises(ValueError, match="enabled must be a bool"):
+        SpadNoise(enabled="yes")
+    with pytest.raises(ValueError, match="n_secondary must be a positive integer"):
+        SpadConfig(n_secondary=True)
+    with pytest.raises(ValueError, match="range_m must be a real number"):
+        SpadConfig(range_m="20")
+    with pytest.raises(ValueError, match="noise must be a SpadNoise"):
+        SpadConfig(noise=None)
+    with pytest.raises(ValueError, match="infinite photon count"):
+        SpadConfig(pulse_energy_j=1e300)
+    with pytest.raises(ValueError, match="bool"):
+        OccupancyGrid(np.zeros((5, 5), np.uint8), np.ones((5, 5), bool), RES, "bad")
+    with pytest.raises(ValueError, match="2-D"):
+        OccupancyGrid(np.zeros(5, bool), np.ones(5, bool), RES, "bad")
     noisy = SpadConfig(noise=SpadNoise(enabled=True))
     with pytest.raises(ValueError, match="Generator"):
         simulate_scan(grid, (30, 30), noisy, rng=42)
