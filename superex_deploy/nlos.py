@@ -41,8 +41,8 @@ Each late bin votes on the ring of radius ``r(b)`` (one cell wide) about the est
 normal side, with its counts compensated for the ``1 / (d1 d2^2)`` fall-off and the sensor constants. Votes
 are first summed per (wall cell, radius bin) over every ray that shares the wall cell; then each wall cell's
 half-disc is swept once (every cell adds the summed vote of the ring it lies on), only inside a window around
-the robot and only on cells not already known. The cost is about one visit per (wall cell, window cell in its
-half-disc), independent of the number of rays and bins.
+the robot and only on cells not already known (runs of known cells are jumped over). The cost is about one
+visit per (wall cell, unknown window cell in its half-disc), independent of the number of rays and bins.
 """
 
 from __future__ import annotations
@@ -188,12 +188,27 @@ def _late_threshold(scan: SpadScan, cfg: NlosConfig, n_late_bins: int) -> tuple[
 
 
 @numba.njit(cache=True)
-def _first_late_bins(histograms, los_bin, guard, threshold, first_late):
+def _los_and_first_late_bins(histograms, threshold, guard, los_bin, first_late):
+    """Per ray: ``los_bin`` the strongest of the ``guard`` bins from the first bin whose count exceeds
+    ``threshold`` (ties: the earliest), ``first_late`` the first bin from ``los_bin + guard`` on exceeding it;
+    -1 where there is none. Reads each ray only up to its first late detection."""
+    n_bins = histograms.shape[1]
     for i in range(histograms.shape[0]):
+        los_bin[i] = -1
         first_late[i] = -1
-        if los_bin[i] < 0:
+        first = -1
+        for b in range(n_bins):
+            if histograms[i, b] > threshold:
+                first = b
+                break
+        if first < 0:
             continue
-        for b in range(los_bin[i] + guard, histograms.shape[1]):
+        peak = first
+        for b in range(first + 1, min(first + guard, n_bins)):
+            if histograms[i, b] > histograms[i, peak]:
+                peak = b
+        los_bin[i] = peak
+        for b in range(peak + guard, n_bins):
             if histograms[i, b] > threshold:
                 first_late[i] = b
                 break
@@ -209,13 +224,10 @@ def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
     # The direct return is the earliest detection, not the strongest bin: a fan starting in a corner returns
     # all its rays at one tiny d2, and together they can outshine the direct photons. Timing jitter spreads the
     # direct peak over the guard bins, so with noise the peak is the strongest bin within them.
-    above = h > max(threshold, 0.0)
-    detected = above.any(axis=1)
-    first = np.argmax(above, axis=1)
-    offsets = np.arange(guard)
-    window = np.minimum(first[:, None] + offsets[None, :], n_bins - 1)
-    los_bin = (first + np.argmax(h[np.arange(n_rays)[:, None], window], axis=1)).astype(np.int64)
-    los_bin[~detected] = -1
+    los_bin = np.empty(n_rays, np.int64)
+    first_late = np.empty(n_rays, np.int64)
+    _los_and_first_late_bins(h, threshold, guard, los_bin, first_late)
+    detected = los_bin >= 0
     d1 = np.where(detected, (los_bin + 0.5) * w / 2.0, np.nan)
     # A point a third of a cell past the estimated distance lies inside the wall cell the ray entered.
     reach_cells = d1 / res + 0.3
@@ -227,9 +239,7 @@ def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
     h1[inside, 0] = rows[inside]
     h1[inside, 1] = cols[inside]
     d1[~inside] = np.nan
-
-    first_late = np.empty(n_rays, np.int64)
-    _first_late_bins(h, los_bin, guard, threshold, first_late)
+    first_late[~inside] = -1
     secondary_range = scan.config.range_m
     empty_radius = np.where(first_late >= 0, (first_late - los_bin - 1) * w / 2.0, secondary_range)
     empty_radius = np.where(inside, np.clip(empty_radius, 0.0, secondary_range), np.nan)
@@ -250,14 +260,25 @@ def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interio
     """Minor principal axis of the points within ``radius`` of each point (itself included); ``reliable`` where
     there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, every
     point lies within ``max_residual`` of the fitted line, no two neighbours along it are more than ``max_gap``
-    apart, and
-    the point lies at least ``interior`` cells inside the extent of its neighbours along the wall."""
+    apart, and the point lies at least ``interior`` cells inside the extent of its neighbours along the wall.
+
+    ``points`` must be sorted by row (``points[:, 0]`` ascending, as ``np.unique`` of row-major cell indices
+    gives them): each point then looks for neighbours only in the band of rows within ``radius``."""
     n = points.shape[0]
+    along_buffer = np.empty(n)
+    band_lo = 0
+    band_hi = 0
     for u in range(n):
+        # The band of rows [y - radius - 1, y + radius + 1] holds every neighbour (a cell of slack for rounding);
+        # both ends only move forward as u goes down the rows.
+        while points[band_lo, 0] < points[u, 0] - radius - 1.0:
+            band_lo += 1
+        while band_hi < n and points[band_hi, 0] <= points[u, 0] + radius + 1.0:
+            band_hi += 1
         count = 0
         sy = 0.0
         sx = 0.0
-        for v in range(n):
+        for v in range(band_lo, band_hi):
             dy = points[v, 0] - points[u, 0]
             dx = points[v, 1] - points[u, 1]
             if dy * dy + dx * dx <= radius * radius:
@@ -271,7 +292,7 @@ def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interio
         cyy = 0.0
         cxx = 0.0
         cxy = 0.0
-        for v in range(n):
+        for v in range(band_lo, band_hi):
             dy = points[v, 0] - points[u, 0]
             dx = points[v, 1] - points[u, 1]
             if dy * dy + dx * dx <= radius * radius:
@@ -300,10 +321,10 @@ def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interio
         # Interior test: hits at least ``interior`` cells away on both sides along the wall. Wall ends and
         # corners have normals of their own (a thin wall's end cell faces along the wall), so they are not
         # trusted for carving.
-        along = np.empty(count)
+        along = along_buffer[:count]
         k = 0
         straight = True
-        for v in range(n):
+        for v in range(band_lo, band_hi):
             dy = points[v, 0] - points[u, 0]
             dx = points[v, 1] - points[u, 1]
             if dy * dy + dx * dx <= radius * radius:
@@ -375,8 +396,26 @@ def _carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, out):
         oy = ay + 0.75 * ny
         ox = ax + 0.75 * nx
         for r in range(max(0, int(np.floor(ay - radius))), min(n_rows, int(np.ceil(ay + radius)) + 1)):
-            for c in range(max(0, int(np.floor(ax - radius))), min(n_cols, int(np.ceil(ax + radius)) + 1)):
-                vy = r + 0.5 - ay
+            vy = r + 0.5 - ay
+            rest = radius * radius - vy * vy
+            if rest <= 0.0:
+                continue
+            # Columns of the disc and of the strip's far side (linear in c), widened by a cell: the exact tests
+            # below decide.
+            span = np.sqrt(rest)
+            left = ax - 0.5 - span
+            right = ax - 0.5 + span
+            if nx > 1e-9:
+                left = max(left, ax - 0.5 + (strip_cells - vy * ny) / nx)
+            elif nx < -1e-9:
+                right = min(right, ax - 0.5 + (strip_cells - vy * ny) / nx)
+            elif vy * ny + (span + 2.0) * abs(nx) < strip_cells:
+                continue
+            if left > right + 2.0:
+                continue
+            c_first = max(0, int(np.floor(max(left, -2.0))) - 1)
+            c_last = min(n_cols - 1, int(np.ceil(min(right, n_cols + 1.0))) + 1)
+            for c in range(c_first, c_last + 1):
                 vx = c + 0.5 - ax
                 if vy * vy + vx * vx >= radius * radius:
                     continue
@@ -442,16 +481,41 @@ def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, thr
 
 @numba.njit(cache=True)
 def _draw_rings(apex, normals, votes, window, known, bp):
-    """Add ``votes[u, q]`` to every cell whose centre lies at a distance in ``[q - 0.5, q + 0.5)`` cells from
-    ``apex[u]`` (the rings partition the plane), in front of the wall (normal side), inside ``window``
-    ``(r0, r1, c0, c1)`` (inclusive) and not ``known``.
+    """Add ``votes[u, q]`` to every cell on ring ``q`` of ``apex[u]``, in front of the wall (normal side), inside
+    ``window`` ``(r0, r1, c0, c1)`` (inclusive) and not ``known``. A cell whose centre lies at distance ``rho``
+    (cells) from the apex is on ring ``q = floor(rho + 0.5)`` (float64 square root, rounded half up, as in
+    ``tests/naive.py``): the rings are one cell wide and partition the plane.
 
     The votes are dense in the radius (a wall point's fan returns at most radii), so each wall point's half-disc
-    is swept once, row by row, and every cell looks up its own ring, rather than tracing each ring apart."""
+    is swept once, row by row, and every cell looks up its own ring, rather than tracing each ring apart. In a
+    row the half-disc is one interval of columns (along a row the ring index falls, then rises, and the
+    half-plane test is monotone, rounding included), found from the analytic bounds widened by a cell and
+    trimmed with the exact tests; the sweep then jumps over runs of known cells. The cost is one visit per
+    unknown cell of each wall point's half-disc inside the window, a few nanoseconds each."""
     r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
+    width = c_hi - c_lo + 1
+    # next_open[i, j]: first column >= c_lo + j of window row i that is not known (c_hi + 1: none);
+    # run_end[i, j]: for an unknown cell, the last column of its run of unknown cells.
+    next_open = np.empty((r_hi - r_lo + 1, width + 1), np.int64)
+    run_end = np.empty((r_hi - r_lo + 1, width), np.int64)
+    for i in range(r_hi - r_lo + 1):
+        following = c_hi + 1
+        end = c_hi
+        next_open[i, width] = following
+        for c in range(c_hi, c_lo - 1, -1):
+            if known[r_lo + i, c]:
+                run_end[i, c - c_lo] = -1
+            else:
+                if following != c + 1:
+                    end = c
+                following = c
+                run_end[i, c - c_lo] = end
+            next_open[i, c - c_lo] = following
+    n_radii = votes.shape[1]
+    ring = np.empty(width, np.int32)
     for u in range(votes.shape[0]):
         q_max = -1
-        for j in range(votes.shape[1]):
+        for j in range(n_radii):
             if votes[u, j] != 0.0:
                 q_max = j
         if q_max < 0:
@@ -460,10 +524,13 @@ def _draw_rings(apex, normals, votes, window, known, bp):
         ax = apex[u, 1]
         ny = normals[u, 0]
         nx = normals[u, 1]
-        outer = q_max + 0.5
+        # A margin of a cell on the analytic bounds: the exact tests below decide.
+        outer = q_max + 1.5
+        outer2 = outer * outer
         for r in range(max(r_lo, int(np.floor(ay - outer))), min(r_hi + 1, int(np.ceil(ay + outer)) + 1)):
             vy = r + 0.5 - ay
-            rest = outer * outer - vy * vy
+            vy2 = vy * vy
+            rest = outer2 - vy2
             if rest <= 0.0:
                 continue
             span = np.sqrt(rest)
@@ -478,21 +545,32 @@ def _draw_rings(apex, normals, votes, window, known, bp):
                 continue  # a normal along the rows: the whole row (|vx| <= span + 2 when widened) is behind
             if right < c_lo - 1.0 or left > c_hi + 1.0 or left > right + 2.0:
                 continue
-            # Widened by a cell and re-tested exactly below, so rounding cannot drop or add a cell.
             c_first = max(c_lo, int(np.floor(max(left, c_lo - 1.0))) - 1)
             c_last = min(c_hi, int(np.ceil(min(right, c_hi + 1.0))) + 1)
-            for c in range(c_first, c_last + 1):
-                vx = c + 0.5 - ax
-                dist2 = vx * vx + vy * vy
-                if dist2 >= outer * outer or vy * ny + vx * nx <= 0.0 or known[r, c]:
-                    continue
-                q = int(np.sqrt(dist2) + 0.5)
-                if q > 0 and dist2 < (q - 0.5) * (q - 0.5):
-                    q -= 1
-                elif dist2 >= (q + 0.5) * (q + 0.5):
-                    q += 1
-                if q <= q_max:
-                    bp[r, c] += votes[u, q]
+            while c_first <= c_last:
+                vx = c_first + 0.5 - ax
+                if np.int32(np.sqrt(vx * vx + vy2) + 0.5) <= q_max and vy * ny + vx * nx > 0.0:
+                    break
+                c_first += 1
+            while c_last >= c_first:
+                vx = c_last + 0.5 - ax
+                if np.int32(np.sqrt(vx * vx + vy2) + 0.5) <= q_max and vy * ny + vx * nx > 0.0:
+                    break
+                c_last -= 1
+            if c_first > c_last:
+                continue
+            i = r - r_lo
+            c = next_open[i, c_first - c_lo]
+            while c <= c_last:
+                stop = min(run_end[i, c - c_lo], c_last)
+                # Two passes over the run: the ring indices first (square roots, no memory dependence, so the
+                # loop vectorises), then the gather of the votes.
+                for cc in range(c, stop + 1):
+                    vx = cc + 0.5 - ax
+                    ring[cc - c] = np.int32(np.sqrt(vx * vx + vy2) + 0.5)
+                for cc in range(c, stop + 1):
+                    bp[r, cc] += votes[u, ring[cc - c]]
+                c = next_open[i, stop + 1 - c_lo]
 
 
 def _window(scan: SpadScan, cfg: NlosConfig) -> np.ndarray:

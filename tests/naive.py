@@ -162,14 +162,21 @@ def naive_simulate_histograms(scene, pose_rc, cfg):
 # --- nlos ---
 
 
-def naive_first_late_bins(histograms, los_bin, guard, threshold):
-    out = np.full(len(los_bin), -1)
-    for i, b1 in enumerate(los_bin):
-        if b1 < 0:
+def naive_los_and_first_late_bins(histograms, threshold, guard):
+    """(los_bin, first_late) per ray (nlos._los_and_first_late_bins): the direct return is the strongest of the
+    guard bins from the first detection (count > threshold), the first late bin the first detection from
+    los_bin + guard on; -1 where none."""
+    los_bin = np.full(len(histograms), -1)
+    first_late = np.full(len(histograms), -1)
+    for i, row in enumerate(histograms):
+        detections = np.flatnonzero(row > threshold)
+        if len(detections) == 0:
             continue
-        late = [b for b in range(b1 + guard, histograms.shape[1]) if histograms[i, b] > threshold]
-        out[i] = late[0] if late else -1
-    return out
+        first = detections[0]
+        los_bin[i] = first + np.argmax(row[first:first + guard])
+        late = detections[detections >= los_bin[i] + guard]
+        first_late[i] = late[0] if len(late) else -1
+    return los_bin, first_late
 
 
 def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
@@ -231,20 +238,21 @@ def naive_back_projection(histograms, los_bin, ray_wall, d1_m, apex, normals, gu
                     vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
                     dist2 = vy * vy + vx * vx
                     front = vy * normals[u, 0] + vx * normals[u, 1] > 0
-                    if max(q - 0.5, 0.0) ** 2 <= dist2 < (q + 0.5) ** 2 and front and not known[r, c]:
+                    if int(np.sqrt(dist2) + 0.5) == q and front and not known[r, c]:
                         bp[r, c] += vote
     return bp
 
 
 def naive_draw_rings(apex, normals, votes, window, known):
-    """Every window cell tested against every (wall point, radius) ring (nlos._draw_rings)."""
+    """Every window cell tested against every (wall point, radius) ring (nlos._draw_rings); a cell at distance
+    rho (cells) from the apex lies on ring floor(rho + 0.5)."""
     bp = np.zeros(known.shape)
     r_lo, r_hi, c_lo, c_hi = window
     for u, q in zip(*np.nonzero(votes)):
         for r in range(r_lo, r_hi + 1):
             for c in range(c_lo, c_hi + 1):
                 vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
-                if max(q - 0.5, 0.0) ** 2 <= vy * vy + vx * vx < (q + 0.5) ** 2 \
+                if int(np.sqrt(vy * vy + vx * vx) + 0.5) == q \
                         and vy * normals[u, 0] + vx * normals[u, 1] > 0 and not known[r, c]:
                     bp[r, c] += votes[u, q]
     return bp
