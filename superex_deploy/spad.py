@@ -46,7 +46,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.geometry import cell_centre, ray_angles
+from superex_deploy.geometry import _dda_start, cell_centre, ray_angles
 from superex_deploy.maps import OccupancyGrid
 
 __all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SpadScan", "SpadScene", "prepare_scene", "simulate_scan",
@@ -401,18 +401,7 @@ def _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
     if kind == CELL_WALL:
         return r, c, 0.0, -1
     mask = BLOCK_CELLS - 1
-    if dy > 0.0:
-        step_r, t_next_r, t_delta_r = 1, (r + 1.0 - y0) / dy, 1.0 / dy
-    elif dy < 0.0:
-        step_r, t_next_r, t_delta_r = -1, (y0 - r) / (-dy), -1.0 / dy
-    else:
-        step_r, t_next_r, t_delta_r = 0, np.inf, np.inf
-    if dx > 0.0:
-        step_c, t_next_c, t_delta_c = 1, (c + 1.0 - x0) / dx, 1.0 / dx
-    elif dx < 0.0:
-        step_c, t_next_c, t_delta_c = -1, (x0 - c) / (-dx), -1.0 / dx
-    else:
-        step_c, t_next_c, t_delta_c = 0, np.inf, np.inf
+    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(y0, x0, dy, dx)
     t = 0.0
     while True:
         if kind == CELL_FREE:
