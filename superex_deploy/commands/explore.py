@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-PREDICTORS = ("observed", "oracle")
+PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,7 +15,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
     parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex")
     parser.add_argument("--predictor", default="observed", choices=PREDICTORS,
-                        help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only)")
+                        help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only); "
+                             "lama_los: the line-of-sight LaMa ensemble; lama_bp: the LaMa ensemble that also reads "
+                             "the Pix2Pix-filtered back-projection (needs --spad)")
+    parser.add_argument("--models", type=Path, default=None,
+                        help="folder of exported models with manifest.json (default: the repository's exported/)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--spad", action="store_true",
@@ -25,13 +29,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
 
 
-def make_predictor(name: str, grid):
+def make_predictor(name: str, grid, models=None):
     from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
 
     if name == "observed":
         return ObservedAsPrediction()
     if name == "oracle":
         return OraclePredictor(grid)
+    if name in ("lama_los", "lama_bp"):
+        from superex_deploy.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
+
+        return LamaEnsemble.from_manifest(ModelKind(name), models or DEFAULT_MODEL_DIR)
     raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
 
 
@@ -57,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
     grid = load_map(args.map)
     start = resolve_start(grid, args.start, args.pose)
     planner = make_planner(args.planner)
-    predictor = make_predictor(args.predictor, grid)
+    if args.predictor == "lama_bp" and not args.spad:
+        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    predictor = make_predictor(args.predictor, grid, args.models)
     args.out.mkdir(parents=True, exist_ok=True)
     recorder = GifRecorder(every=args.gif_every)
     with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
@@ -69,7 +79,12 @@ def run(args: argparse.Namespace) -> int:
         if args.spad:
             from superex_deploy.explore.sensing import SpadSensing
 
-            nlos = SpadSensing(seed=args.seed)
+            bp_filter = None
+            if args.predictor == "lama_bp":
+                from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+
+                bp_filter = Pix2PixFilter.from_manifest(args.models or DEFAULT_MODEL_DIR).filter_map
+            nlos = SpadSensing(seed=args.seed, bp_filter=bp_filter)
         result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step,
                              nlos=nlos)
     metrics = result.to_json()

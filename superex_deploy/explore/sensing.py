@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -21,20 +21,29 @@ class SpadSensing:
 
     Each call simulates a scan at the robot's cell, processes it with the currently known cells masked out of
     the back-projection, and returns ``(carved bool [H, W], evidence float32 [H, W])``. The evidence is the
-    running maximum of the Laplacian-filtered back-projection over the episode, so hidden walls glimpsed
+    running maximum of the filtered back-projection over the episode, so hidden walls glimpsed
     earlier stay available to the predictor.
 
     Attributes:
         spad: sensor configuration.
         nlos: processing configuration.
         seed: seed of the noise generator (used only when ``spad.noise.enabled``).
+        bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
+            filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
+            :meth:`superex_deploy.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
     """
 
     spad: SpadConfig = field(default_factory=SpadConfig)
     nlos: NlosConfig = field(default_factory=NlosConfig)
     seed: int = 0
+    bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False)
     _rng: Optional[np.random.Generator] = field(default=None, init=False, repr=False)
+
+    @property
+    def evidence(self) -> Optional[np.ndarray]:
+        """float32 ``[H, W]`` running maximum of the filtered back-projection so far (None before the first scan)."""
+        return self._evidence
 
     def __call__(self, grid: OccupancyGrid, pose_rc: tuple[int, int], observed: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -44,5 +53,6 @@ class SpadSensing:
         result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
         if self._evidence is None or self._evidence.shape != grid.shape:
             self._evidence = np.zeros(grid.shape, np.float32)
-        np.maximum(self._evidence, result.bp_filtered, out=self._evidence)
+        filtered = result.bp_filtered if self.bp_filter is None else self.bp_filter(result.bp, pose_rc)
+        np.maximum(self._evidence, filtered, out=self._evidence)
         return result.carved, self._evidence

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Reproduces the committed models in exported/: data from exploration episodes on the KTH train maps (never
+# the eval maps), the Pix2Pix filter, the Pix2Pix-filtered LaMa data, both LaMa ensembles, export with parity.
+#
+#   bash scripts/train_models.sh                 # CPU, 2 cores: the reference (hours; see README "Models")
+#   DEVICE=cuda JOBS=15 bash scripts/train_models.sh   # the same commands on a GPU machine
+#
+# Every step resumes: datasets already written are kept, training continues from the last epoch's checkpoint.
+# WORK (default runs/training) holds the datasets and runs; OUT (default exported/) receives the models.
+set -euo pipefail
+
+DEVICE=${DEVICE:-cpu}
+JOBS=${JOBS:-2}
+THREADS=${THREADS:-2}
+WORK=${WORK:-runs/training}
+OUT=${OUT:-exported}
+SUPEREX=${SUPEREX:-superex}
+QUIET=${QUIET:-}
+
+mkdir -p "$WORK"
+step() { echo "== $(date +%H:%M:%S) $*"; }
+
+if [ ! -f "$WORK/pix2pix_data/index.json" ]; then
+  step "Pix2Pix data"
+  $SUPEREX train data pix2pix --out "$WORK/pix2pix_data" --episodes-per-map 2 --steps 300 --sample-every 16 \
+    --jobs "$JOBS" $QUIET
+fi
+
+step "Pix2Pix training"
+$SUPEREX train pix2pix --data "$WORK/pix2pix_data" --out "$WORK/pix2pix" --epochs 30 --batch-size 16 \
+  --device "$DEVICE" --threads "$THREADS" $QUIET
+
+step "Pix2Pix export (filters the LaMa data's evidence)"
+$SUPEREX export --pix2pix "$WORK/pix2pix" --out "$WORK/pix2pix_export"
+
+if [ ! -f "$WORK/lama_data/lama_bp/index.json" ]; then
+  step "LaMa data"
+  rm -rf "$WORK/lama_data"
+  $SUPEREX train data lama --out "$WORK/lama_data" --pix2pix-model "$WORK/pix2pix_export/pix2pix.onnx" \
+    --episodes-per-map 2 --steps 300 --sample-every 12 --tile 128 --tiles-per-sample 2 --jobs "$JOBS" $QUIET
+fi
+
+for kind in bp los; do
+  step "LaMa ($kind) ensemble training"
+  $SUPEREX train lama --kind "$kind" --data "$WORK/lama_data/lama_$kind" --out "$WORK/lama_$kind" --members 3 \
+    --epochs 20 --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
+done
+
+step "Export"
+$SUPEREX export --pix2pix "$WORK/pix2pix" --lama-bp "$WORK/lama_bp" --lama-los "$WORK/lama_los" --out "$OUT"
+step "done"

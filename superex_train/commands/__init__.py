@@ -1,0 +1,1 @@
+"""``superex`` commands contributed by the train extra (entry-point group ``superex.commands``)."""

@@ -1,0 +1,466 @@
+"""Training loops of the Pix2Pix filter and of one LaMa ensemble member.
+
+Both loops read a :class:`~superex_train.datasets.ShardDataset`, hold out whole buildings for validation
+(:func:`~superex_train.datasets.split_by_group`), apply a random dihedral transform (one of the 8 rotations /
+reflections, drawn per batch) when ``augment`` is set, and write ``out_dir/checkpoint.pt`` after every epoch
+(atomically) together with ``out_dir/history.json``. Everything random derives from ``(seed, member, epoch)``
+(batch order, augmentation, dropout), so a run stopped after epoch ``e`` and resumed gives the same weights as
+an uninterrupted run: a resumed run reloads the checkpoint and goes on at epoch ``e + 1``; its settings must
+equal the checkpoint's except ``epochs``, ``threads``, ``device`` and ``progress``.
+
+The same command trains on the CPU (the reference: every size here is chosen for 2 cores) or, with
+``device="cuda"``, on a GPU; results agree statistically, not bit for bit.
+
+Losses (see :mod:`superex_train.losses`): Pix2Pix minimises ``l1_weight * wall-weighted L1`` plus, with
+``adversarial``, the conditional PatchGAN loss (the discriminator sees the window and a wall map in [-1, 1]).
+LaMa minimises wall-weighted (optionally focal) BCE plus ``l1_weight * wall-weighted L1``, with observed cells
+down-weighted by ``known_weight`` (the deployed ensemble keeps observed cells as observed; what matters is
+the unknown part). LaMa's adversarial and perceptual losses are left out: maps are binary and the weighted
+BCE alone is what MapEx's fine-tuning of LaMa needs to predict walls, and it keeps CPU training affordable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+
+from superex_deploy.inference import MODEL_CHANNELS, ModelKind
+from superex_train.datasets import ShardDataset, split_by_group
+from superex_train.losses import gan_loss, wall_weighted_bce, wall_weighted_l1
+from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
+                                  count_parameters)
+
+__all__ = ["Pix2PixTrainConfig", "LamaTrainConfig", "TrainResult", "train_pix2pix", "train_lama",
+           "load_checkpoint", "build_generator", "CHECKPOINT_NAME", "CHECKPOINT_FORMAT"]
+
+CHECKPOINT_NAME = "checkpoint.pt"
+CHECKPOINT_FORMAT = "superex-checkpoint/1"
+_RUN_ONLY_FIELDS = ("epochs", "threads", "progress", "device")
+
+
+@dataclass(frozen=True)
+class Pix2PixTrainConfig:
+    """Training of the Pix2Pix filter.
+
+    Attributes:
+        data_dir: a PIX2PIX dataset whose tiles are ``model.window_cells`` square.
+        out_dir: where ``checkpoint.pt`` and ``history.json`` go.
+        model: the architecture.
+        epochs: passes over the training split.
+        batch_size: windows per step.
+        lr, beta1: Adam settings of both networks (the paper's 2e-4 and 0.5).
+        l1_weight: weight of the wall-weighted L1 term (the paper's lambda = 100).
+        wall_weight: weight of a wall cell in the L1 term relative to a free cell (walls are < 1 % of cells).
+        adversarial: train against the PatchGAN discriminator (False: L1 only).
+        val_fraction: share of the samples (whole buildings) held out for validation when ``val_groups`` is
+            empty.
+        val_groups: building ids held out for validation (``superex_train.generate.heldout_buildings()`` for
+            the KTH data); overrides ``val_fraction``.
+        augment: random dihedral transforms.
+        seed: seeds everything.
+        threads: torch CPU threads.
+        device: torch device (``"cpu"``, ``"cuda"``, or ``"auto"``: CUDA when available).
+        max_batches: stop each epoch after this many batches (0: the whole split; for quick runs).
+        progress: show a tqdm bar.
+    """
+
+    data_dir: str
+    out_dir: str
+    model: Pix2PixConfig = field(default_factory=Pix2PixConfig)
+    epochs: int = 40
+    batch_size: int = 8
+    lr: float = 2e-4
+    beta1: float = 0.5
+    l1_weight: float = 100.0
+    wall_weight: float = 50.0
+    adversarial: bool = True
+    val_fraction: float = 0.1
+    val_groups: tuple[int, ...] = ()
+    augment: bool = True
+    seed: int = 0
+    threads: int = 2
+    device: str = "cpu"
+    max_batches: int = 0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+
+
+@dataclass(frozen=True)
+class LamaTrainConfig:
+    """Training of one LaMa ensemble member.
+
+    Attributes:
+        data_dir: a LAMA_BP or LAMA_LOS dataset (tiles a multiple of ``model.size_multiple``).
+        out_dir: where ``checkpoint.pt`` and ``history.json`` go.
+        kind: LAMA_BP or LAMA_LOS; must match the dataset and ``model.in_channels``.
+        model: the architecture.
+        member: ensemble member index (members differ by seed only: initialisation, order, augmentation).
+        epochs, batch_size, lr: as usual (Adam, betas (0.9, 0.999)).
+        wall_weight: weight of a wall cell in both terms relative to a free cell.
+        focal_gamma: focal exponent of the BCE term (0: plain BCE).
+        l1_weight: weight of the wall-weighted L1 term on the probabilities.
+        known_weight: loss weight of observed cells relative to unknown ones.
+        subsets: the training split is partitioned (seeded, the same for every member) into this many disjoint
+            parts and the member trains on part ``member % subsets`` (1: the whole split).
+        val_fraction, val_groups, augment, seed, threads, device, max_batches, progress: as in
+            :class:`Pix2PixTrainConfig`.
+    """
+
+    data_dir: str
+    out_dir: str
+    kind: ModelKind = ModelKind.LAMA_BP
+    model: LamaConfig = field(default_factory=LamaConfig)
+    member: int = 0
+    epochs: int = 30
+    batch_size: int = 8
+    lr: float = 1e-3
+    wall_weight: float = 10.0
+    focal_gamma: float = 0.0
+    l1_weight: float = 1.0
+    known_weight: float = 0.1
+    subsets: int = 1
+    val_fraction: float = 0.1
+    val_groups: tuple[int, ...] = ()
+    augment: bool = True
+    seed: int = 0
+    threads: int = 2
+    device: str = "cpu"
+    max_batches: int = 0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+        if self.kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
+            raise ValueError(f"LamaTrainConfig.kind must be LAMA_BP or LAMA_LOS, got {self.kind}")
+        if self.model.in_channels != len(MODEL_CHANNELS[self.kind]):
+            raise ValueError(f"a {self.kind.value} model takes {len(MODEL_CHANNELS[self.kind])} channels, "
+                             f"LamaConfig.in_channels is {self.model.in_channels}")
+        if self.member < 0 or self.focal_gamma < 0 or not 0 <= self.known_weight <= 1 or self.subsets < 1:
+            raise ValueError("member and focal_gamma must be >= 0, subsets >= 1 and known_weight in [0, 1]")
+
+
+def _check_common(cfg) -> None:
+    for name in ("epochs", "batch_size", "threads"):
+        if int(getattr(cfg, name)) < 1:
+            raise ValueError(f"{type(cfg).__name__}.{name} must be >= 1, got {getattr(cfg, name)}")
+    if cfg.lr <= 0 or cfg.wall_weight <= 0 or cfg.max_batches < 0:
+        raise ValueError(f"{type(cfg).__name__}: lr and wall_weight must be > 0 and max_batches >= 0")
+    object.__setattr__(cfg, "val_groups", tuple(int(g) for g in cfg.val_groups))
+    if cfg.device not in ("cpu", "cuda", "auto") and not str(cfg.device).startswith("cuda:"):
+        raise ValueError(f"{type(cfg).__name__}.device must be 'cpu', 'cuda[:n]' or 'auto', got {cfg.device!r}")
+    if not 0 <= cfg.val_fraction < 1:
+        raise ValueError(f"{type(cfg).__name__}.val_fraction must lie in [0, 1), got {cfg.val_fraction}")
+
+
+def _config_dict(cfg) -> dict:
+    out = {}
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if hasattr(value, "to_dict"):
+            value = value.to_dict()
+        elif isinstance(value, enum.Enum):
+            value = value.value
+        out[f.name] = value
+    return out
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Outcome of a training run: the checkpoint and the per-epoch history (list of dicts)."""
+
+    checkpoint: Path
+    history: list
+
+
+def build_generator(kind: ModelKind, model_config: dict) -> torch.nn.Module:
+    """The generator of a checkpoint's kind from its stored architecture dict."""
+    if kind is ModelKind.PIX2PIX:
+        return UNetGenerator(Pix2PixConfig.from_dict(model_config))
+    return LamaGenerator(LamaConfig.from_dict(model_config))
+
+
+def load_checkpoint(path) -> dict:
+    """A checkpoint written by the loops below (``torch.load`` on CPU), its format checked."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / CHECKPOINT_NAME
+    if not path.is_file():
+        raise ValueError(f"no checkpoint at {path}")
+    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
+    checkpoint["kind"] = ModelKind(checkpoint["kind"])
+    return checkpoint
+
+
+def _save_atomic(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _dihedral(tensors: list[torch.Tensor], k: int, flip: bool) -> list[torch.Tensor]:
+    out = []
+    for t in tensors:
+        t = torch.rot90(t, k, dims=(2, 3)) if k else t
+        out.append(torch.flip(t, dims=(3,)) if flip else t)
+    return out
+
+
+def _device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class _InMemory:
+    """The whole dataset in memory (float16 inputs, uint8 labels: a few hundred MB for the KTH data), so a batch
+    is one fancy-indexing step instead of a Python loop over memory-mapped samples."""
+
+    def __init__(self, dataset: ShardDataset, device: torch.device):
+        parts = dataset._arrays
+        self.inputs = np.concatenate([np.asarray(a) for a in parts["inputs"]])
+        self.targets = np.concatenate([np.asarray(a) for a in parts["targets"]])
+        self.mask = np.concatenate([np.asarray(a) for a in parts["mask"]])
+        self.device = device
+
+    def batch(self, indices: np.ndarray) -> list[torch.Tensor]:
+        indices = np.sort(indices)
+        return [torch.from_numpy(self.inputs[indices]).to(self.device, torch.float32),
+                torch.from_numpy(self.targets[indices][:, None]).to(self.device, torch.float32),
+                torch.from_numpy(self.mask[indices][:, None]).to(self.device, torch.float32)]
+
+
+def _batches(data: _InMemory, indices: np.ndarray, batch_size: int):
+    for start in range(0, len(indices), batch_size):
+        yield data.batch(indices[start:start + batch_size])
+
+
+def _iou(probability: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> tuple[int, int]:
+    predicted = (probability >= 0.5) & (mask > 0)
+    truth = (target > 0.5) & (mask > 0)
+    return int((predicted & truth).sum()), int((predicted | truth).sum())
+
+
+class _Run:
+    """Shared machinery: data split, epochs, checkpoints, history."""
+
+    def __init__(self, cfg, kind: ModelKind, member: int, modules: dict, optimizers: dict):
+        self.cfg, self.kind, self.member = cfg, kind, member
+        self.modules, self.optimizers = modules, optimizers
+        self.out_dir = Path(cfg.out_dir)
+        self.dataset = ShardDataset(cfg.data_dir, kind)
+        self.device = _device(cfg.device)
+        self.data = _InMemory(self.dataset, self.device)
+        if cfg.val_groups:
+            is_val = np.isin(self.dataset.groups, cfg.val_groups)
+            self.train_idx, self.val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
+        else:
+            self.train_idx, self.val_idx = split_by_group(self.dataset.groups, cfg.val_fraction, cfg.seed)
+        subsets = getattr(cfg, "subsets", 1)
+        if subsets > 1:
+            parts = np.array_split(np.random.default_rng([cfg.seed, 7919]).permutation(self.train_idx), subsets)
+            self.train_idx = np.sort(parts[member % subsets])
+        if len(self.train_idx) == 0:
+            raise ValueError(f"{cfg.data_dir} leaves no training samples after the validation split")
+        for module in modules.values():
+            module.to(self.device)
+        self.history: list[dict] = []
+        self.start_epoch = 0
+
+    def checkpoint_path(self) -> Path:
+        return self.out_dir / CHECKPOINT_NAME
+
+    def resume(self) -> None:
+        path = self.checkpoint_path()
+        if not path.is_file():
+            return
+        checkpoint = load_checkpoint(path)
+        saved = {k: v for k, v in checkpoint["train_config"].items() if k not in _RUN_ONLY_FIELDS}
+        current = {k: v for k, v in _config_dict(self.cfg).items() if k not in _RUN_ONLY_FIELDS}
+        if saved != current or checkpoint["kind"] is not self.kind:
+            diff = sorted(k for k in set(saved) | set(current) if saved.get(k) != current.get(k))
+            raise ValueError(f"the checkpoint in {self.out_dir} was trained with other settings ({diff}); "
+                             f"choose another output directory or start afresh")
+        if checkpoint["training_data_sha256"] != self.dataset.info.data_sha256:
+            raise ValueError(f"the checkpoint in {self.out_dir} was trained on other data than {self.cfg.data_dir}")
+        for name, module in self.modules.items():
+            module.load_state_dict(checkpoint["state"][name])
+        for name, optimizer in self.optimizers.items():
+            optimizer.load_state_dict(checkpoint["optimizers"][name])
+        self.history = list(checkpoint["history"])
+        self.start_epoch = int(checkpoint["epoch"]) + 1
+
+    def epoch_order(self, epoch: int) -> tuple[np.random.Generator, np.ndarray]:
+        rng = np.random.default_rng([self.cfg.seed, self.member, epoch])
+        torch.manual_seed(int(rng.integers(2 ** 62)))
+        order = rng.permutation(self.train_idx)
+        if self.cfg.max_batches:
+            order = order[:self.cfg.max_batches * self.cfg.batch_size]
+        return rng, order
+
+    def save(self, epoch: int, generator: torch.nn.Module) -> None:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        checkpoint = {
+            "format": CHECKPOINT_FORMAT, "kind": self.kind.value, "member": self.member, "epoch": epoch,
+            "model_config": generator.cfg.to_dict(), "train_config": _config_dict(self.cfg),
+            "training_data_sha256": self.dataset.info.data_sha256,
+            "parameters": count_parameters(generator),
+            "state": {name: module.state_dict() for name, module in self.modules.items()},
+            "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
+            "history": self.history,
+        }
+        _save_atomic(checkpoint, self.checkpoint_path())
+        (self.out_dir / "history.json").write_text(json.dumps(self.history, indent=1))
+
+
+def _progress(cfg, total: int, description: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=description, unit="batch", disable=not cfg.progress, leave=False)
+
+
+def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
+    """Train (or resume training) the Pix2Pix filter; see the module docstring."""
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    generator, discriminator = UNetGenerator(cfg.model), PatchDiscriminator(cfg.model)
+    optimizers = {"generator": torch.optim.Adam(generator.parameters(), cfg.lr, betas=(cfg.beta1, 0.999))}
+    modules = {"generator": generator}
+    if cfg.adversarial:
+        modules["discriminator"] = discriminator
+        optimizers["discriminator"] = torch.optim.Adam(discriminator.parameters(), cfg.lr, betas=(cfg.beta1, 0.999))
+    run = _Run(cfg, ModelKind.PIX2PIX, 0, modules, optimizers)
+    if run.dataset.info.tile_hw != (cfg.model.window_cells, cfg.model.window_cells):
+        raise ValueError(f"{cfg.data_dir} holds {run.dataset.info.tile_hw} windows, the model reads "
+                         f"{cfg.model.window_cells} x {cfg.model.window_cells}")
+    if resume:
+        run.resume()
+    for epoch in range(run.start_epoch, cfg.epochs):
+        clock = time.perf_counter()
+        rng, order = run.epoch_order(epoch)
+        generator.train()
+        discriminator.train()
+        sums = {"l1": 0.0, "gan_g": 0.0, "gan_d": 0.0}
+        n_batches = 0
+        with _progress(cfg, -(-len(order) // cfg.batch_size), f"pix2pix epoch {epoch + 1}/{cfg.epochs}") as bar:
+            for window, target, mask in _batches(run.data, order, cfg.batch_size):
+                if cfg.augment:
+                    window, target, mask = _dihedral([window, target, mask], int(rng.integers(4)),
+                                                     bool(rng.integers(2)))
+                probability = torch.sigmoid(generator(window))
+                if cfg.adversarial:
+                    d_real = discriminator(window, 2.0 * target - 1.0)
+                    d_fake = discriminator(window, 2.0 * probability.detach() - 1.0)
+                    loss_d = 0.5 * (gan_loss(d_real, True) + gan_loss(d_fake, False))
+                    optimizers["discriminator"].zero_grad(set_to_none=True)
+                    loss_d.backward()
+                    optimizers["discriminator"].step()
+                    sums["gan_d"] += loss_d.item()
+                l1 = wall_weighted_l1(probability, target, cfg.wall_weight, mask)
+                loss_g = cfg.l1_weight * l1
+                if cfg.adversarial:
+                    gan_g = gan_loss(discriminator(window, 2.0 * probability - 1.0), True)
+                    loss_g = loss_g + gan_g
+                    sums["gan_g"] += gan_g.item()
+                optimizers["generator"].zero_grad(set_to_none=True)
+                loss_g.backward()
+                optimizers["generator"].step()
+                sums["l1"] += l1.item()
+                n_batches += 1
+                bar.update(1)
+                bar.set_postfix(l1=f"{l1.item():.4f}")
+        record = {"epoch": epoch, "train_l1": sums["l1"] / n_batches, "batches": n_batches}
+        if cfg.adversarial:
+            record.update(train_gan_g=sums["gan_g"] / n_batches, train_gan_d=sums["gan_d"] / n_batches)
+        record.update(_validate(run, generator, lambda logits, y, m: wall_weighted_l1(
+            torch.sigmoid(logits), y, cfg.wall_weight, m), None))
+        record["seconds"] = time.perf_counter() - clock
+        run.history.append(record)
+        run.save(epoch, generator)
+    return TrainResult(run.checkpoint_path(), run.history)
+
+
+def _lama_loss(cfg: LamaTrainConfig, logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor,
+               unknown: torch.Tensor) -> torch.Tensor:
+    weight = mask * (unknown + cfg.known_weight * (1.0 - unknown))
+    loss = wall_weighted_bce(logits, target, cfg.wall_weight, cfg.focal_gamma, weight)
+    if cfg.l1_weight:
+        loss = loss + cfg.l1_weight * wall_weighted_l1(torch.sigmoid(logits), target, cfg.wall_weight, weight)
+    return loss
+
+
+def _validate(run: _Run, generator: torch.nn.Module, loss_fn, unknown_channel: Optional[int]) -> dict:
+    """Validation loss and wall IoU (threshold 0.5, within the mask; LaMa: on unknown cells only)."""
+    if len(run.val_idx) == 0:
+        return {}
+    generator.eval()
+    total, batches, intersection, union = 0.0, 0, 0, 0
+    with torch.no_grad():
+        for inputs, target, mask in _batches(run.data, run.val_idx, run.cfg.batch_size):
+            logits = generator(inputs)
+            if unknown_channel is not None:
+                unknown = inputs[:, unknown_channel:unknown_channel + 1]
+                total += float(loss_fn(logits, target, mask, unknown))
+                mask = mask * unknown
+            else:
+                total += float(loss_fn(logits, target, mask))
+            batches += 1
+            i, u = _iou(torch.sigmoid(logits), target, mask)
+            intersection += i
+            union += u
+    return {"val_loss": total / batches, "val_wall_iou": intersection / union if union else 1.0}
+
+
+def train_lama(cfg: LamaTrainConfig, resume: bool = True) -> TrainResult:
+    """Train (or resume training) one LaMa ensemble member; see the module docstring."""
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(int(np.random.default_rng([cfg.seed, cfg.member]).integers(2 ** 62)))
+    generator = LamaGenerator(cfg.model)
+    optimizers = {"generator": torch.optim.Adam(generator.parameters(), cfg.lr)}
+    run = _Run(cfg, cfg.kind, cfg.member, {"generator": generator}, optimizers)
+    tile = run.dataset.info.tile_hw
+    if any(n % cfg.model.size_multiple or n < 2 * cfg.model.size_multiple for n in tile):
+        raise ValueError(f"{cfg.data_dir} holds {tile} tiles; the model needs multiples of "
+                         f"{cfg.model.size_multiple} of at least {2 * cfg.model.size_multiple}")
+    unknown_channel = MODEL_CHANNELS[cfg.kind].index("unknown")
+    if resume:
+        run.resume()
+    for epoch in range(run.start_epoch, cfg.epochs):
+        clock = time.perf_counter()
+        rng, order = run.epoch_order(epoch)
+        generator.train()
+        total, n_batches = 0.0, 0
+        with _progress(cfg, -(-len(order) // cfg.batch_size),
+                       f"{cfg.kind.value}[{cfg.member}] epoch {epoch + 1}/{cfg.epochs}") as bar:
+            for inputs, target, mask in _batches(run.data, order, cfg.batch_size):
+                if cfg.augment:
+                    inputs, target, mask = _dihedral([inputs, target, mask], int(rng.integers(4)),
+                                                      bool(rng.integers(2)))
+                unknown = inputs[:, unknown_channel:unknown_channel + 1]
+                loss = _lama_loss(cfg, generator(inputs), target, mask, unknown)
+                optimizers["generator"].zero_grad(set_to_none=True)
+                loss.backward()
+                optimizers["generator"].step()
+                total += loss.item()
+                n_batches += 1
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss.item():.4f}")
+        record = {"epoch": epoch, "train_loss": total / n_batches, "batches": n_batches}
+        record.update(_validate(run, generator, lambda logits, y, m, u: _lama_loss(cfg, logits, y, m, u),
+                                unknown_channel))
+        record["seconds"] = time.perf_counter() - clock
+        run.history.append(record)
+        run.save(epoch, generator)
+    return TrainResult(run.checkpoint_path(), run.history)
