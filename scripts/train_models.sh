@@ -27,7 +27,7 @@ if [ ! -f "$WORK/pix2pix_data/index.json" ]; then
 fi
 
 step "Pix2Pix training"
-$SUPEREX train pix2pix --data "$WORK/pix2pix_data" --out "$WORK/pix2pix" --epochs 30 --batch-size 16 \
+$SUPEREX train pix2pix --data "$WORK/pix2pix_data" --out "$WORK/pix2pix" --epochs 30 --batch-size 16 --wall-weight 12 \
   --device "$DEVICE" --threads "$THREADS" $QUIET
 
 step "Pix2Pix export (filters the LaMa data's evidence)"
@@ -43,7 +43,7 @@ fi
 for kind in bp los; do
   step "LaMa ($kind) ensemble training"
   $SUPEREX train lama --kind "$kind" --data "$WORK/lama_data/lama_$kind" --out "$WORK/lama_$kind" --members 3 \
-    --epochs 20 --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
+    --epochs 16 --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
 done
 
 step "Export"

@@ -39,7 +39,7 @@ from superex_train.losses import gan_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
                                   count_parameters)
 
-__all__ = ["Pix2PixTrainConfig", "LamaTrainConfig", "TrainResult", "train_pix2pix", "train_lama",
+__all__ = ["RunSettings", "Pix2PixTrainConfig", "LamaTrainConfig", "TrainResult", "train_pix2pix", "train_lama",
            "load_checkpoint", "build_generator", "CHECKPOINT_NAME", "CHECKPOINT_FORMAT"]
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -47,42 +47,27 @@ CHECKPOINT_FORMAT = "superex-checkpoint/1"
 _RUN_ONLY_FIELDS = ("epochs", "threads", "progress", "device")
 
 
-@dataclass(frozen=True)
-class Pix2PixTrainConfig:
-    """Training of the Pix2Pix filter.
+@dataclass(frozen=True, kw_only=True)
+class RunSettings:
+    """What both training loops share: data, output, validation split, randomness, hardware, reporting.
 
     Attributes:
-        data_dir: a PIX2PIX dataset whose tiles are ``model.window_cells`` square.
+        data_dir: the dataset folder (:mod:`superex_train.datasets` format).
         out_dir: where ``checkpoint.pt`` and ``history.json`` go.
-        model: the architecture.
-        epochs: passes over the training split.
-        batch_size: windows per step.
-        lr, beta1: Adam settings of both networks (the paper's 2e-4 and 0.5).
-        l1_weight: weight of the wall-weighted L1 term (the paper's lambda = 100).
-        wall_weight: weight of a wall cell in the L1 term relative to a free cell (walls are < 1 % of cells).
-        adversarial: train against the PatchGAN discriminator (False: L1 only).
         val_fraction: share of the samples (whole buildings) held out for validation when ``val_groups`` is
             empty.
         val_groups: building ids held out for validation (``superex_train.generate.heldout_buildings()`` for
             the KTH data); overrides ``val_fraction``.
-        augment: random dihedral transforms.
+        augment: random dihedral transforms (one of the 8 rotations / reflections per batch).
         seed: seeds everything.
         threads: torch CPU threads.
-        device: torch device (``"cpu"``, ``"cuda"``, or ``"auto"``: CUDA when available).
+        device: torch device (``"cpu"``, ``"cuda[:n]"``, or ``"auto"``: CUDA when available).
         max_batches: stop each epoch after this many batches (0: the whole split; for quick runs).
         progress: show a tqdm bar.
     """
 
     data_dir: str
     out_dir: str
-    model: Pix2PixConfig = field(default_factory=Pix2PixConfig)
-    epochs: int = 40
-    batch_size: int = 8
-    lr: float = 2e-4
-    beta1: float = 0.5
-    l1_weight: float = 100.0
-    wall_weight: float = 50.0
-    adversarial: bool = True
     val_fraction: float = 0.1
     val_groups: tuple[int, ...] = ()
     augment: bool = True
@@ -96,16 +81,40 @@ class Pix2PixTrainConfig:
         _check_common(self)
 
 
-@dataclass(frozen=True)
-class LamaTrainConfig:
-    """Training of one LaMa ensemble member.
+@dataclass(frozen=True, kw_only=True)
+class Pix2PixTrainConfig(RunSettings):
+    """Training of the Pix2Pix filter (keyword arguments only; the shared ones are :class:`RunSettings`').
 
     Attributes:
-        data_dir: a LAMA_BP or LAMA_LOS dataset (tiles a multiple of ``model.size_multiple``).
-        out_dir: where ``checkpoint.pt`` and ``history.json`` go.
+        model: the architecture (the dataset's tiles must be ``model.window_cells`` square).
+        epochs: passes over the training split.
+        batch_size: windows per step.
+        lr, beta1: Adam settings of both networks (the paper's 2e-4 and 0.5).
+        l1_weight: weight of the wall-weighted L1 term (the paper's lambda = 100).
+        wall_weight: weight of a wall cell in the L1 term relative to a free cell (hidden walls are ~2 % of the
+            unknown cells of a window).
+        adversarial: train against the PatchGAN discriminator (False: L1 only).
+    """
+
+    model: Pix2PixConfig = field(default_factory=Pix2PixConfig)
+    epochs: int = 30
+    batch_size: int = 16
+    lr: float = 2e-4
+    beta1: float = 0.5
+    l1_weight: float = 100.0
+    wall_weight: float = 12.0
+    adversarial: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
+class LamaTrainConfig(RunSettings):
+    """Training of one LaMa ensemble member (keyword arguments only; the shared ones are
+    :class:`RunSettings`').
+
+    Attributes:
         kind: LAMA_BP or LAMA_LOS; must match the dataset and ``model.in_channels``.
-        model: the architecture.
-        member: ensemble member index (members differ by seed only: initialisation, order, augmentation).
+        model: the architecture (the dataset's tiles must be multiples of ``model.size_multiple``).
+        member: ensemble member index (members differ by seed and by training subset).
         epochs, batch_size, lr: as usual (Adam, betas (0.9, 0.999)).
         wall_weight: weight of a wall cell in both terms relative to a free cell.
         focal_gamma: focal exponent of the BCE term (0: plain BCE).
@@ -113,34 +122,22 @@ class LamaTrainConfig:
         known_weight: loss weight of observed cells relative to unknown ones.
         subsets: the training split is partitioned (seeded, the same for every member) into this many disjoint
             parts and the member trains on part ``member % subsets`` (1: the whole split).
-        val_fraction, val_groups, augment, seed, threads, device, max_batches, progress: as in
-            :class:`Pix2PixTrainConfig`.
     """
 
-    data_dir: str
-    out_dir: str
     kind: ModelKind = ModelKind.LAMA_BP
     model: LamaConfig = field(default_factory=LamaConfig)
     member: int = 0
-    epochs: int = 30
-    batch_size: int = 8
+    epochs: int = 16
+    batch_size: int = 16
     lr: float = 1e-3
     wall_weight: float = 10.0
     focal_gamma: float = 0.0
     l1_weight: float = 1.0
     known_weight: float = 0.1
     subsets: int = 1
-    val_fraction: float = 0.1
-    val_groups: tuple[int, ...] = ()
-    augment: bool = True
-    seed: int = 0
-    threads: int = 2
-    device: str = "cpu"
-    max_batches: int = 0
-    progress: bool = True
 
     def __post_init__(self) -> None:
-        _check_common(self)
+        super().__post_init__()
         if self.kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
             raise ValueError(f"LamaTrainConfig.kind must be LAMA_BP or LAMA_LOS, got {self.kind}")
         if self.model.in_channels != len(MODEL_CHANNELS[self.kind]):

@@ -52,14 +52,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--quiet", action="store_true", help="no progress bar")
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
-    _common(pix2pix, epochs=40, batch_size=8, lr=2e-4, wall_weight=50.0)
+    _common(pix2pix, epochs=30, batch_size=16, lr=2e-4, wall_weight=12.0)
     pix2pix.add_argument("--l1-weight", type=float, default=100.0)
     pix2pix.add_argument("--no-adversarial", action="store_true", help="wall-weighted L1 only")
     pix2pix.add_argument("--channels", type=int, nargs="+", default=[16, 32, 64, 96, 96],
                          help="U-Net encoder channels, one per stride-2 stage")
 
     lama = sub.add_parser("lama", help="a LaMa (FFC) ensemble, one run folder per member")
-    _common(lama, epochs=30, batch_size=8, lr=1e-3, wall_weight=10.0)
+    _common(lama, epochs=16, batch_size=16, lr=1e-3, wall_weight=10.0)
     lama.add_argument("--kind", choices=("bp", "los"), default="bp",
                       help="bp: observed map + filtered back-projection; los: observed map only (baselines)")
     lama.add_argument("--members", type=int, default=3,
