@@ -35,9 +35,9 @@ import numpy as np
 from superex_deploy.explore.prediction import check_observed
 from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Prediction
 
-__all__ = ["ModelKind", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME", "DEFAULT_MODEL_DIR",
-           "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry", "read_manifest",
-           "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble"]
+__all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
+           "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry",
+           "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble"]
 
 PathLike = Union[str, Path]
 
@@ -68,12 +68,50 @@ MODEL_CHANNELS: dict[ModelKind, tuple[str, ...]] = {
 }
 """Input channels of each kind, in order."""
 
+class BpEncoding(enum.Enum):
+    """How a back-projection window in [0, 1] is mapped to the Pix2Pix input range [-1, 1]."""
+
+    LINEAR = "linear"
+    """``2 x - 1`` (the committed model's)."""
+    LOG = "log"
+    """``2 log1p(100 x) / log(101) - 1``: a normalised back-projection is dominated by the brightest votes near
+    the robot; the logarithm lifts the faint arcs of distant hidden walls."""
+
+    @property
+    def description(self) -> str:
+        """The ``normalisation`` metadata string of a model that reads this encoding."""
+        return _BP_DESCRIPTIONS[self]
+
+    @classmethod
+    def from_description(cls, text: str) -> "BpEncoding":
+        """The encoding whose :attr:`description` is ``text`` (ValueError if none)."""
+        for encoding, description in _BP_DESCRIPTIONS.items():
+            if description == text:
+                return encoding
+        raise ValueError(f"unknown back-projection normalisation {text!r}; this package knows "
+                         f"{[d for d in _BP_DESCRIPTIONS.values()]}")
+
+    def apply(self, windows: np.ndarray) -> np.ndarray:
+        """Encode float ``windows`` in [0, 1] (any shape); float32."""
+        windows = np.asarray(windows, np.float32)
+        if self is BpEncoding.LOG:
+            return (2.0 * np.log1p(100.0 * windows) / np.log(101.0) - 1.0).astype(np.float32)
+        return (2.0 * windows - 1.0).astype(np.float32)
+
+
+_BP_DESCRIPTIONS = {
+    BpEncoding.LINEAR: "bp: 2 * x - 1, x = back-projection in [0, 1] (normalised by its maximum)",
+    BpEncoding.LOG: ("bp: 2 * log1p(100 x) / log(101) - 1, x = back-projection in [0, 1] (normalised by its "
+                     "maximum)"),
+}
+
 NORMALISATION: dict[ModelKind, str] = {
-    ModelKind.PIX2PIX: "bp: 2 * x - 1, x = back-projection in [0, 1] (normalised by its maximum)",
+    ModelKind.PIX2PIX: BpEncoding.LINEAR.description,
     ModelKind.LAMA_BP: "observed_wall, unknown: {0, 1}; evidence: filtered back-projection in [0, 1]",
     ModelKind.LAMA_LOS: "observed_wall, unknown: {0, 1}",
 }
-"""How each kind's inputs are encoded (written into the metadata and compared at load)."""
+"""How each kind's inputs are encoded (written into the metadata and compared at load). A Pix2Pix model may
+declare any :class:`BpEncoding`'s description; this is the default one (datasets store windows in it)."""
 
 METADATA_KEYS = ("format_version", "model_kind", "channels", "normalisation", "resolution_m", "window_cells",
                  "size_multiple", "min_size", "output", "ensemble_member", "training_data_sha256",
@@ -246,7 +284,12 @@ def _load_model(path: PathLike, kinds: Sequence[ModelKind], expected_sha256: Opt
     if channels != MODEL_CHANNELS[kind]:
         raise ValueError(f"model file {path} declares input channels {list(channels)}, a {kind.value} model "
                          f"takes {list(MODEL_CHANNELS[kind])}")
-    if metadata["normalisation"] != NORMALISATION[kind]:
+    if kind is ModelKind.PIX2PIX:
+        try:
+            BpEncoding.from_description(metadata["normalisation"])
+        except ValueError as error:
+            raise ValueError(f"model file {path}: {error}") from None
+    elif metadata["normalisation"] != NORMALISATION[kind]:
         raise ValueError(f"model file {path} declares normalisation {metadata['normalisation']!r}, this package "
                          f"encodes {kind.value} inputs as {NORMALISATION[kind]!r}")
     inputs, outputs = session.get_inputs(), session.get_outputs()
@@ -264,14 +307,15 @@ def _load_model(path: PathLike, kinds: Sequence[ModelKind], expected_sha256: Opt
                         output_name=outputs[0].name, input_shape=shape)
 
 
-def encode_bp_windows(windows: np.ndarray) -> np.ndarray:
-    """Pix2Pix input: float32 ``[N, 1, S, S]`` = ``2 x - 1`` of back-projection windows ``[N, S, S]`` in [0, 1]."""
+def encode_bp_windows(windows: np.ndarray, encoding: BpEncoding = BpEncoding.LINEAR) -> np.ndarray:
+    """Pix2Pix input: float32 ``[N, 1, S, S]``, back-projection windows ``[N, S, S]`` in [0, 1] encoded by
+    ``encoding`` (default ``2 x - 1``)."""
     windows = np.asarray(windows)
     if windows.ndim != 3 or windows.dtype != np.float32:
         raise ValueError(f"windows must be float32 [N, S, S], got {windows.dtype} with shape {windows.shape}")
     if not np.isfinite(windows).all() or windows.min(initial=0.0) < 0.0 or windows.max(initial=0.0) > 1.0:
         raise ValueError("back-projection windows must be finite and lie in [0, 1]")
-    return (2.0 * windows - 1.0)[:, None].astype(np.float32)
+    return encoding.apply(windows)[:, None]
 
 
 def encode_map(observed: np.ndarray, evidence: Optional[np.ndarray], kind: ModelKind) -> np.ndarray:
@@ -344,6 +388,7 @@ class Pix2PixFilter:
 
     Attributes:
         window_cells: side ``S`` of the window the model reads (cells; from the metadata).
+        encoding: the :class:`BpEncoding` the model reads (from the metadata's ``normalisation``).
         metadata: the model's ``metadata_props``.
     """
 
@@ -351,6 +396,7 @@ class Pix2PixFilter:
         self._model = _load_model(path, (ModelKind.PIX2PIX,), expected_sha256, session)
         self.metadata = self._model.metadata
         self.window_cells = int(self.metadata.get("window_cells", -1))
+        self.encoding = BpEncoding.from_description(self.metadata["normalisation"])
         if self._model.input_shape[2:] != (self.window_cells, self.window_cells):
             raise ValueError(f"model file {path} takes windows of {list(self._model.input_shape[2:])} cells but its "
                              f"metadata says window_cells = {self.window_cells}")
@@ -380,7 +426,7 @@ class Pix2PixFilter:
             raise ValueError(f"windows must be [{self.window_cells}, {self.window_cells}] or [N, "
                              f"{self.window_cells}, {self.window_cells}], got shape {windows.shape}")
         out = self._model.session.run([self._model.output_name],
-                                      {self._model.input_name: encode_bp_windows(batch)})[0][:, 0]
+                                      {self._model.input_name: encode_bp_windows(batch, self.encoding)})[0][:, 0]
         out = np.clip(out, 0.0, 1.0).astype(np.float32)
         return out[0] if single else out
 

@@ -38,7 +38,7 @@ from torch import nn
 
 import superex_deploy
 from superex_deploy.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANNELS, NORMALISATION, RESOLUTION_M,
-                                      ModelKind, SessionConfig, make_session, sha256_file)
+                                      BpEncoding, ModelKind, SessionConfig, make_session, sha256_file)
 from superex_train.models import (LamaConfig, LamaGenerator, Pix2PixConfig, SpectralBackend, UNetGenerator,
                                   calibrate_batchnorm, count_parameters)
 from superex_train.training import build_generator, load_checkpoint
@@ -152,12 +152,12 @@ def dummy_inputs(generator: nn.Module, kind: ModelKind, seed: int = 0) -> list[t
 
 
 def _metadata(generator: nn.Module, kind: ModelKind, member: int, training_data_sha256: str,
-              cfg: ExportConfig) -> dict[str, str]:
+              cfg: ExportConfig, bp_encoding: BpEncoding) -> dict[str, str]:
     metadata = {
         "format_version": FORMAT_VERSION,
         "model_kind": kind.value,
         "channels": json.dumps(list(MODEL_CHANNELS[kind])),
-        "normalisation": NORMALISATION[kind],
+        "normalisation": bp_encoding.description if kind is ModelKind.PIX2PIX else NORMALISATION[kind],
         "resolution_m": repr(RESOLUTION_M),
         "output": f"{OUTPUT_NAME}: [N, 1, H, W] probability that the cell is a wall (sigmoid of the logits)",
         "ensemble_member": str(int(member)),
@@ -197,7 +197,8 @@ def _shorten_names(graph) -> None:
 
 
 def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, member: int = 0,
-                     training_data_sha256: str = "untrained", cfg: ExportConfig = ExportConfig()) -> ExportRecord:
+                     training_data_sha256: str = "untrained", cfg: ExportConfig = ExportConfig(),
+                     bp_encoding: BpEncoding = BpEncoding.LINEAR) -> ExportRecord:
     """Export one generator (in eval mode) to ``path`` with metadata, then check it with one ORT run.
 
     Args:
@@ -208,6 +209,7 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
         member: ensemble member index (metadata ``ensemble_member``).
         training_data_sha256: the training dataset's ``data_sha256`` (``"untrained"`` for fresh models).
         cfg: export settings.
+        bp_encoding: the input encoding a Pix2Pix generator was trained on (written as its ``normalisation``).
 
     Raises:
         ValueError: a generator that does not fit the kind, a TORCH_FFT LaMa with the TorchScript exporter,
@@ -244,7 +246,7 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
                               dynamic_shapes={"x": dims}, external_data=False, verbose=False)
     model = onnx.load(str(path))
     del model.metadata_props[:]
-    for key, value in _metadata(generator, kind, member, training_data_sha256, cfg).items():
+    for key, value in _metadata(generator, kind, member, training_data_sha256, cfg, bp_encoding).items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     _shorten_names(model.graph)
@@ -282,8 +284,9 @@ def export_checkpoint(checkpoint_path: PathLike, path: PathLike, cfg: ExportConf
         model_config["spectral"] = cfg.spectral.value
     generator = build_generator(kind, model_config)
     generator.load_state_dict(checkpoint["state"]["generator"])
+    encoding = BpEncoding(checkpoint["train_config"].get("input_encoding", BpEncoding.LINEAR.value))
     return export_generator(generator, kind, path, int(checkpoint["member"]), checkpoint["training_data_sha256"],
-                            cfg)
+                            cfg, encoding)
 
 
 def write_manifest(directory: PathLike, records: Sequence[ExportRecord]) -> Path:

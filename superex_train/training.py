@@ -33,7 +33,7 @@ from typing import Optional
 import numpy as np
 import torch
 
-from superex_deploy.inference import MODEL_CHANNELS, ModelKind
+from superex_deploy.inference import MODEL_CHANNELS, BpEncoding, ModelKind
 from superex_train.datasets import ShardDataset, split_by_group
 from superex_train.losses import gan_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
@@ -93,7 +93,11 @@ class Pix2PixTrainConfig(RunSettings):
         l1_weight: weight of the wall-weighted L1 term (the paper's lambda = 100).
         wall_weight: weight of a wall cell in the L1 term relative to a free cell (hidden walls are ~2 % of the
             unknown cells of a window).
-        adversarial: train against the PatchGAN discriminator (False: L1 only).
+        adversarial: train against the PatchGAN discriminator (False: reconstruction terms only).
+        adversarial_weight: weight of the generator's adversarial term.
+        bce_weight: weight of a wall-weighted binary cross-entropy term on the logits (0: none).
+        input_encoding: :class:`~superex_deploy.inference.BpEncoding` value the generator reads; datasets
+            store ``linear`` windows, re-encoded per batch, and the export declares this encoding.
     """
 
     model: Pix2PixConfig = field(default_factory=Pix2PixConfig)
@@ -104,6 +108,15 @@ class Pix2PixTrainConfig(RunSettings):
     l1_weight: float = 100.0
     wall_weight: float = 12.0
     adversarial: bool = True
+    adversarial_weight: float = 1.0
+    bce_weight: float = 0.0
+    input_encoding: str = "linear"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        BpEncoding(self.input_encoding)  # ValueError for an unknown encoding
+        if self.adversarial_weight < 0 or self.bce_weight < 0:
+            raise ValueError("Pix2PixTrainConfig: adversarial_weight and bce_weight must be >= 0")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -231,12 +244,22 @@ class _InMemory:
         self.targets = np.concatenate([np.asarray(a) for a in parts["targets"]])
         self.mask = np.concatenate([np.asarray(a) for a in parts["mask"]])
         self.device = device
+        self.transform = None  # optional re-encoding of the inputs, applied per batch
 
     def batch(self, indices: np.ndarray) -> list[torch.Tensor]:
         indices = np.sort(indices)
-        return [torch.from_numpy(self.inputs[indices]).to(self.device, torch.float32),
+        inputs = torch.from_numpy(self.inputs[indices]).to(self.device, torch.float32)
+        return [inputs if self.transform is None else self.transform(inputs),
                 torch.from_numpy(self.targets[indices][:, None]).to(self.device, torch.float32),
                 torch.from_numpy(self.mask[indices][:, None]).to(self.device, torch.float32)]
+
+
+def _bp_reencoder(encoding: BpEncoding):
+    """torch twin of :meth:`BpEncoding.apply` on windows stored ``linear``-encoded (None for ``linear``)."""
+    if encoding is BpEncoding.LINEAR:
+        return None
+    scale = 1.0 / float(np.log(101.0))
+    return lambda x: 2.0 * torch.log1p(50.0 * (x + 1.0)) * scale - 1.0  # 100 * (x + 1) / 2 = 50 (x + 1)
 
 
 def _batches(data: _InMemory, indices: np.ndarray, batch_size: int):
@@ -339,6 +362,7 @@ def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
         modules["discriminator"] = discriminator
         optimizers["discriminator"] = torch.optim.Adam(discriminator.parameters(), cfg.lr, betas=(cfg.beta1, 0.999))
     run = _Run(cfg, ModelKind.PIX2PIX, 0, modules, optimizers)
+    run.data.transform = _bp_reencoder(BpEncoding(cfg.input_encoding))
     if run.dataset.info.tile_hw != (cfg.model.window_cells, cfg.model.window_cells):
         raise ValueError(f"{cfg.data_dir} holds {run.dataset.info.tile_hw} windows, the model reads "
                          f"{cfg.model.window_cells} x {cfg.model.window_cells}")
@@ -356,7 +380,8 @@ def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
                 if cfg.augment:
                     window, target, mask = _dihedral([window, target, mask], int(rng.integers(4)),
                                                      bool(rng.integers(2)))
-                probability = torch.sigmoid(generator(window))
+                logits = generator(window)
+                probability = torch.sigmoid(logits)
                 if cfg.adversarial:
                     d_real = discriminator(window, 2.0 * target - 1.0)
                     d_fake = discriminator(window, 2.0 * probability.detach() - 1.0)
@@ -367,9 +392,11 @@ def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
                     sums["gan_d"] += loss_d.item()
                 l1 = wall_weighted_l1(probability, target, cfg.wall_weight, mask)
                 loss_g = cfg.l1_weight * l1
+                if cfg.bce_weight:
+                    loss_g = loss_g + cfg.bce_weight * wall_weighted_bce(logits, target, cfg.wall_weight, 0.0, mask)
                 if cfg.adversarial:
                     gan_g = gan_loss(discriminator(window, 2.0 * probability - 1.0), True)
-                    loss_g = loss_g + gan_g
+                    loss_g = loss_g + cfg.adversarial_weight * gan_g
                     sums["gan_g"] += gan_g.item()
                 optimizers["generator"].zero_grad(set_to_none=True)
                 loss_g.backward()

@@ -54,7 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
     _common(pix2pix, epochs=30, batch_size=16, lr=2e-4, wall_weight=12.0)
     pix2pix.add_argument("--l1-weight", type=float, default=100.0)
-    pix2pix.add_argument("--no-adversarial", action="store_true", help="wall-weighted L1 only")
+    pix2pix.add_argument("--no-adversarial", action="store_true", help="no discriminator")
+    pix2pix.add_argument("--adversarial-weight", type=float, default=1.0)
+    pix2pix.add_argument("--bce-weight", type=float, default=0.0,
+                         help="weight of a wall-weighted BCE term on the logits (0: none)")
+    pix2pix.add_argument("--input-encoding", choices=("linear", "log"), default="linear",
+                         help="how the back-projection window is fed (linear: 2x-1; log: log-compressed)")
     pix2pix.add_argument("--channels", type=int, nargs="+", default=[16, 32, 64, 96, 96],
                          help="U-Net encoder channels, one per stride-2 stage")
 
@@ -127,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
         window = read_index(args.data).tile_hw[0]
         cfg = Pix2PixTrainConfig(out_dir=str(args.out), model=Pix2PixConfig(window_cells=window,
                                                                             channels=tuple(args.channels)),
-                                 adversarial=not args.no_adversarial, **common)
+                                 adversarial=not args.no_adversarial,
+                                 adversarial_weight=args.adversarial_weight, bce_weight=args.bce_weight,
+                                 input_encoding=args.input_encoding, **common)
         result = train_pix2pix(cfg, resume=not args.fresh)
         print(json.dumps(result.history[-1] if result.history else {}, indent=1))
         print(f"checkpoint: {result.checkpoint}")
