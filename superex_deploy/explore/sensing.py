@@ -9,7 +9,7 @@ import numpy as np
 
 from superex_deploy.explore.types import UNKNOWN
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.nlos import NlosConfig, process_scan
+from superex_deploy.nlos import NlosConfig, back_project, carve, estimate_los, process_scan
 from superex_deploy.spad import SpadConfig, simulate_scan
 
 __all__ = ["SpadSensing"]
@@ -50,9 +50,14 @@ class SpadSensing:
         if self._rng is None:
             self._rng = np.random.default_rng(self.seed)
         scan = simulate_scan(grid, pose_rc, self.spad, rng=self._rng if self.spad.noise.enabled else None)
-        result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
+        if self.bp_filter is None:
+            result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
+            carved, filtered = result.carved, result.bp_filtered
+        else:  # the learned filter replaces the Laplacian one: do not compute that too
+            los = estimate_los(scan, self.nlos)
+            carved = carve(scan, los, self.nlos)
+            filtered = self.bp_filter(back_project(scan, los, self.nlos, observed != UNKNOWN), pose_rc)
         if self._evidence is None or self._evidence.shape != grid.shape:
             self._evidence = np.zeros(grid.shape, np.float32)
-        filtered = result.bp_filtered if self.bp_filter is None else self.bp_filter(result.bp, pose_rc)
         np.maximum(self._evidence, filtered, out=self._evidence)
-        return result.carved, self._evidence
+        return carved, self._evidence
