@@ -36,3 +36,19 @@ def test_explore_runs_are_reproducible(tmp_path):
                      "--seed", "1", "--out", str(tmp_path / run)]) == 0
         logs.append(json.loads((tmp_path / run / "metrics.json").read_text()))
     assert logs[0]["poses"] == logs[1]["poses"] and logs[0]["goals"] == logs[1]["goals"]
+
+
+def test_explore_with_the_learned_ensembles(tmp_path, capsys):
+    out = tmp_path / "lama"
+    assert main(["explore", "--map", "50052750", "--start", "1", "--planner", "mapex", "--predictor", "lama_bp",
+                 "--spad", "--steps", "12", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["predictor"] == "lama_bp" and metrics["steps"] == 12
+    # The learned prediction is neither the observation nor the truth: its IoU lies strictly between.
+    assert all(0.0 < iou < 1.0 for iou in metrics["iou"]["iou"])
+    assert main(["explore", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "add --spad" in capsys.readouterr().err
+    assert main(["explore", "--map", "50052750", "--predictor", "lama_los", "--steps", "5",
+                 "--models", str(tmp_path), "--out", str(tmp_path / "y")]) == 2
+    assert "no model manifest" in capsys.readouterr().err

@@ -11,7 +11,8 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps", default="eval", help="'eval', or comma-separated bundled eval map names")
     parser.add_argument("--planners", default="nearest,hector,upen,mapex")
-    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle"))
+    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los"),
+                        help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
