@@ -177,6 +177,20 @@ def test_missing_corrupt_and_mismatched_models_raise(tmp_path):
         read_manifest(models)
 
 
+def test_session_factory_applies_its_config():
+    entry = ENTRIES["pix2pix"]
+    quiet = make_session(entry.path, SessionConfig(intra_op_threads=1))
+    spinning = make_session(entry.path, SessionConfig(allow_spinning=True))
+    key = "session.intra_op.allow_spinning"
+    assert quiet.get_session_options().get_session_config_entry(key) == "0"
+    assert spinning.get_session_options().get_session_config_entry(key) == "1"
+    assert quiet.get_session_options().intra_op_num_threads == 1
+    with pytest.raises(ValueError, match="thread counts"):
+        SessionConfig(intra_op_threads=-1)
+    with pytest.raises(ValueError, match="providers"):
+        make_session(entry.path, SessionConfig(providers=("NoSuchExecutionProvider",)))
+
+
 def test_bad_inputs_raise():
     ensemble = LamaEnsemble.from_manifest(ModelKind.LAMA_BP)
     observed = np.full((40, 40), UNKNOWN, np.int8)
