@@ -14,7 +14,9 @@ trajectory does not depend on the models scored). The first time the line-of-sig
 coverage bin (0-10, 10-20, 20-30 %), both ensembles predict the whole map: LAMA_BP from the observation with
 carving plus evidence, LAMA_LOS from the line-of-sight observation, and the observed map itself (unknown =
 free) as the floor. Scores: wall IoU over the evaluation area (``superex_deploy.explore.metrics.map_iou``,
-threshold 0.5) and wall IoU on the cells unknown at that step (what prediction adds).
+threshold 0.5) and wall IoU on the cells unknown at that step (what prediction adds). A calibration table
+pools all predictions: IoU on unknown cells at thresholds 0.1-0.9, the share of unknown cells predicted as walls
+at 0.5 and the mean wall probability there, against the true share of walls.
 
 Prints markdown tables and writes JSON (``--out``, default ``benchmarks/eval_models.json``).
 """
@@ -48,6 +50,8 @@ from superex_train.datasets import ShardDataset  # noqa: E402
 from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start  # noqa: E402
 
 COVERAGE_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))
+SWEEP_THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+"""Thresholds of part 2's calibration table (0.8 is MapEx's visibility threshold)."""
 PLANNERS = ("nearest", "hector", "mapex")
 
 
@@ -130,6 +134,11 @@ def _episode(args: tuple[str, int, str]) -> list[dict]:
             for method, mean in means.items():
                 record[f"{method}_iou"] = map_iou(mean, grid, area=area)
                 record[f"{method}_unknown_iou"] = map_iou(mean, grid, area=unknown)
+                for t in SWEEP_THRESHOLDS:
+                    record[f"{method}_unknown_iou@{t}"] = map_iou(mean, grid, threshold=t, area=unknown)
+                record[f"{method}_unknown_wall_fraction"] = float((mean[unknown] >= 0.5).mean()) if unknown.any() else 0.0
+                record[f"{method}_unknown_mean_probability"] = float(mean[unknown].mean()) if unknown.any() else 0.0
+            record["truth_unknown_wall_fraction"] = float(grid.occupied[unknown].mean()) if unknown.any() else 0.0
             records.append(record)
 
     try:
@@ -150,8 +159,9 @@ def evaluate_predictors(model_dir: Path, jobs: int) -> dict:
     for low, high in COVERAGE_BINS:
         label = f"{low:.0%}-{high:.0%}"
         rows = [r for r in records if r["bin"] == label]
-        table[label] = {"n": len(rows), **{key: float(np.mean([r[key] for r in rows])) if rows else float("nan")
-                                            for key in rows[0] if key.endswith("iou")}} if rows else {"n": 0}
+        table[label] = {"n": len(rows), **{key: float(np.mean([r[key] for r in rows]))
+                                            for key in rows[0] if "iou" in key or "fraction" in key
+                                            or "probability" in key}} if rows else {"n": 0}
     return {"maps": len(maps), "bins": table, "records": records}
 
 
@@ -186,6 +196,19 @@ def main(argv=None) -> int:
                 continue
             cell = lambda m: f"{row[m + '_iou']:.3f} / {row[m + '_unknown_iou']:.3f}"  # noqa: E731
             print(f"| {label} | {row['n']} | {cell('observed')} | {cell('lama_los')} | {cell('lama_bp')} |")
+        rows = [r for r in p["records"]]
+        if rows:
+            print(f"\nCalibration, all {len(rows)} predictions: wall IoU on unknown cells by threshold, the share of "
+                  f"unknown cells predicted as walls at 0.5 and their mean wall probability (truth: "
+                  f"{np.mean([r['truth_unknown_wall_fraction'] for r in rows]):.3f} of them are walls)\n")
+            print("| ensemble | " + " | ".join(f"IoU @ {t}" for t in SWEEP_THRESHOLDS) + " | walls @ 0.5 | mean p |")
+            print("|---|" + "---:|" * (len(SWEEP_THRESHOLDS) + 2))
+            for method in ("lama_los", "lama_bp"):
+                ious = " | ".join(f"{np.mean([r[f'{method}_unknown_iou@{t}'] for r in rows]):.3f}"
+                                  for t in SWEEP_THRESHOLDS)
+                walls = np.mean([r[f"{method}_unknown_wall_fraction"] for r in rows])
+                mean_p = np.mean([r[f"{method}_unknown_mean_probability"] for r in rows])
+                print(f"| {method} | {ious} | {walls:.3f} | {mean_p:.3f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {args.out}")

@@ -41,6 +41,7 @@ from superex_deploy.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANN
                                       BpEncoding, ModelKind, SessionConfig, make_session, sha256_file)
 from superex_train.models import (LamaConfig, LamaGenerator, Pix2PixConfig, SpectralBackend, UNetGenerator,
                                   calibrate_batchnorm, count_parameters)
+from superex_train.calibration import LogitCalibration
 from superex_train.training import build_generator, load_checkpoint
 
 __all__ = ["Exporter", "ExportConfig", "WallProbabilityModel", "ExportRecord", "INPUT_NAMES", "OUTPUT_NAME",
@@ -89,14 +90,20 @@ class ExportConfig:
 
 
 class WallProbabilityModel(nn.Module):
-    """Export wrapper: ``sigmoid`` of a generator's wall logits, so the graph outputs probabilities."""
+    """Export wrapper: ``sigmoid(logit_scale * z + logit_offset)`` of a generator's wall logits ``z``, so the
+    graph outputs (calibrated, :mod:`superex_train.calibration`) probabilities; identity calibration by default."""
 
-    def __init__(self, generator: nn.Module):
+    def __init__(self, generator: nn.Module, calibration: Optional[LogitCalibration] = None):
         super().__init__()
         self.generator = generator
+        calibration = calibration or LogitCalibration()
+        self.logit_scale, self.logit_offset = float(calibration.logit_scale), float(calibration.logit_offset)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.sigmoid(self.generator(x))
+        logits = self.generator(x)
+        if (self.logit_scale, self.logit_offset) != (1.0, 0.0):
+            logits = logits * self.logit_scale + self.logit_offset
+        return torch.sigmoid(logits)
 
 
 @dataclass(frozen=True)
@@ -152,14 +159,17 @@ def dummy_inputs(generator: nn.Module, kind: ModelKind, seed: int = 0) -> list[t
 
 
 def _metadata(generator: nn.Module, kind: ModelKind, member: int, training_data_sha256: str,
-              cfg: ExportConfig, bp_encoding: BpEncoding) -> dict[str, str]:
+              cfg: ExportConfig, bp_encoding: BpEncoding, calibration: LogitCalibration) -> dict[str, str]:
     metadata = {
         "format_version": FORMAT_VERSION,
         "model_kind": kind.value,
         "channels": json.dumps(list(MODEL_CHANNELS[kind])),
         "normalisation": bp_encoding.description if kind is ModelKind.PIX2PIX else NORMALISATION[kind],
         "resolution_m": repr(RESOLUTION_M),
-        "output": f"{OUTPUT_NAME}: [N, 1, H, W] probability that the cell is a wall (sigmoid of the logits)",
+        "output": f"{OUTPUT_NAME}: [N, 1, H, W] probability that the cell is a wall "
+                  f"(sigmoid(logit_scale * logits + logit_offset))",
+        "logit_scale": repr(float(calibration.logit_scale)),
+        "logit_offset": repr(float(calibration.logit_offset)),
         "ensemble_member": str(int(member)),
         "training_data_sha256": training_data_sha256,
         "superex_version": superex_deploy.__version__,
@@ -198,7 +208,8 @@ def _shorten_names(graph) -> None:
 
 def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, member: int = 0,
                      training_data_sha256: str = "untrained", cfg: ExportConfig = ExportConfig(),
-                     bp_encoding: BpEncoding = BpEncoding.LINEAR) -> ExportRecord:
+                     bp_encoding: BpEncoding = BpEncoding.LINEAR,
+                     calibration: Optional[LogitCalibration] = None) -> ExportRecord:
     """Export one generator (in eval mode) to ``path`` with metadata, then check it with one ORT run.
 
     Args:
@@ -210,6 +221,7 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
         training_data_sha256: the training dataset's ``data_sha256`` (``"untrained"`` for fresh models).
         cfg: export settings.
         bp_encoding: the input encoding a Pix2Pix generator was trained on (written as its ``normalisation``).
+        calibration: Platt parameters applied to the logits in the graph (None: identity).
 
     Raises:
         ValueError: a generator that does not fit the kind, a TORCH_FFT LaMa with the TorchScript exporter,
@@ -225,7 +237,8 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     generator = generator.eval()
-    wrapper = WallProbabilityModel(generator).eval()
+    calibration = calibration or LogitCalibration()
+    wrapper = WallProbabilityModel(generator, calibration).eval()
     inputs = dummy_inputs(generator, kind, cfg.seed)
     input_name = INPUT_NAMES[kind]
     spatial = kind is not ModelKind.PIX2PIX
@@ -246,7 +259,8 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
                               dynamic_shapes={"x": dims}, external_data=False, verbose=False)
     model = onnx.load(str(path))
     del model.metadata_props[:]
-    for key, value in _metadata(generator, kind, member, training_data_sha256, cfg, bp_encoding).items():
+    for key, value in _metadata(generator, kind, member, training_data_sha256, cfg, bp_encoding,
+                                calibration).items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     _shorten_names(model.graph)
@@ -275,8 +289,10 @@ def export_generator(generator: nn.Module, kind: ModelKind, path: PathLike, memb
                         training_data_sha256=training_data_sha256, reference=reference_path)
 
 
-def export_checkpoint(checkpoint_path: PathLike, path: PathLike, cfg: ExportConfig = ExportConfig()) -> ExportRecord:
-    """Export the generator of a training checkpoint (``checkpoint.pt`` or the run folder holding it)."""
+def export_checkpoint(checkpoint_path: PathLike, path: PathLike, cfg: ExportConfig = ExportConfig(),
+                      calibration: Optional[LogitCalibration] = None) -> ExportRecord:
+    """Export the generator of a training checkpoint (``checkpoint.pt`` or the run folder holding it), with an
+    optional logit calibration (:mod:`superex_train.calibration`)."""
     checkpoint = load_checkpoint(checkpoint_path)
     kind = checkpoint["kind"]
     model_config = dict(checkpoint["model_config"])
@@ -286,7 +302,7 @@ def export_checkpoint(checkpoint_path: PathLike, path: PathLike, cfg: ExportConf
     generator.load_state_dict(checkpoint["state"]["generator"])
     encoding = BpEncoding(checkpoint["train_config"].get("input_encoding", BpEncoding.LINEAR.value))
     return export_generator(generator, kind, path, int(checkpoint["member"]), checkpoint["training_data_sha256"],
-                            cfg, encoding)
+                            cfg, encoding, calibration)
 
 
 def write_manifest(directory: PathLike, records: Sequence[ExportRecord]) -> Path:
@@ -307,7 +323,8 @@ def write_manifest(directory: PathLike, records: Sequence[ExportRecord]) -> Path
 
 
 def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp: Sequence[PathLike] = (),
-                  lama_los: Sequence[PathLike] = (), cfg: ExportConfig = ExportConfig()) -> list[ExportRecord]:
+                  lama_los: Sequence[PathLike] = (), cfg: ExportConfig = ExportConfig(),
+                  calibration: Optional[dict[ModelKind, LogitCalibration]] = None) -> list[ExportRecord]:
     """Export checkpoints into ``out_dir`` and write its manifest.
 
     Args:
@@ -316,6 +333,7 @@ def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp
         lama_bp, lama_los: the ensembles' member checkpoints (each member's index comes from its checkpoint and
             must be unique within its ensemble).
         cfg: export settings.
+        calibration: per LaMa kind, the Platt parameters its members' graphs apply (kinds absent: identity).
 
     Files that the folder's previous manifest listed and this export does not rewrite are deleted, so the
     folder never holds a model the manifest does not describe.
@@ -334,7 +352,8 @@ def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp
             if member in seen:
                 raise ValueError(f"two {kind.value} checkpoints are member {member}")
             seen.add(member)
-            records.append(export_checkpoint(checkpoint_path, out_dir / model_file_name(kind, member), cfg))
+            records.append(export_checkpoint(checkpoint_path, out_dir / model_file_name(kind, member), cfg,
+                                             (calibration or {}).get(kind)))
     if not records:
         raise ValueError("nothing to export: give at least one checkpoint")
     old_manifest = out_dir / MANIFEST_NAME

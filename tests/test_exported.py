@@ -65,11 +65,13 @@ def test_torch_and_onnx_runtime_agree(stem):
     generator, checkpoint = _torch_model(stem)
     session = make_session(entry.path, SessionConfig())
     input_name, output_name = session.get_inputs()[0].name, session.get_outputs()[0].name
+    metadata = session.get_modelmeta().custom_metadata_map
+    scale, offset = float(metadata["logit_scale"]), float(metadata["logit_offset"])  # Platt calibration
     sizes = [(160, 160)] if entry.kind is ModelKind.PIX2PIX else [(64, 96), (120, 48)]  # LaMa: dynamic H, W
     for seed, (rows, cols) in enumerate(sizes):
         x = _realistic_input(entry.kind, rows, cols, seed)
         with torch.no_grad():
-            expected = torch.sigmoid(generator(torch.from_numpy(x))).numpy()
+            expected = torch.sigmoid(generator(torch.from_numpy(x)) * scale + offset).numpy()
         got = session.run([output_name], {input_name: x})[0]
         assert got.shape == expected.shape == (x.shape[0], 1, rows, cols)
         np.testing.assert_allclose(got, expected, atol=ATOL, rtol=RTOL)
@@ -106,10 +108,17 @@ def test_metadata_describes_the_model(stem):
     model = onnx.load(str(entry.path))
     assert model.opset_import[0].version == 18
     dims = model.graph.input[0].type.tensor_type.shape.dim
+    calibration = float(metadata["logit_scale"]), float(metadata["logit_offset"])
     if entry.kind is ModelKind.PIX2PIX:
         assert metadata["window_cells"] == "160" and [d.dim_value for d in dims[2:]] == [160, 160]
+        assert calibration == (1.0, 0.0)
     else:
         assert all(d.dim_param for d in dims[2:])  # dynamic height and width
+        # The ensembles are Platt-calibrated (the wall-weighted loss biases them towards walls), all members
+        # of a kind alike.
+        assert calibration != (1.0, 0.0) and calibration[0] > 0 and calibration[1] < 0
+        first = {p.key: p.value for p in onnx.load(str(ENTRIES[f"{entry.kind.value}_0"].path)).metadata_props}
+        assert calibration == (float(first["logit_scale"]), float(first["logit_offset"]))
 
 
 def test_lama_ensemble_predicts_mean_and_member_variance():

@@ -358,3 +358,30 @@ def test_log_encoded_pix2pix_trains_exports_and_is_fed_its_encoding(synthetic_da
     got = p2p.filter_windows(windows)
     np.testing.assert_allclose(got, expected.numpy(), atol=1e-4, rtol=0)
     assert np.abs(got - linear.numpy()).max() > 1e-3  # the encoding matters, so the check above is meaningful
+
+
+@pytest.mark.parametrize("model", ["pix2pix", "lama"])
+def test_cli_defaults_are_the_training_config_defaults(model):
+    """`superex train pix2pix|lama` without options must train the recipe the config classes document."""
+    import argparse
+    import dataclasses
+
+    from superex_train.commands import train as train_command
+
+    parser = argparse.ArgumentParser()
+    train_command.add_arguments(parser)
+    args = parser.parse_args([model, "--data", "d", "--out", "o"])
+    cls = Pix2PixTrainConfig if model == "pix2pix" else LamaTrainConfig
+    defaults = {f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
+    names = ["epochs", "batch_size", "lr", "wall_weight", "l1_weight", "seed", "threads"]
+    names += (["adversarial_weight", "bce_weight", "input_encoding"] if model == "pix2pix"
+              else ["focal_gamma", "known_weight"])
+    for name in names:
+        assert getattr(args, name) == defaults[name], name
+    if model == "pix2pix":
+        assert (not args.no_adversarial) == defaults["adversarial"]
+        assert tuple(args.channels) == tuple(Pix2PixConfig().channels)
+    else:
+        lama = LamaConfig()
+        assert (args.base_channels, args.max_channels, args.blocks) == (lama.base_channels, lama.max_channels,
+                                                                         lama.n_blocks)

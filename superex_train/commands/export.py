@@ -29,15 +29,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=DEFAULT_MODEL_DIR, help="model folder (default: exported/)")
     parser.add_argument("--exporter", choices=("torchscript", "dynamo"), default="torchscript")
     parser.add_argument("--opset", type=int, default=18)
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="JSON from `superex train calibrate`: Platt parameters the LaMa graphs apply")
 
 
 def run(args: argparse.Namespace) -> int:
     from superex_train.export import ExportConfig, Exporter, export_models
 
+    from superex_train.calibration import read_calibration
+
     cfg = ExportConfig(opset=args.opset, exporter=Exporter(args.exporter))
+    calibration = read_calibration(args.calibration) if args.calibration is not None else None
     records = export_models(args.out, pix2pix=args.pix2pix,
                             lama_bp=[c for p in args.lama_bp for c in _checkpoints(p)],
-                            lama_los=[c for p in args.lama_los for c in _checkpoints(p)], cfg=cfg)
+                            lama_los=[c for p in args.lama_los for c in _checkpoints(p)], cfg=cfg,
+                            calibration=calibration)
     for r in records:
         print(f"{r.path.name:<16} {r.kind.value:<9} member {r.member}  {r.bytes / 1e6:5.2f} MB  "
               f"{r.parameters:>8,d} parameters  ORT-torch max |diff| {r.max_abs_error:.1e}  sha256 {r.sha256[:12]}")

@@ -52,13 +52,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--quiet", action="store_true", help="no progress bar")
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
-    _common(pix2pix, epochs=30, batch_size=16, lr=2e-4, wall_weight=12.0)
-    pix2pix.add_argument("--l1-weight", type=float, default=100.0)
+    _common(pix2pix, epochs=6, batch_size=16, lr=1e-3, wall_weight=12.0)
+    pix2pix.add_argument("--l1-weight", type=float, default=1.0)
     pix2pix.add_argument("--no-adversarial", action="store_true", help="no discriminator")
-    pix2pix.add_argument("--adversarial-weight", type=float, default=1.0)
-    pix2pix.add_argument("--bce-weight", type=float, default=0.0,
+    pix2pix.add_argument("--adversarial-weight", type=float, default=0.01)
+    pix2pix.add_argument("--bce-weight", type=float, default=1.0,
                          help="weight of a wall-weighted BCE term on the logits (0: none)")
-    pix2pix.add_argument("--input-encoding", choices=("linear", "log"), default="linear",
+    pix2pix.add_argument("--input-encoding", choices=("linear", "log"), default="log",
                          help="how the back-projection window is fed (linear: 2x-1; log: log-compressed)")
     pix2pix.add_argument("--channels", type=int, nargs="+", default=[16, 32, 64, 96, 96],
                          help="U-Net encoder channels, one per stride-2 stage")
@@ -85,6 +85,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     synthetic.add_argument("--seed", type=int, default=0)
     synthetic.add_argument("--out", required=True, type=Path)
 
+    calibrate = sub.add_parser("calibrate", help="fit the LaMa ensembles' probability calibration (Platt scaling) "
+                                                 "on exploration episodes of the training buildings")
+    calibrate.add_argument("--models", type=Path, default=None,
+                           help="model folder with the uncalibrated ensembles (default: exported/)")
+    calibrate.add_argument("--kinds", nargs="+", choices=("bp", "los"), default=["bp", "los"])
+    calibrate.add_argument("--out", required=True, type=Path, help="calibration JSON (for superex export)")
+    calibrate.add_argument("--max-maps", type=int, default=0,
+                           help="use the first N calibration maps (0: every train map outside the held-out "
+                                "buildings)")
+    calibrate.add_argument("--steps", type=int, default=400)
+    calibrate.add_argument("--jobs", type=int, default=max(1, os.cpu_count() or 1), help="worker processes")
+    calibrate.add_argument("--seed", type=int, default=0)
+
 
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.inference import DEFAULT_MODEL_DIR, ModelKind
@@ -105,6 +118,24 @@ def run(args: argparse.Namespace) -> int:
         for info in infos:
             print(f"wrote {info.count} {info.kind.value} samples of {info.tile_hw} to {info.directory} "
                   f"(data sha256 {info.data_sha256[:12]})")
+        return 0
+
+    if args.model == "calibrate":
+        from superex_train.calibration import CalibrationConfig, calibration_maps, calibrate
+
+        if args.max_maps < 0:
+            raise ValueError(f"--max-maps must be >= 0, got {args.max_maps}")
+        maps = tuple(calibration_maps(CalibrationConfig()))
+        cfg = CalibrationConfig(maps=maps[:args.max_maps] if args.max_maps else maps, steps=args.steps,
+                                seed=args.seed)
+        kinds = [ModelKind.LAMA_BP if k == "bp" else ModelKind.LAMA_LOS for k in args.kinds]
+        result = calibrate(kinds, args.models or DEFAULT_MODEL_DIR, cfg, args.jobs, args.out)
+        for kind, fit in result.items():
+            print(f"{kind.value}: logit_scale {fit.logit_scale:.3f}, logit_offset {fit.logit_offset:.3f} on "
+                  f"{fit.cells:,} cells ({fit.wall_fraction:.1%} walls); NLL {fit.nll_before:.3f} -> "
+                  f"{fit.nll_after:.3f}; predicted walls at 0.5 {fit.predicted_walls_before:.1%} -> "
+                  f"{fit.predicted_walls_after:.1%}")
+        print(f"wrote {args.out}")
         return 0
 
     if args.model == "synthetic":
