@@ -1,202 +1,501 @@
-"""Latency of the exported models: ONNX Runtime against torch eager, same inputs, same run.
+"""Latency of the exported models: ONNX Runtime against torch eager, same inputs, same process.
 
-Table 1, per model: Pix2Pix on one robot-centred back-projection window (160 x 160, from a real SPAD scan at
-an eval start pose), each LaMa member on the encoded observed map of every distinct eval-map size (padded as
-``LamaEnsemble`` pads it; the observation is a short nearest-frontier episode's). torch runs the training
-checkpoint (``exported/checkpoints``) under ``inference_mode`` with 2 threads; ONNX Runtime runs the exported
-file through ``superex_deploy.inference.make_session`` with 2 intra-op threads. Median of ``--repeats`` timed
-runs after one warm-up; the largest |ORT - torch| difference on those inputs is reported too.
+What is measured
+----------------
+Table 1, one row per (model, input size):
 
-Table 2: a whole 3-member ``LamaEnsemble.predict`` (encoding, padding, members, mean and variance) on the
-largest eval map, the cost of one prediction at a frontier choice.
+* **Pix2Pix** on one robot-centred back-projection window (``window_cells`` x ``window_cells`` from the model's
+  metadata, 160 x 160; batch 1), cut from a real SPAD scan (``simulate_scan`` + ``process_scan``) at the first
+  start pose of the first eval map and encoded with ``encode_bp_windows`` in the encoding the model declares.
+* **Each LaMa member** (``lama_bp_*``, ``lama_los_*``) on the encoded observed map of every eval-map size,
+  padded exactly as :meth:`LamaEnsemble.padded_shape` pads it (bottom/right, to multiples of the model's
+  ``size_multiple``, at least ``min_size``; the padding is unknown space) and deduplicated by padded shape. The
+  observation is real: a short nearest-frontier episode (``--steps``, observed map taken as the prediction)
+  from start pose 0 of one map of that size; the LAMA_BP evidence is the Laplacian-filtered back-projection of a
+  SPAD scan at the episode's last pose.
 
-Table 3 (``--fft``, slower): the Fourier unit written with ``torch.fft`` exported by the dynamo exporter (ONNX
-``DFT``) against the DFT-matrix-product unit, same weights, on the largest eval map.
+torch runs the training checkpoint (``exported/checkpoints/<stem>.pt``; LaMa rebuilt with the ``matmul``
+Fourier unit, as ``superex_train.export.export_checkpoint`` does) wrapped in the export's sigmoid, under
+``torch.inference_mode()`` with ``torch.set_num_threads(2)``. ONNX Runtime runs the exported file through
+``superex_deploy.inference.make_session`` with ``SessionConfig(intra_op_threads=2)``. Both get the same float32
+array. After ``--warmup`` untimed calls of each, ``--repeats`` timed rounds run torch and ORT alternately (the
+order flips every round, so slow drifts of the machine's load hit both alike); each call is timed on its own
+with ``time.perf_counter`` after an untimed ``--settle`` pause (0.1 s): ONNX Runtime's intra-op threads keep
+spinning for a while after a run, and a torch call started at once shares the cores with them (measured on
+2 cores: torch about 10 % slower without the pause, which would inflate the torch / ORT ratio). Reported: the median of each (milliseconds), their ratio torch / ORT (> 1: ORT is
+faster) and the largest |ORT - torch| over the whole output tensor (wall probabilities in [0, 1]).
 
-Prints markdown tables and writes JSON (``--out``, default ``benchmarks/bench_models.json``).
+Table 2: one whole 3-member ``LamaEnsemble.from_manifest(kind).predict(observed, evidence)`` per LaMa kind,
+end to end (encoding, padding, every member, mean / variance, ``keep_observed``), on the LARGEST eval map
+(median ms over ``--repeats`` after ``--warmup``): the cost of one map prediction at a frontier choice.
+
+Table 3 (``--fft``, slower): the Fourier unit the committed LaMa uses (DFT-matrix products, exported by the
+TorchScript exporter) against the same member rebuilt with a ``torch.fft`` Fourier unit and exported by the dynamo
+exporter at opset 18 (ONNX ``DFT``), same weights, same padded largest-map input; torch eager and ORT latency of
+each, the export time and the largest |ORT - torch| difference. This is the measurement behind the choice of the
+matmul unit.
+
+Prints markdown tables and writes JSON (``--out``, default ``benchmarks/bench_models.json``). Timings depend on
+the machine and its load; nothing here asserts on them.
+
+Usage::
+
+    .venv/bin/python scripts/bench_models.py                      # everything, 10 repeats
+    .venv/bin/python scripts/bench_models.py --quick              # smoke test: largest size, 2 repeats
+    .venv/bin/python scripts/bench_models.py --models pix2pix lama_bp_0 --sizes largest --repeats 5
+    .venv/bin/python scripts/bench_models.py --fft                # also table 3
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import platform
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Optional
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
 
 from superex_deploy.explore.episode import ExplorationConfig, run_episode  # noqa: E402
 from superex_deploy.explore.planners import make_planner  # noqa: E402
 from superex_deploy.explore.prediction import ObservedAsPrediction  # noqa: E402
-from superex_deploy.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, SessionConfig,  # noqa: E402
-                                      crop_window, encode_bp_windows, encode_map, make_session, read_manifest)
+from superex_deploy.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,  # noqa: E402
+                                      ModelKind, SessionConfig, crop_window, encode_bp_windows, encode_map,
+                                      make_session, read_manifest)
 from superex_deploy.maps import list_maps, load_map, start_poses  # noqa: E402
 from superex_deploy.nlos import process_scan  # noqa: E402
 from superex_deploy.spad import simulate_scan  # noqa: E402
+from superex_train.calibration import LogitCalibration  # noqa: E402
+from superex_train.export import ExportConfig, Exporter, WallProbabilityModel, export_generator  # noqa: E402
 from superex_train.training import build_generator, load_checkpoint  # noqa: E402
 
 THREADS = 2
+"""torch threads and ONNX Runtime intra-op threads."""
+
+MODEL_DIR = ROOT / "exported"
+CHECKPOINT_DIR = MODEL_DIR / "checkpoints"
+LAMA_KINDS = (ModelKind.LAMA_BP, ModelKind.LAMA_LOS)
 
 
-def median_ms(function, repeats: int) -> float:
-    """Median wall time of ``function()`` over ``repeats`` calls after one warm-up call (milliseconds)."""
-    function()
+@dataclass(frozen=True)
+class Observation:
+    """A real observation of one eval map.
+
+    Attributes:
+        map_name: the bundled map.
+        observed: int8 ``[H, W]`` observed map after a short episode (-1 unknown, 0 free, 1 occupied).
+        evidence: float32 ``[H, W]`` Laplacian-filtered back-projection in [0, 1] of a scan at the last pose.
+        steps: steps the episode ran.
+    """
+
+    map_name: str
+    observed: np.ndarray
+    evidence: np.ndarray
+    steps: int
+
+    @property
+    def known_fraction(self) -> float:
+        """Fraction of the map's cells that are not unknown."""
+        return float((self.observed != -1).mean())
+
+
+# ----------------------------------------------------------------------------------------------- timing
+
+
+def paired_median_ms(first: Callable[[], object], second: Callable[[], object], repeats: int,
+                     warmup: int, settle_s: float = 0.0) -> tuple[float, float]:
+    """Median wall time (milliseconds) of ``first()`` and of ``second()``.
+
+    ``warmup`` untimed calls of each, then ``repeats`` rounds that call both, each call timed on its own; the
+    order alternates between rounds so that load drifting during the run affects both alike. Before every
+    timed call the process sleeps ``settle_s`` seconds (untimed) so that the other runtime's worker threads,
+    which keep spinning for a while after a call, have gone idle.
+    """
+    for _ in range(warmup):
+        first()
+        second()
+    times: tuple[list[float], list[float]] = ([], [])
+    for round_ in range(repeats):
+        order = ((0, first), (1, second)) if round_ % 2 == 0 else ((1, second), (0, first))
+        for index, function in order:
+            if settle_s > 0:
+                time.sleep(settle_s)
+            clock = time.perf_counter()
+            function()
+            times[index].append(time.perf_counter() - clock)
+    return float(np.median(times[0]) * 1e3), float(np.median(times[1]) * 1e3)
+
+
+def median_ms(function: Callable[[], object], repeats: int, warmup: int, settle_s: float = 0.0) -> float:
+    """Median wall time (milliseconds) of ``function()`` over ``repeats`` calls after ``warmup`` untimed ones,
+    with an untimed ``settle_s`` second sleep before each timed call."""
+    for _ in range(warmup):
+        function()
     times = []
     for _ in range(repeats):
+        if settle_s > 0:
+            time.sleep(settle_s)
         clock = time.perf_counter()
         function()
         times.append(time.perf_counter() - clock)
     return float(np.median(times) * 1e3)
 
 
-def torch_generator(stem: str, spectral: str = "matmul") -> torch.nn.Module:
-    """The checkpoint's generator with a sigmoid on top (what the ONNX file computes), eval mode."""
-    checkpoint = load_checkpoint(DEFAULT_MODEL_DIR / "checkpoints" / f"{stem}.pt")
+# ----------------------------------------------------------------------------------------------- models
+
+
+def torch_model(stem: str, spectral: str = "matmul") -> tuple[torch.nn.Module, ModelKind, dict]:
+    """The checkpoint ``exported/checkpoints/<stem>.pt`` as the exported graph computes it.
+
+    Args:
+        stem: the model's file stem.
+        spectral: Fourier unit LaMa is rebuilt with (``"matmul"``: what ``superex export`` writes;
+            ``"torch_fft"``: the alternative table 3 measures). Ignored for Pix2Pix.
+
+    Returns:
+        ``(model, kind, checkpoint)``: ``model`` maps float32 ``[N, C, H, W]`` to wall probabilities
+        ``[N, 1, H, W]`` (sigmoid of the generator's logits under the exported file's calibration), in eval
+        mode; LaMa is built with the ``matmul`` Fourier unit, as ``export_checkpoint`` does.
+    """
+    checkpoint = load_checkpoint(CHECKPOINT_DIR / f"{stem}.pt")
+    kind = checkpoint["kind"]
     config = dict(checkpoint["model_config"])
-    if checkpoint["kind"] is not ModelKind.PIX2PIX:
+    if kind is not ModelKind.PIX2PIX:
         config["spectral"] = spectral
-    generator = build_generator(checkpoint["kind"], config)
+    generator = build_generator(kind, config)
     generator.load_state_dict(checkpoint["state"]["generator"])
-    return torch.nn.Sequential(generator, torch.nn.Sigmoid()).eval()
+    calibration = None
+    path = MODEL_DIR / f"{stem}.onnx"
+    if path.is_file():  # the graph's Platt calibration, so that max |ORT - torch| compares the same function
+        import onnx
+
+        metadata = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+        calibration = LogitCalibration(float(metadata.get("logit_scale", 1.0)),
+                                       float(metadata.get("logit_offset", 0.0)))
+    return WallProbabilityModel(generator, calibration).eval(), kind, checkpoint
 
 
-def observed_map(name: str, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
-    """int8 ``[H, W]`` observation after a short nearest-frontier episode from start pose 0, and a float32
-    evidence map (the Laplacian-filtered back-projection of a scan at the last pose)."""
-    grid = load_map(name)
-    result = run_episode(grid, start_poses(name)[0], make_planner("nearest"), ObservedAsPrediction(), steps=steps,
-                         cfg=ExplorationConfig(iou_every=0))
-    scan = simulate_scan(grid, tuple(result.poses[-1]))
-    return result.final_observed, process_scan(scan).bp_filtered
+def model_metadata(session) -> dict:
+    """An ONNX Runtime session's ``metadata_props`` (written by ``superex export``)."""
+    return dict(session.get_modelmeta().custom_metadata_map)
 
 
-def padded(array: np.ndarray, multiple: int, minimum: int) -> np.ndarray:
-    """``[1, C, H, W]`` padded at the bottom/right to multiples of ``multiple`` (unknown = last channel 1)."""
-    rows, cols = (max(-(-n // multiple) * multiple, minimum) for n in array.shape[2:])
-    out = np.zeros((1, array.shape[1], rows, cols), np.float32)
-    out[:, -1] = 1.0
-    out[:, :, :array.shape[2], :array.shape[3]] = array
+def lama_padded_shape(metadata: dict, shape: tuple[int, int]) -> tuple[int, int]:
+    """``(rows, cols)`` a map of ``shape`` (cells) is padded to for a LaMa model with these metadata; the same
+    rule as :meth:`LamaEnsemble.padded_shape` (multiples of ``size_multiple``, at least ``min_size``)."""
+    multiple, minimum = int(metadata["size_multiple"]), int(metadata["min_size"])
+    return tuple(max(-(-int(n) // multiple) * multiple, minimum) for n in shape)  # type: ignore[return-value]
+
+
+def pad_encoded(encoded: np.ndarray, kind: ModelKind, padded_shape: tuple[int, int]) -> np.ndarray:
+    """float32 ``[1, C, rows, cols]``: ``encoded`` ``[1, C, H, W]`` at the top left, the rest unknown space (as
+    ``LamaEnsemble.predict_members`` pads)."""
+    rows, cols = padded_shape
+    out = np.zeros((1, encoded.shape[1], rows, cols), np.float32)
+    out[:, MODEL_CHANNELS[kind].index("unknown")] = 1.0
+    out[:, :, :encoded.shape[2], :encoded.shape[3]] = encoded
     return out
 
 
-def bench_model(path: Path, stem: str, kind: ModelKind, inputs: np.ndarray, repeats: int) -> dict:
-    session = make_session(path, SessionConfig(intra_op_threads=THREADS))
+def bench_pair(entry: ManifestEntry, session, model: torch.nn.Module, inputs: np.ndarray, repeats: int,
+               warmup: int, settle_s: float) -> dict:
+    """torch and ORT latency of one model on one input, and the largest output difference.
+
+    Args:
+        entry: the model's manifest entry.
+        session: its ONNX Runtime session.
+        model: the torch module computing the same function (:func:`torch_model`).
+        inputs: float32 ``[N, C, H, W]``.
+        repeats, warmup, settle_s: see :func:`paired_median_ms`.
+
+    Returns:
+        A JSON-able row: ``torch_ms``, ``ort_ms`` (medians, ms), ``torch_over_ort``, ``max_abs_diff``.
+    """
     feed = {session.get_inputs()[0].name: inputs}
-    model = torch_generator(stem)
+    output_name = session.get_outputs()[0].name
     x = torch.from_numpy(inputs)
-    with torch.inference_mode():
-        expected = model(x).numpy()
-        torch_ms = median_ms(lambda: model(x), repeats)
-    ort_ms = median_ms(lambda: session.run(None, feed), repeats)
-    error = float(np.abs(session.run(None, feed)[0] - expected).max())
-    return {"model": stem, "kind": kind.value, "input": list(inputs.shape), "torch_ms": torch_ms, "ort_ms": ort_ms,
-            "speed_up": torch_ms / ort_ms, "max_abs_diff": error}
+
+    def run_torch():
+        with torch.inference_mode():
+            return model(x)
+
+    def run_ort():
+        return session.run([output_name], feed)[0]
+
+    expected = run_torch().numpy()
+    actual = run_ort()
+    torch_ms, ort_ms = paired_median_ms(run_torch, run_ort, repeats, warmup, settle_s)
+    return {"model": entry.path.stem, "kind": entry.kind.value, "input": list(inputs.shape),
+            "torch_ms": torch_ms, "ort_ms": ort_ms, "torch_over_ort": torch_ms / ort_ms,
+            "max_abs_diff": float(np.abs(actual.astype(np.float64) - expected.astype(np.float64)).max())}
 
 
-def bench_fft_export(stem: str, inputs: np.ndarray, repeats: int) -> dict:
-    """ORT latency of the same LaMa member exported with a torch.fft Fourier unit (dynamo, ONNX DFT)."""
-    from superex_train.export import ExportConfig, Exporter, export_generator
+def bench_fourier_unit(stem: str, inputs: np.ndarray, repeats: int, warmup: int, settle_s: float) -> dict:
+    """torch and ORT latency of LaMa member ``stem`` rebuilt with a ``torch.fft`` Fourier unit and exported by
+    the dynamo exporter (ONNX ``DFT``, opset 18) to a temporary file.
 
-    generator = torch_generator(stem, spectral="torch_fft")[0]
-    kind = ModelKind(load_checkpoint(DEFAULT_MODEL_DIR / "checkpoints" / f"{stem}.pt")["kind"])
+    Args:
+        stem: a LaMa member's file stem.
+        inputs: float32 ``[1, C, rows, cols]``, already padded.
+        repeats, warmup, settle_s: see :func:`paired_median_ms`.
+
+    Returns:
+        A row like :func:`bench_pair`'s plus ``export_s`` (seconds the export and its check took).
+    """
+    model, kind, checkpoint = torch_model(stem, spectral="torch_fft")
     with tempfile.TemporaryDirectory() as tmp:
         clock = time.perf_counter()
-        record = export_generator(generator, kind, Path(tmp) / "fft.onnx",
-                                  cfg=ExportConfig(exporter=Exporter.DYNAMO))
+        calibration = LogitCalibration(model.logit_scale, model.logit_offset)
+        record = export_generator(model.generator, kind, Path(tmp) / f"{stem}_fft.onnx",
+                                  cfg=ExportConfig(exporter=Exporter.DYNAMO), calibration=calibration)
         export_s = time.perf_counter() - clock
         session = make_session(record.path, SessionConfig(intra_op_threads=THREADS))
-        feed = {session.get_inputs()[0].name: inputs}
-        ort_ms = median_ms(lambda: session.run(None, feed), repeats)
-        output = session.run(None, feed)[0]
-    with torch.inference_mode():
-        expected = torch.sigmoid(generator(torch.from_numpy(inputs))).numpy()
-        torch_ms = median_ms(lambda: generator(torch.from_numpy(inputs)), repeats)
-    return {"model": f"{stem} (torch.fft, dynamo, ONNX DFT)", "input": list(inputs.shape), "torch_ms": torch_ms,
-            "ort_ms": ort_ms, "speed_up": torch_ms / ort_ms, "max_abs_diff": float(np.abs(output - expected).max()),
-            "export_s": export_s}
+        entry = ManifestEntry(path=record.path, kind=kind, member=0, sha256=record.sha256)
+        row = bench_pair(entry, session, model, inputs, repeats, warmup, settle_s)
+        del session
+    return {**row, "model": f"{stem} (torch.fft, dynamo exporter, ONNX DFT)", "export_s": export_s}
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--models", nargs="*", default=None, help="model stems (default: all in the manifest)")
-    parser.add_argument("--largest-only", action="store_true", help="LaMa on the largest eval map size only")
-    parser.add_argument("--fft", action="store_true", help="also compare with a torch.fft / ONNX DFT export")
+# ----------------------------------------------------------------------------------------------- inputs
+
+
+def observe(map_name: str, steps: int) -> Observation:
+    """A real observation of ``map_name`` (see :class:`Observation`): ``steps`` nearest-frontier steps from
+    start pose 0 with the observed map as the prediction, then one SPAD scan at the last pose."""
+    grid = load_map(map_name)
+    result = run_episode(grid, start_poses(map_name)[0], make_planner("nearest"), ObservedAsPrediction(),
+                         steps=steps, cfg=ExplorationConfig(iou_every=0))
+    scan = simulate_scan(grid, tuple(int(v) for v in result.poses[-1]))
+    return Observation(map_name=map_name, observed=result.final_observed,
+                       evidence=process_scan(scan).bp_filtered.astype(np.float32), steps=len(result.poses))
+
+
+def pix2pix_window(window_cells: int, encoding: BpEncoding) -> tuple[np.ndarray, str]:
+    """Pix2Pix input float32 ``[1, 1, S, S]``: the raw back-projection of a SPAD scan at the first start pose of
+    the first eval map, cropped around the robot and encoded; and the map's name."""
+    name = list_maps("eval")[0]
+    grid = load_map(name)
+    pose = start_poses(name)[0]
+    bp = process_scan(simulate_scan(grid, pose)).bp
+    return encode_bp_windows(crop_window(bp, pose, window_cells)[None], encoding), name
+
+
+def eval_sizes() -> list[tuple[str, tuple[int, int]]]:
+    """``(map name, (rows, cols))`` of every eval map, largest area first (ties: list order)."""
+    maps = [(name, tuple(load_map(name).shape)) for name in list_maps("eval")]
+    return sorted(maps, key=lambda item: -item[1][0] * item[1][1])
+
+
+def parse_sizes(text: str) -> Optional[int]:
+    """``--sizes``: ``all`` (None), ``largest`` (1) or a count N >= 1 of the largest distinct padded sizes."""
+    if text == "all":
+        return None
+    if text == "largest":
+        return 1
+    try:
+        count = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--sizes takes 'all', 'largest' or a count, got {text!r}") from None
+    if count < 1:
+        raise argparse.ArgumentTypeError(f"--sizes count must be >= 1, got {count}")
+    return count
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+
+def print_model_table(rows: list[dict]) -> None:
+    """Markdown table of :func:`bench_pair` rows."""
+    print(f"\n## ONNX Runtime vs torch eager ({THREADS} threads, median ms)\n")
+    print("| model | map (cells) | input | torch ms | ORT ms | torch / ORT | max abs diff |")
+    print("|---|---|---|---:|---:|---:|---:|")
+    for r in rows:
+        where = f"{r['map']} ({r['map_shape'][0]}x{r['map_shape'][1]})" if "map_shape" in r else r.get("map", "")
+        print(f"| {r['model']} | {where} | {'x'.join(map(str, r['input']))} | {r['torch_ms']:.1f} | "
+              f"{r['ort_ms']:.1f} | {r['torch_over_ort']:.2f}x | {r['max_abs_diff']:.1e} |")
+    if rows:
+        ratios = [r["torch_over_ort"] for r in rows]
+        print(f"\ntorch / ORT over {len(rows)} (model, size) pairs: median {np.median(ratios):.2f}x "
+              f"(min {min(ratios):.2f}x, max {max(ratios):.2f}x); largest |ORT - torch| "
+              f"{max(r['max_abs_diff'] for r in rows):.1e}")
+
+
+def print_ensemble_table(rows: list[dict]) -> None:
+    """Markdown table of the ensemble rows."""
+    if not rows:
+        return
+    r0 = rows[0]
+    print(f"\n## One ensemble prediction on the largest eval map ({r0['map']}, {r0['map_shape'][0]}x"
+          f"{r0['map_shape'][1]} cells, padded {r0['padded_shape'][0]}x{r0['padded_shape'][1]}; ORT, "
+          f"{THREADS} threads, median ms)\n")
+    print("| ensemble | members | predict ms | per member ms |\n|---|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r['ensemble']} | {r['members']} | {r['predict_ms']:.0f} | {r['predict_ms'] / r['members']:.0f} |")
+
+
+def print_fourier_table(rows: list[dict]) -> None:
+    """Markdown table of the Fourier-unit rows (``--fft``)."""
+    if not rows:
+        return
+    r0 = rows[0]
+    print(f"\n## Fourier unit: DFT-matrix products vs torch.fft / ONNX DFT ({r0['map']}, input "
+          f"{'x'.join(map(str, r0['input']))}; {THREADS} threads, median ms)\n")
+    print("| export | torch ms | ORT ms | torch / ORT | max abs diff | export s |\n|---|---:|---:|---:|---:|---:|")
+    for r in rows:
+        export_s = f"{r['export_s']:.0f}" if "export_s" in r else ""
+        print(f"| {r['model']} | {r['torch_ms']:.0f} | {r['ort_ms']:.0f} | {r['torch_over_ort']:.2f}x | "
+              f"{r['max_abs_diff']:.1e} | {export_s} |")
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 10; "
+                        "--quick: 2)")
+    parser.add_argument("--warmup", type=int, default=None, help="untimed runs before timing (default 2; --quick: 1)")
+    parser.add_argument("--models", nargs="+", default=None, metavar="STEM",
+                        help="model stems from the manifest, e.g. pix2pix lama_bp_0 (default: all); table 2 runs "
+                             "for the LaMa kinds that have a selected member")
+    parser.add_argument("--sizes", type=parse_sizes, default=None, metavar="all|largest|N",
+                        help="LaMa input sizes: all distinct padded eval sizes (default), the largest, or the N "
+                             "largest (--quick: largest)")
+    parser.add_argument("--settle", type=float, default=0.1, metavar="S",
+                        help="untimed sleep before every timed call, seconds (default 0.1; see the docstring)")
+    parser.add_argument("--steps", type=int, default=100, help="episode steps of the observations (default 100)")
+    parser.add_argument("--no-ensemble", action="store_true", help="skip table 2")
+    parser.add_argument("--fft", action="store_true",
+                        help="table 3: the matmul Fourier unit vs a torch.fft / ONNX DFT export (largest map)")
+    parser.add_argument("--quick", action="store_true", help="smoke test: largest size only, 2 repeats, 1 warm-up")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "bench_models.json")
     args = parser.parse_args(argv)
-    torch.set_num_threads(THREADS)
+    repeats = args.repeats if args.repeats is not None else (2 if args.quick else 10)
+    warmup = args.warmup if args.warmup is not None else (1 if args.quick else 2)
+    size_limit = args.sizes if args.sizes is not None else (1 if args.quick else None)
+    if repeats < 1 or warmup < 0 or args.steps < 1 or args.settle < 0:
+        parser.error("--repeats and --steps must be >= 1, --warmup and --settle >= 0")
 
-    names = list_maps("eval")
-    sizes = {}
-    for name in names:  # one map per distinct padded size (what the network sees), largest first
-        sizes.setdefault(tuple(-(-n // 8) * 8 for n in load_map(name).shape), name)
-    largest = max(sizes, key=lambda s: s[0] * s[1])
-    map_names = [sizes[largest]] if args.largest_only else [sizes[s] for s in sorted(sizes, key=lambda s: -s[0] * s[1])]
-    observations = {name: observed_map(name) for name in map_names}
-    grid = load_map(names[0])
-    pose = start_poses(names[0])[0]
-    window = crop_window(process_scan(simulate_scan(grid, pose)).bp, pose, 160)
+    torch.set_num_threads(THREADS)
+    session_cfg = SessionConfig(intra_op_threads=THREADS)
+    entries = read_manifest(MODEL_DIR)
+    stems = [e.path.stem for e in entries]
+    if args.models:
+        unknown = sorted(set(args.models) - set(stems))
+        if unknown:
+            parser.error(f"--models {unknown} not in the manifest (it lists {stems})")
+        entries = [e for e in entries if e.path.stem in args.models]
+
+    maps = eval_sizes()
+    largest_name, largest_shape = maps[0]
+    observations: dict[str, Observation] = {}
+
+    def observation(name: str) -> Observation:
+        if name not in observations:
+            observations[name] = observe(name, args.steps)
+        return observations[name]
 
     rows = []
-    for entry in read_manifest(DEFAULT_MODEL_DIR):
+    for entry in entries:
         stem = entry.path.stem
-        if args.models and stem not in args.models:
+        session = make_session(entry.path, session_cfg)
+        metadata = model_metadata(session)
+        model, kind, checkpoint = torch_model(stem)
+        if kind is not entry.kind:
+            raise ValueError(f"checkpoint {stem}.pt is a {kind.value} model, the manifest says {entry.kind.value}")
+        if kind is ModelKind.PIX2PIX:
+            encoding = BpEncoding.from_description(metadata["normalisation"])
+            trained = checkpoint.get("train_config", {}).get("input_encoding", BpEncoding.LINEAR.value)
+            if trained != encoding.value:
+                print(f"warning: {stem}.onnx declares the {encoding.value} encoding, its checkpoint was trained "
+                      f"with {trained}", file=sys.stderr)
+            inputs, name = pix2pix_window(int(metadata["window_cells"]), encoding)
+            rows.append({**bench_pair(entry, session, model, inputs, repeats, warmup, args.settle), "map": name})
+            print(f"{stem}: done", file=sys.stderr, flush=True)
             continue
-        if entry.kind is ModelKind.PIX2PIX:
-            rows.append(bench_model(entry.path, stem, entry.kind, encode_bp_windows(window[None]), args.repeats))
-            continue
-        for name in map_names:
-            observed, evidence = observations[name]
-            encoded = encode_map(observed, evidence if entry.kind is ModelKind.LAMA_BP else None, entry.kind)
-            row = bench_model(entry.path, stem, entry.kind, padded(encoded, 8, 16), args.repeats)
-            rows.append({**row, "map": name, "map_shape": list(observed.shape)})
-    print("\n## ONNX Runtime vs torch eager (2 threads, median ms)\n")
-    print("| model | input | torch ms | ORT ms | torch / ORT | max abs diff |\n|---|---|---:|---:|---:|---:|")
-    for r in rows:
-        print(f"| {r['model']} | {'x'.join(map(str, r['input']))} | {r['torch_ms']:.1f} | {r['ort_ms']:.1f} | "
-              f"{r['speed_up']:.2f}x | {r['max_abs_diff']:.1e} |")
-    speed_ups = [r["speed_up"] for r in rows]
-    print(f"\nmedian speed-up over {len(rows)} (model, size) pairs: {np.median(speed_ups):.2f}x "
-          f"(min {min(speed_ups):.2f}x, max {max(speed_ups):.2f}x)")
+        # One map per distinct padded shape (what the network sees), largest first.
+        by_padded: dict[tuple[int, int], tuple[str, tuple[int, int]]] = {}
+        for name, shape in maps:
+            by_padded.setdefault(lama_padded_shape(metadata, shape), (name, shape))
+        chosen = list(by_padded.items())[:size_limit]
+        for padded_shape, (name, shape) in chosen:
+            obs = observation(name)
+            encoded = encode_map(obs.observed, obs.evidence if kind is ModelKind.LAMA_BP else None, kind)
+            inputs = pad_encoded(encoded, kind, padded_shape)
+            row = bench_pair(entry, session, model, inputs, repeats, warmup, args.settle)
+            rows.append({**row, "map": name, "map_shape": list(shape), "known_fraction": obs.known_fraction})
+            print(f"{stem} {padded_shape[0]}x{padded_shape[1]}: done", file=sys.stderr, flush=True)
+        del session, model
 
     ensemble_rows = []
-    observed, evidence = observations[sizes[largest]]
-    for kind in (ModelKind.LAMA_LOS, ModelKind.LAMA_BP):
-        ensemble = LamaEnsemble.from_manifest(kind, session=SessionConfig(intra_op_threads=THREADS))
-        ms = median_ms(lambda: ensemble.predict(observed, evidence), args.repeats)
-        ensemble_rows.append({"ensemble": kind.value, "members": ensemble.members, "map": sizes[largest],
-                              "map_shape": list(observed.shape), "predict_ms": ms})
-    print(f"\n## One {ensemble_rows[0]['members']}-member ensemble prediction on the largest eval map "
-          f"({sizes[largest]}, {observed.shape[0]} x {observed.shape[1]} cells; median ms)\n")
-    print("| ensemble | predict ms |\n|---|---:|")
-    for r in ensemble_rows:
-        print(f"| {r['ensemble']} | {r['predict_ms']:.0f} |")
+    kinds = [k for k in LAMA_KINDS if any(e.kind is k for e in entries)]
+    if not args.no_ensemble and kinds:
+        obs = observation(largest_name)
+        for kind in kinds:
+            ensemble = LamaEnsemble.from_manifest(kind, MODEL_DIR, session=session_cfg)
+            evidence = obs.evidence if kind is ModelKind.LAMA_BP else None
+            ms = median_ms(lambda: ensemble.predict(obs.observed, evidence), repeats, warmup, args.settle)
+            ensemble_rows.append({"ensemble": kind.value, "members": ensemble.members, "map": largest_name,
+                                  "map_shape": list(largest_shape),
+                                  "padded_shape": list(ensemble.padded_shape(largest_shape)),
+                                  "known_fraction": obs.known_fraction, "predict_ms": ms})
+            print(f"{kind.value} ensemble: done", file=sys.stderr, flush=True)
+            del ensemble
 
-    fft_rows = []
+    fourier_rows = []
     if args.fft:
-        stem = "lama_los_0"
-        encoded = padded(encode_map(observed, None, ModelKind.LAMA_LOS), 8, 16)
-        matmul = next((r for r in rows if r["model"] == stem and r.get("map") == sizes[largest]), None) or \
-            bench_model(DEFAULT_MODEL_DIR / f"{stem}.onnx", stem, ModelKind.LAMA_LOS, encoded, args.repeats)
-        fft_rows = [{**matmul, "model": f"{stem} (DFT matrices, TorchScript exporter)"},
-                    bench_fft_export(stem, encoded, args.repeats)]
-        print("\n## Fourier unit: DFT-matrix products vs torch.fft / ONNX DFT (largest eval map, median ms)\n")
-        print("| export | torch ms | ORT ms | torch / ORT | max abs diff |\n|---|---:|---:|---:|---:|")
-        for r in fft_rows:
-            print(f"| {r['model']} | {r['torch_ms']:.0f} | {r['ort_ms']:.0f} | {r['speed_up']:.2f}x | "
-                  f"{r['max_abs_diff']:.1e} |")
+        stem = next((e.path.stem for e in entries if e.kind is ModelKind.LAMA_LOS), None)
+        if stem is None:
+            parser.error("--fft needs a lama_los member among --models")
+        obs = observation(largest_name)
+        entry = next(e for e in entries if e.path.stem == stem)
+        session = make_session(entry.path, session_cfg)
+        inputs = pad_encoded(encode_map(obs.observed, None, ModelKind.LAMA_LOS), ModelKind.LAMA_LOS,
+                             lama_padded_shape(model_metadata(session), largest_shape))
+        model = torch_model(stem)[0]
+        fourier_rows = [
+            {**bench_pair(entry, session, model, inputs, repeats, warmup, args.settle),
+             "model": f"{stem} (DFT matrices, TorchScript exporter; committed)"},
+            bench_fourier_unit(stem, inputs, repeats, warmup, args.settle)]
+        for row in fourier_rows:
+            row.update(map=largest_name, map_shape=list(largest_shape))
+        del session, model
+        print("Fourier units: done", file=sys.stderr, flush=True)
 
+    print_model_table(rows)
+    print_ensemble_table(ensemble_rows)
+    print_fourier_table(fourier_rows)
+
+    import onnxruntime
+
+    report = {
+        "what": "median wall ms; torch eager (inference_mode) vs ONNX Runtime CPU, same inputs, same process",
+        "threads": THREADS, "repeats": repeats, "warmup": warmup, "settle_s": args.settle,
+        "episode_steps": args.steps,
+        "quick": bool(args.quick),
+        "versions": {"python": platform.python_version(), "torch": torch.__version__,
+                     "onnxruntime": onnxruntime.__version__, "numpy": np.__version__},
+        "machine": {"platform": platform.platform(), "processor": platform.processor()},
+        "models": rows, "ensembles": ensemble_rows, "fourier_unit": fourier_rows,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"threads": THREADS, "repeats": args.repeats, "models": rows,
-                                    "ensembles": ensemble_rows, "fourier_unit": fft_rows}, indent=1))
-    print(f"\nwrote {args.out}")
+    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    try:
+        shown = args.out.resolve().relative_to(ROOT)
+    except ValueError:
+        shown = args.out
+    print(f"\nwrote {shown}")
     return 0
 
 
