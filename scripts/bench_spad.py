@@ -24,6 +24,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
@@ -74,8 +75,9 @@ def part_timing(scenarios):
         scan, t_sim = _timed(simulate_scan, grid, pose, DEFAULT)
         known, _ = _hidden_mask(grid, pose)
         _, t_proc = _timed(process_scan, scan, NlosConfig(), known)
+        _, t_serial = _timed(process_scan, scan, NlosConfig(bp_threads=1), known)
         rows.append({"map": grid.name, "pose": list(pose), "los_ms": t_los * 1e3, "spad_ms": t_sim * 1e3,
-                     "nlos_ms": t_proc * 1e3})
+                     "nlos_ms": t_proc * 1e3, "nlos_one_thread_ms": t_serial * 1e3})
     return rows
 
 
@@ -143,10 +145,15 @@ def main() -> None:
     los = np.median([r["los_ms"] for r in timing])
     spad = np.median([r["spad_ms"] for r in timing])
     nlos = np.median([r["nlos_ms"] for r in timing])
-    print(f"\nPart 1: default configuration, {len(timing)} eval scenarios (median ms)")
-    print("| LOS scan (2500 rays) | SPAD scan | NLOS processing | SPAD / LOS | NLOS / SPAD |")
-    print("|---:|---:|---:|---:|---:|")
-    print(f"| {los:.2f} | {spad:.2f} | {nlos:.2f} | {spad / los:.1f}x | {nlos / spad:.2f}x |")
+    nlos_serial = np.median([r["nlos_one_thread_ms"] for r in timing])
+    threading_gain = np.median([r["nlos_one_thread_ms"] / r["nlos_ms"] for r in timing])
+    print(f"\nPart 1: default configuration, {len(timing)} eval scenarios (median ms; NLOS on "
+          f"{numba.get_num_threads()} numba threads, and on one)")
+    print("| LOS scan (2500 rays) | SPAD scan | NLOS processing | NLOS, 1 thread | SPAD / LOS | NLOS / SPAD "
+          "| 1 thread / threaded |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    print(f"| {los:.2f} | {spad:.2f} | {nlos:.2f} | {nlos_serial:.2f} | {spad / los:.1f}x | {nlos / spad:.2f}x "
+          f"| {threading_gain:.2f}x |")
     print(f"one-off per map: normals {np.median(scene_ms):.1f} ms (median); first-call compile {warmup_s:.1f} s")
 
     tradeoff = [] if args.timing_only else part_tradeoff([(grids[n], start_poses(n)[0]) for n in names])
@@ -161,6 +168,8 @@ def main() -> None:
         "reference": {"n_rays": REFERENCE.n_rays, "n_secondary": REFERENCE.n_secondary,
                       "bin_path_m": REFERENCE.bin_path_m},
         "timing": {"median_los_ms": los, "median_spad_ms": spad, "median_nlos_ms": nlos,
+                   "median_nlos_one_thread_ms": nlos_serial, "median_threading_gain": threading_gain,
+                   "numba_threads": numba.get_num_threads(),
                    "median_scene_prepare_ms": float(np.median(scene_ms)), "first_call_s": warmup_s,
                    "per_scenario": timing},
         "tradeoff": tradeoff}, indent=2))

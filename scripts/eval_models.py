@@ -28,7 +28,6 @@ import json
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +45,7 @@ from superex_deploy.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
                                       SessionConfig)
 from superex_deploy.maps import list_maps, load_map, map_building  # noqa: E402
 from superex_deploy.nlos import laplacian_filter  # noqa: E402
+from superex_deploy.parallel import process_pool  # noqa: E402
 from superex_train.datasets import ShardDataset  # noqa: E402
 from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start  # noqa: E402
 
@@ -153,7 +153,7 @@ def evaluate_predictors(model_dir: Path, jobs: int) -> dict:
     """Part 2 (see the module docstring)."""
     maps = heldout_maps()
     tasks = [(name, i, str(model_dir)) for i, name in enumerate(maps)]
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with process_pool(jobs) as pool:
         records = [r for result in pool.map(_episode, tasks) for r in result]
     table = {}
     for low, high in COVERAGE_BINS:

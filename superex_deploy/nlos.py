@@ -86,6 +86,9 @@ class NlosConfig:
             wall-cell estimate one cell off).
         max_incidence_deg: wall points seen more obliquely than this are not carved: at grazing incidence a
             small error in the estimated normal flips which side of the wall faces the robot.
+        bp_threads: the back-projection reads its rays and draws its wall points' rings in this many parts in
+            parallel (0: numba's thread count, ``NUMBA_NUM_THREADS`` or ``numba.set_num_threads``; 1:
+            sequential). The parts change only the order of floating-point additions.
     """
 
     window_m: float = 8.0
@@ -99,6 +102,7 @@ class NlosConfig:
     normal_max_gap_cells: float = 2.0
     normal_interior_cells: float = 2.5
     max_incidence_deg: float = 70.0
+    bp_threads: int = 0
 
     def __post_init__(self) -> None:
         for name in ("window_m", "apex_margin_cells", "wall_strip_cells"):
@@ -115,6 +119,8 @@ class NlosConfig:
             raise ValueError(f"NlosConfig.normal_max_gap_cells must be >= 1, got {self.normal_max_gap_cells}")
         if not self.normal_max_residual_cells > 0.0:
             raise ValueError(f"NlosConfig.normal_max_residual_cells must be > 0, got {self.normal_max_residual_cells}")
+        if int(self.bp_threads) != self.bp_threads or self.bp_threads < 0:
+            raise ValueError(f"NlosConfig.bp_threads must be an integer >= 0, got {self.bp_threads}")
         if not self.normal_radius_cells >= 1.5:
             raise ValueError(f"NlosConfig.normal_radius_cells must be >= 1.5, got {self.normal_radius_cells}")
 
@@ -187,13 +193,14 @@ def _late_threshold(scan: SpadScan, cfg: NlosConfig, n_late_bins: int) -> tuple[
     return threshold - 0.5, 1 + int(np.ceil(4.0 * jitter_bins))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _los_and_first_late_bins(histograms, threshold, guard, los_bin, first_late):
     """Per ray: ``los_bin`` the strongest of the ``guard`` bins from the first bin whose count exceeds
     ``threshold`` (ties: the earliest), ``first_late`` the first bin from ``los_bin + guard`` on exceeding it;
-    -1 where there is none. Reads each ray only up to its first late detection."""
+    -1 where there is none. Reads each ray only up to its first late detection; rays in parallel (each writes
+    only its own entries)."""
     n_bins = histograms.shape[1]
-    for i in range(histograms.shape[0]):
+    for i in numba.prange(histograms.shape[0]):
         los_bin[i] = -1
         first_late[i] = -1
         first = -1
@@ -457,13 +464,13 @@ def carve(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig()) -> n
 
 
 @numba.njit(cache=True)
-def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, threshold, background,
-                      bin_path_m, resolution_m, votes):
-    """``votes[u, q]``: compensated counts of the late bins whose radius ``d2 = (b - b1) w / 2`` rounds to ``q``
-    cells, summed over the rays of wall cell ``u``."""
+def _accumulate_ray_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, threshold, background,
+                          bin_path_m, resolution_m, first, step, votes):
+    """The votes of rays ``first, first + step, ...`` added into ``votes``; the body of
+    :func:`_accumulate_votes`."""
     n_bins = histograms.shape[1]
     n_radii = votes.shape[1]
-    for i in range(histograms.shape[0]):
+    for i in range(first, histograms.shape[0], step):
         u = ray_wall[i]
         if u < 0:
             continue
@@ -475,27 +482,36 @@ def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, thr
                 continue
             d2 = (b - b1) * bin_path_m / 2.0
             q = int(np.floor(d2 / resolution_m + 0.5))
-            if q < n_radii:
-                votes[u, q] += (count - background) * d1 * d2 * d2
+            if q >= n_radii:
+                break  # q grows with b: the rest of the ray lies beyond the largest radius
+            votes[u, q] += (count - background) * d1 * d2 * d2
+
+
+@numba.njit(cache=True, parallel=True)
+def _accumulate_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, threshold, background,
+                      bin_path_m, resolution_m, votes, n_parts):
+    """``votes[u, q]``: compensated counts of the late bins whose radius ``d2 = (b - b1) w / 2`` rounds to ``q``
+    cells, summed over the rays of wall cell ``u`` (added into ``votes``, float64 ``[n_walls, n_radii]``).
+
+    Reading the histograms (every late bin of every ray) is the cost; the rays are dealt round-robin into
+    ``n_parts`` parts read in parallel, each into its own copy of ``votes``, added in part order."""
+    parts = np.zeros((n_parts, votes.shape[0], votes.shape[1]))
+    for part in numba.prange(n_parts):
+        _accumulate_ray_votes(histograms, los_bin, ray_wall, d1_m, first_bin_offset, threshold, background,
+                              bin_path_m, resolution_m, part, n_parts, parts[part])
+    for part in range(n_parts):
+        votes += parts[part]
 
 
 @numba.njit(cache=True)
-def _draw_rings(apex, normals, votes, window, known, bp):
-    """Add ``votes[u, q]`` to every cell on ring ``q`` of ``apex[u]``, in front of the wall (normal side), inside
-    ``window`` ``(r0, r1, c0, c1)`` (inclusive) and not ``known``. A cell whose centre lies at distance ``rho``
-    (cells) from the apex is on ring ``q = floor(rho + 0.5)`` (float64 square root, rounded half up, as in
-    ``tests/naive.py``): the rings are one cell wide and partition the plane.
+def _unknown_runs(window, known):
+    """Run tables of the unknown cells of ``window`` ``(r0, r1, c0, c1)`` (inclusive) for :func:`_draw_rings`.
 
-    The votes are dense in the radius (a wall point's fan returns at most radii), so each wall point's half-disc
-    is swept once, row by row, and every cell looks up its own ring, rather than tracing each ring apart. In a
-    row the half-disc is one interval of columns (along a row the ring index falls, then rises, and the
-    half-plane test is monotone, rounding included), found from the analytic bounds widened by a cell and
-    trimmed with the exact tests; the sweep then jumps over runs of known cells. The cost is one visit per
-    unknown cell of each wall point's half-disc inside the window, a few nanoseconds each."""
+    Returns ``next_open`` int64 ``[rows, cols + 1]`` (first column >= ``c0 + j`` of window row ``i`` that is not
+    ``known``; ``c1 + 1``: none) and ``run_end`` int64 ``[rows, cols]`` (for an unknown cell, the last column of
+    its run of unknown cells; -1 for a known cell)."""
     r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
     width = c_hi - c_lo + 1
-    # next_open[i, j]: first column >= c_lo + j of window row i that is not known (c_hi + 1: none);
-    # run_end[i, j]: for an unknown cell, the last column of its run of unknown cells.
     next_open = np.empty((r_hi - r_lo + 1, width + 1), np.int64)
     run_end = np.empty((r_hi - r_lo + 1, width), np.int64)
     for i in range(r_hi - r_lo + 1):
@@ -511,9 +527,17 @@ def _draw_rings(apex, normals, votes, window, known, bp):
                 following = c
                 run_end[i, c - c_lo] = end
             next_open[i, c - c_lo] = following
+    return next_open, run_end
+
+
+@numba.njit(cache=True)
+def _sweep_rings(apex, normals, votes, window, next_open, run_end, first, step, out):
+    """Draw the rings of wall points ``first, first + step, ...`` into ``out`` float64 ``[rows, cols]``, the
+    window ``(r0, r1, c0, c1)`` with ``out[0, 0]`` at ``(r0, c0)``; the body of :func:`_draw_rings`."""
+    r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
     n_radii = votes.shape[1]
-    ring = np.empty(width, np.int32)
-    for u in range(votes.shape[0]):
+    ring = np.empty(c_hi - c_lo + 1, np.int32)
+    for u in range(first, votes.shape[0], step):
         q_max = -1
         for j in range(n_radii):
             if votes[u, j] != 0.0:
@@ -569,8 +593,34 @@ def _draw_rings(apex, normals, votes, window, known, bp):
                     vx = cc + 0.5 - ax
                     ring[cc - c] = np.int32(np.sqrt(vx * vx + vy2) + 0.5)
                 for cc in range(c, stop + 1):
-                    bp[r, cc] += votes[u, ring[cc - c]]
+                    out[i, cc - c_lo] += votes[u, ring[cc - c]]
                 c = next_open[i, stop + 1 - c_lo]
+
+
+@numba.njit(cache=True, parallel=True)
+def _draw_rings(apex, normals, votes, window, known, bp, n_parts):
+    """Add ``votes[u, q]`` to every cell on ring ``q`` of ``apex[u]``, in front of the wall (normal side), inside
+    ``window`` ``(r0, r1, c0, c1)`` (inclusive) and not ``known``. A cell whose centre lies at distance ``rho``
+    (cells) from the apex is on ring ``q = floor(rho + 0.5)`` (float64 square root, rounded half up, as in
+    ``tests/naive.py``): the rings are one cell wide and partition the plane.
+
+    The votes are dense in the radius (a wall point's fan returns at most radii), so each wall point's half-disc
+    is swept once, row by row, and every cell looks up its own ring, rather than tracing each ring apart. In a
+    row the half-disc is one interval of columns (along a row the ring index falls, then rises, and the
+    half-plane test is monotone, rounding included), found from the analytic bounds widened by a cell and
+    trimmed with the exact tests; the sweep then jumps over runs of known cells. The cost is one visit per
+    unknown cell of each wall point's half-disc inside the window, a few nanoseconds each.
+
+    The wall points are dealt round-robin into ``n_parts`` parts swept in parallel, each into its own buffer
+    over the window, and the buffers are added in part order: the result depends on ``n_parts`` only through
+    the order of floating-point additions (relative differences ~1e-16)."""
+    r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
+    next_open, run_end = _unknown_runs(window, known)
+    parts = np.zeros((n_parts, r_hi - r_lo + 1, c_hi - c_lo + 1))
+    for part in numba.prange(n_parts):
+        _sweep_rings(apex, normals, votes, window, next_open, run_end, part, n_parts, parts[part])
+    for part in range(n_parts):
+        bp[r_lo:r_hi + 1, c_lo:c_hi + 1] += parts[part]
 
 
 def _window(scan: SpadScan, cfg: NlosConfig) -> np.ndarray:
@@ -600,13 +650,20 @@ def back_project(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(
     votes = np.zeros((len(los.wall_cells), n_radii))
     threshold, guard = _late_threshold(scan, cfg, n_bins)
     background = scan.config.noise.background_per_bin
+    n_parts = int(cfg.bp_threads) or numba.get_num_threads()
     _accumulate_votes(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), guard, threshold,
-                      background, scan.bin_path_m, scan.resolution_m, votes)
+                      background, scan.bin_path_m, scan.resolution_m, votes, n_parts)
     apex, normals = _wall_points(los)
+    window = _window(scan, cfg)
     bp = np.zeros(shape, np.float64)
-    _draw_rings(apex, normals, votes, _window(scan, cfg), np.ascontiguousarray(known), bp)
-    top = bp.max(initial=0.0)
-    return (bp / top if top > 0 else bp).astype(np.float32)
+    _draw_rings(apex, normals, votes, window, np.ascontiguousarray(known), bp, n_parts)
+    # Nothing is drawn outside the window, so only the window is normalised.
+    rows, cols = slice(window[0], window[1] + 1), slice(window[2], window[3] + 1)
+    top = bp[rows, cols].max(initial=0.0)
+    normalised = np.zeros(shape, np.float32)
+    if top > 0:
+        normalised[rows, cols] = bp[rows, cols] / top
+    return normalised
 
 
 def laplacian_filter(bp: np.ndarray, sigma_cells: float = 1.0) -> np.ndarray:

@@ -18,7 +18,6 @@ buildings stay untouched for evaluation). The export writes both numbers into th
 from __future__ import annotations
 
 import json
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
@@ -26,6 +25,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 from superex_deploy.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter, SessionConfig
+from superex_deploy.parallel import process_pool
 
 __all__ = ["LogitCalibration", "CalibrationConfig", "fit_logit_calibration", "calibration_maps",
            "collect_calibration_samples", "calibrate", "read_calibration"]
@@ -260,7 +260,7 @@ def collect_calibration_samples(kind: ModelKind, model_dir: PathLike = DEFAULT_M
     maps = calibration_maps(cfg)
     tasks = [(name, i, str(model_dir), kind.value, cfg) for i, name in enumerate(maps)]
     if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with process_pool(jobs) as pool:
             parts = list(pool.map(_episode_samples, tasks))
     else:
         parts = [_episode_samples(task) for task in tasks]

@@ -23,9 +23,6 @@ processes; their results are written in a fixed order, so a dataset depends on i
 
 from __future__ import annotations
 
-import dataclasses
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator, Optional, Sequence, Union
@@ -42,6 +39,7 @@ from superex_deploy.inference import (ModelKind, Pix2PixFilter, crop_window, enc
                                       sha256_file)
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, map_building
 from superex_deploy.nlos import NlosConfig, back_project, estimate_los, nlos_ground_truth
+from superex_deploy.parallel import process_pool
 from superex_deploy.spad import SpadConfig, simulate_scan
 from superex_train.datasets import DatasetInfo, ShardWriter
 
@@ -247,9 +245,7 @@ def _run_all(worker: Callable, episodes: Sequence[_Episode], jobs: int, progress
                 yield episode, worker(episode)
                 bar.update(1)
             return
-        # Threads inside numba / ONNX Runtime would oversubscribe the cores the processes already use.
-        os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with process_pool(jobs) as pool:
             for episode, result in zip(episodes, pool.map(worker, episodes, chunksize=1)):
                 yield episode, result
                 bar.update(1)

@@ -11,7 +11,7 @@ from superex_deploy.inference import LamaEnsemble, ModelKind, make_session
 from superex_deploy.maps import list_maps, map_building
 from superex_train.calibration import (CalibrationConfig, LogitCalibration, calibration_maps,
                                        fit_logit_calibration, read_calibration)
-from superex_train.export import export_models, export_generator, untrained_generator, write_manifest
+from superex_train.export import export_generator, untrained_generator, write_manifest
 from superex_train.generate import heldout_buildings
 from superex_train.models import LamaConfig
 

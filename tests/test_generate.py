@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.types import UNKNOWN
 from superex_deploy.inference import MODEL_CHANNELS, ModelKind
 from superex_deploy.maps import list_maps, load_map, map_building
 from superex_train.datasets import ShardDataset

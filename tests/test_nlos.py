@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -126,9 +128,19 @@ def test_back_projection_matches_naive(noisy):
     known = np.zeros(grid.shape, bool)
     known[25:35, 5:15] = True
     fast = back_project(scan, los, cfg, known)
+    for threads in (1, 2, 5):  # the parallel split changes only the order of additions
+        np.testing.assert_allclose(back_project(scan, los, replace(cfg, bp_threads=threads), known), fast,
+                                   rtol=1e-6, atol=0)
     threshold, guard = _late_threshold(scan, cfg, scan.histograms.shape[1])
     apex, normals = _wall_points(los)
     n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
+    votes = [np.zeros((len(los.wall_cells), n_radii)) for _ in range(3)]
+    for n_parts, out in zip((1, 3, 2 * len(scan.angles)), votes):  # more parts than rays leaves some empty
+        _accumulate_votes(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), guard, threshold,
+                          scan.config.noise.background_per_bin, scan.bin_path_m, RES, out, n_parts)
+    assert votes[0].any()
+    np.testing.assert_allclose(votes[1], votes[0], rtol=1e-12)
+    np.testing.assert_allclose(votes[2], votes[0], rtol=1e-12)
     slow = naive_back_projection(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), apex, normals,
                                  guard, threshold, scan.config.noise.background_per_bin, scan.bin_path_m, RES,
                                  _window(scan, cfg), known, n_radii)
@@ -157,11 +169,13 @@ def test_draw_rings_matches_naive_on_random_and_axis_aligned_wall_points():
     blocks[5:25, 10:20] = blocks[:, 30:] = blocks[14, :] = True
     for known in (rng.random((30, 34)) < 0.2, blocks, np.zeros((30, 34), bool), np.ones((30, 34), bool)):
         for window in ([0, 29, 0, 33], [5, 20, 8, 30], [12, 12, 3, 3]):
-            bp = np.zeros((30, 34))
-            _draw_rings(apex, normals, votes, np.array(window, np.int64), known, bp)
-            np.testing.assert_allclose(bp, naive_draw_rings(apex, normals, votes, window, known), rtol=1e-12)
-            assert not bp[known].any()
-            assert known.all() or bp.any()
+            expected = naive_draw_rings(apex, normals, votes, window, known)
+            for n_parts in (1, 3, n_walls + 2):  # sequential, uneven parts, more parts than wall points
+                bp = np.zeros((30, 34))
+                _draw_rings(apex, normals, votes, np.array(window, np.int64), known, bp, n_parts)
+                np.testing.assert_allclose(bp, expected, rtol=1e-12)
+                assert not bp[known].any()
+                assert known.all() or bp.any()
 
 
 def test_noisy_false_alarm_rate_matches_its_setting():
@@ -258,3 +272,6 @@ def test_bad_inputs():
         NlosConfig(false_alarm_rate=0.0)
     with pytest.raises(ValueError, match="window_m"):
         NlosConfig(window_m=-1.0)
+    for threads in (-1, 1.5):
+        with pytest.raises(ValueError, match="bp_threads"):
+            NlosConfig(bp_threads=threads)

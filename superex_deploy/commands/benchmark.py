@@ -40,13 +40,12 @@ def _episode(task: tuple) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from concurrent.futures import ProcessPoolExecutor
-
     from tqdm import tqdm
 
     from superex_deploy.explore.metrics import results_markdown, summarise
     from superex_deploy.explore.planners import PLANNERS
     from superex_deploy.maps import list_maps, start_poses
+    from superex_deploy.parallel import process_pool
     from superex_deploy.render import save_benchmark_plots
 
     names = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
@@ -59,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     tasks = [(name, k, pose, planner, args.predictor, args.steps, args.seed)
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     args.out.mkdir(parents=True, exist_ok=True)
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+    with process_pool(args.jobs) as pool:
         results = list(tqdm(pool.map(_episode, tasks), total=len(tasks), desc="episodes", unit="episode"))
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)

@@ -31,7 +31,6 @@ from typing import NamedTuple, Optional
 import torch
 from torch import nn
 
-from superex_train.models.common import count_parameters
 
 __all__ = ["SpectralBackend", "LamaConfig", "LamaGenerator", "FourierUnit", "SpectralTransform", "FFC",
            "FFCResBlock", "DftBasis", "dft_basis", "rfft2_ortho", "irfft2_ortho"]
