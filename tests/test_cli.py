@@ -34,6 +34,18 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
     assert (out / "coverage.png").exists() and (out / "iou_vs_coverage.png").exists()
 
 
+def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
+    out = tmp_path / "bench"
+    assert main(["benchmark", "--maps", "50052750", "--planners", "mapex", "--predictor", "lama_bp", "--spad",
+                 "--steps", "15", "--jobs", "2", "--out", str(out)]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["episodes"]) == 4
+    assert all(e["predictor"] == "lama_bp" for e in results["episodes"])
+    # SPAD carving proves cells free beyond line of sight in at least one scenario.
+    assert any(e["final_coverage_with_carving"] > e["final_coverage"] for e in results["episodes"])
+    assert (out / "results.md").read_text().startswith("Predictor: lama_bp, SPAD sensing;")
+
+
 def test_explore_with_spad_reports_carved_coverage(tmp_path):
     out = tmp_path / "spad"
     assert main(["explore", "--map", "50052750", "--start", "2", "--steps", "25", "--spad", "--out", str(out)]) == 0
@@ -46,6 +58,8 @@ def test_explore_with_spad_reports_carved_coverage(tmp_path):
     (["explore", "--map", "50052750", "--start", "7", "--steps", "5"], "--start must lie in 0..3"),
     (["scan", "--map", "no_such_map"], "no bundled map"),
     (["explore", "--map", "50052750", "--pose", "0", "1", "--steps", "5"], "inside a wall"),  # a wall cell
+    (["explore", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
+    (["benchmark", "--maps", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
 ])
 def test_bad_arguments_fail_with_a_clear_message(tmp_path, capsys, argv, message):
     assert main(argv + ["--out", str(tmp_path)]) == 2

@@ -11,8 +11,12 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps", default="eval", help="'eval', or comma-separated bundled eval map names")
     parser.add_argument("--planners", default="nearest,hector,upen,mapex")
-    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los"),
-                        help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor)")
+    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los", "lama_bp"),
+                        help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor); "
+                             "lama_bp: the ensemble that also reads the Pix2Pix-filtered back-projection (needs "
+                             "--spad)")
+    parser.add_argument("--spad", action="store_true",
+                        help="simulate the SPAD LiDAR every step: NLOS carving and back-projection evidence")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
@@ -20,18 +24,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _episode(task: tuple) -> dict:
-    import numba
-
-    numba.set_num_threads(1)
-    from superex_deploy.commands.explore import make_predictor
+    from superex_deploy.commands.explore import make_predictor, make_sensing
     from superex_deploy.explore.episode import ExplorationConfig, run_episode
     from superex_deploy.explore.planners import make_planner
     from superex_deploy.maps import load_map
 
-    map_name, start_index, start, planner_name, predictor_name, steps, seed = task
+    map_name, start_index, start, planner_name, predictor_name, spad, steps, seed = task
     grid = load_map(map_name)
     result = run_episode(grid, start, make_planner(planner_name), make_predictor(predictor_name, grid), steps=steps,
-                         seed=seed, cfg=ExplorationConfig(iou_every=50))
+                         seed=seed, cfg=ExplorationConfig(iou_every=50),
+                         nlos=make_sensing(predictor_name, spad, seed))
     summary = result.to_json()
     summary["start_index"] = start_index
     summary.pop("poses")
@@ -55,7 +57,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
     if args.jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-    tasks = [(name, k, pose, planner, args.predictor, args.steps, args.seed)
+    if args.predictor == "lama_bp" and not args.spad:
+        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    tasks = [(name, k, pose, planner, args.predictor, args.spad, args.steps, args.seed)
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     args.out.mkdir(parents=True, exist_ok=True)
     with process_pool(args.jobs) as pool:
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table}))
     table_text = results_markdown(table)
     (args.out / "results.md").write_text(
-        f"Predictor: {args.predictor}; {len(names)} maps, {len(tasks) // max(len(planners), 1)} scenarios, "
+        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}; {len(names)} maps, {len(tasks) // max(len(planners), 1)} scenarios, "
         f"{args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios; coverage in percent of "
         f"the valid area (carved: counting NLOS-carved cells), coverage_auc: mean coverage over the steps.\n\n"
         f"{table_text}")

@@ -43,6 +43,26 @@ def make_predictor(name: str, grid, models=None):
     raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
 
 
+def make_sensing(predictor: str, spad: bool, seed: int, models=None):
+    """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` gets the Pix2Pix filter's evidence.
+
+    Raises:
+        ValueError: ``lama_bp`` without ``spad`` (it reads the SPAD evidence).
+    """
+    if predictor == "lama_bp" and not spad:
+        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    if not spad:
+        return None
+    from superex_deploy.explore.sensing import SpadSensing
+
+    bp_filter = None
+    if predictor == "lama_bp":
+        from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+
+        bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
+    return SpadSensing(seed=seed, bp_filter=bp_filter)
+
+
 def resolve_start(grid, start_index: int, pose):
     from superex_deploy.maps import start_poses
 
@@ -65,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
     grid = load_map(args.map)
     start = resolve_start(grid, args.start, args.pose)
     planner = make_planner(args.planner)
-    if args.predictor == "lama_bp" and not args.spad:
-        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    nlos = make_sensing(args.predictor, args.spad, args.seed, args.models)
     predictor = make_predictor(args.predictor, grid, args.models)
     args.out.mkdir(parents=True, exist_ok=True)
     recorder = GifRecorder(every=args.gif_every)
@@ -75,16 +94,6 @@ def run(args: argparse.Namespace) -> int:
             recorder(state)
             bar.update(1)
 
-        nlos = None
-        if args.spad:
-            from superex_deploy.explore.sensing import SpadSensing
-
-            bp_filter = None
-            if args.predictor == "lama_bp":
-                from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
-
-                bp_filter = Pix2PixFilter.from_manifest(args.models or DEFAULT_MODEL_DIR).filter_map
-            nlos = SpadSensing(seed=args.seed, bp_filter=bp_filter)
         result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step,
                              nlos=nlos)
     metrics = result.to_json()
