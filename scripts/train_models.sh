@@ -7,10 +7,9 @@
 #
 # Every step resumes: datasets already written are kept, training continues from the last epoch's checkpoint.
 #
-# Provenance of the committed set: pix2pix.onnx and lama_los_* come from exactly these commands. lama_bp_* were
-# trained on LaMa data whose evidence channel came from the previous Pix2Pix (30 epochs, linear input, L1 100 +
-# adversarial 1, lr 2e-4); this script now filters that channel with the current Pix2Pix, so a full run retrains
-# lama_bp_* on the current filter's output (README "Learned models" gives the numbers for both).
+# The LaMa-BP members start from the LaMa-LOS members (the evidence channel's stem weights start at zero, so each
+# BP member first predicts what its LOS member does) and are fine-tuned on the Pix2Pix-filtered data: 5 epochs,
+# cosine learning rate from 5e-4. Every committed model comes from these commands.
 # WORK (default runs/training) holds the datasets and runs; OUT (default exported/) receives the models.
 set -euo pipefail
 
@@ -46,11 +45,14 @@ if [ ! -f "$WORK/lama_data/lama_bp/index.json" ]; then
     --episodes-per-map 2 --steps 300 --sample-every 12 --tile 128 --tiles-per-sample 2 --jobs "$JOBS" $QUIET
 fi
 
-for kind in bp los; do
-  step "LaMa ($kind) ensemble training"
-  $SUPEREX train lama --kind "$kind" --data "$WORK/lama_data/lama_$kind" --out "$WORK/lama_$kind" --members 3 \
-    --epochs 16 --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
-done
+step "LaMa (los) ensemble training"
+$SUPEREX train lama --kind los --data "$WORK/lama_data/lama_los" --out "$WORK/lama_los" --members 3 \
+  --epochs 16 --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
+
+step "LaMa (bp) ensemble: fine-tuned from the LOS members"
+$SUPEREX train lama --kind bp --data "$WORK/lama_data/lama_bp" --out "$WORK/lama_bp" --members 3 \
+  --init-from "$WORK/lama_los/member_{member}/checkpoint.pt" --epochs 5 --lr 5e-4 --lr-schedule cosine \
+  --batch-size 16 --device "$DEVICE" --threads "$THREADS" $QUIET
 
 step "Calibration (Platt scaling on episodes of the training buildings)"
 $SUPEREX export --pix2pix "$WORK/pix2pix" --lama-bp "$WORK/lama_bp" --lama-los "$WORK/lama_los" \

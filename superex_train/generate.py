@@ -287,7 +287,10 @@ def generate_lama(bp_dir: PathLike, los_dir: PathLike, pix2pix_model: Optional[P
     model = None if pix2pix_model is None else str(Path(pix2pix_model).resolve())
     if model is not None:
         Pix2PixFilter(model)  # fail here, with the loader's message, rather than in a worker
-    generator = {"source": "superex_train.generate.generate_lama", "pix2pix_model": model,
+    # The file name, not the path: the sha256 identifies the model, and the data's hash must not depend on where
+    # the repository was checked out.
+    generator = {"source": "superex_train.generate.generate_lama",
+                 "pix2pix_model": None if model is None else Path(model).name,
                  "pix2pix_sha256": None if model is None else sha256_file(model), **cfg.describe()}
     tile = (cfg.tile_cells, cfg.tile_cells)
     with ShardWriter(bp_dir, ModelKind.LAMA_BP, tile, generator=generator) as bp_writer, \

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -33,18 +34,21 @@ from typing import Optional
 import numpy as np
 import torch
 
-from superex_deploy.inference import MODEL_CHANNELS, BpEncoding, ModelKind
+from superex_deploy.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
 from superex_train.datasets import ShardDataset, split_by_group
 from superex_train.losses import gan_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
                                   count_parameters)
 
 __all__ = ["RunSettings", "Pix2PixTrainConfig", "LamaTrainConfig", "TrainResult", "train_pix2pix", "train_lama",
-           "load_checkpoint", "build_generator", "CHECKPOINT_NAME", "CHECKPOINT_FORMAT"]
+           "load_checkpoint", "build_generator", "epoch_learning_rate", "initialise_lama_from", "LR_SCHEDULES",
+           "CHECKPOINT_NAME", "CHECKPOINT_FORMAT"]
 
 CHECKPOINT_NAME = "checkpoint.pt"
 CHECKPOINT_FORMAT = "superex-checkpoint/1"
 _RUN_ONLY_FIELDS = ("epochs", "threads", "progress", "device")
+LR_SCHEDULES = ("constant", "cosine")
+_STEM_WEIGHT = "stem.1.weight"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -138,6 +142,14 @@ class LamaTrainConfig(RunSettings):
         known_weight: loss weight of observed cells relative to unknown ones.
         subsets: the training split is partitioned (seeded, the same for every member) into this many disjoint
             parts and the member trains on part ``member % subsets`` (1: the whole split).
+        lr_schedule: ``"constant"`` or ``"cosine"`` (per epoch: ``lr * (1 + cos(pi * epoch / epochs)) / 2``;
+            changing ``epochs`` on resume reshapes the remaining schedule).
+        init_from: a LaMa checkpoint (file or run folder) whose generator weights start the run instead of a
+            random initialisation; ``{member}`` in it is replaced by the member index. Its architecture must
+            equal ``model`` except for the input channels, which are matched by name
+            (:data:`~superex_deploy.inference.MODEL_CHANNELS`): a channel the source lacks gets zero stem weights,
+            so a LaMa-BP member started from a LaMa-LOS one first predicts exactly what the LOS member does and
+            learns to read the evidence channel from there. Empty: random initialisation.
     """
 
     kind: ModelKind = ModelKind.LAMA_BP
@@ -151,6 +163,8 @@ class LamaTrainConfig(RunSettings):
     l1_weight: float = 1.0
     known_weight: float = 0.1
     subsets: int = 1
+    lr_schedule: str = "constant"
+    init_from: str = ""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -161,6 +175,13 @@ class LamaTrainConfig(RunSettings):
                              f"LamaConfig.in_channels is {self.model.in_channels}")
         if self.member < 0 or self.focal_gamma < 0 or not 0 <= self.known_weight <= 1 or self.subsets < 1:
             raise ValueError("member and focal_gamma must be >= 0, subsets >= 1 and known_weight in [0, 1]")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"LamaTrainConfig.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+
+    @property
+    def init_checkpoint(self) -> Optional[Path]:
+        """The checkpoint ``init_from`` names for this member (None: random initialisation)."""
+        return Path(self.init_from.replace("{member}", str(self.member))) if self.init_from else None
 
 
 def _check_common(cfg) -> None:
@@ -215,6 +236,48 @@ def load_checkpoint(path) -> dict:
         raise ValueError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
     checkpoint["kind"] = ModelKind(checkpoint["kind"])
     return checkpoint
+
+
+def epoch_learning_rate(lr: float, schedule: str, epoch: int, epochs: int) -> float:
+    """The learning rate of 0-based ``epoch`` out of ``epochs`` under ``schedule`` (see LamaTrainConfig)."""
+    if schedule == "constant":
+        return lr
+    if schedule == "cosine":
+        return lr * 0.5 * (1.0 + math.cos(math.pi * epoch / epochs))
+    raise ValueError(f"unknown learning-rate schedule {schedule!r}; choose one of {LR_SCHEDULES}")
+
+
+def initialise_lama_from(generator: "LamaGenerator", kind: ModelKind, path) -> str:
+    """Load a LaMa checkpoint's generator weights into ``generator`` (of ``kind``), matching input channels by
+    name; channels the source lacks get zero stem weights. Returns the checkpoint's sha256.
+
+    Raises ValueError when the checkpoint is not a LaMa one, its architecture differs beyond the input channels,
+    or it has an input channel ``kind`` lacks (its information would be dropped silently).
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / CHECKPOINT_NAME
+    checkpoint = load_checkpoint(path)
+    source_kind = checkpoint["kind"]
+    if source_kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
+        raise ValueError(f"{path} holds a {source_kind.value} model; a LaMa member starts only from a LaMa one")
+    source_model = dict(checkpoint["model_config"], in_channels=generator.cfg.in_channels)
+    if source_model != generator.cfg.to_dict():
+        diff = sorted(k for k in source_model if source_model[k] != generator.cfg.to_dict().get(k))
+        raise ValueError(f"{path} has another architecture than the member to train (differs in {diff})")
+    source_channels, target_channels = MODEL_CHANNELS[source_kind], MODEL_CHANNELS[kind]
+    extra = sorted(set(source_channels) - set(target_channels))
+    if extra:
+        raise ValueError(f"{path} reads input channels {extra} that a {kind.value} model does not have")
+    state = dict(checkpoint["state"]["generator"])
+    source_stem = state[_STEM_WEIGHT]
+    stem = torch.zeros(source_stem.shape[0], len(target_channels), *source_stem.shape[2:], dtype=source_stem.dtype)
+    for index, name in enumerate(target_channels):
+        if name in source_channels:
+            stem[:, index] = source_stem[:, source_channels.index(name)]
+    state[_STEM_WEIGHT] = stem
+    generator.load_state_dict(state)
+    return sha256_file(path)
 
 
 def _save_atomic(obj, path: Path) -> None:
@@ -301,6 +364,7 @@ class _Run:
             module.to(self.device)
         self.history: list[dict] = []
         self.start_epoch = 0
+        self.extra: dict = {}  # run facts kept in the checkpoint (e.g. the sha256 of the initial weights)
 
     def checkpoint_path(self) -> Path:
         return self.out_dir / CHECKPOINT_NAME
@@ -323,6 +387,7 @@ class _Run:
         for name, optimizer in self.optimizers.items():
             optimizer.load_state_dict(checkpoint["optimizers"][name])
         self.history = list(checkpoint["history"])
+        self.extra = dict(checkpoint.get("extra", {}))
         self.start_epoch = int(checkpoint["epoch"]) + 1
 
     def epoch_order(self, epoch: int) -> tuple[np.random.Generator, np.ndarray]:
@@ -342,7 +407,7 @@ class _Run:
             "parameters": count_parameters(generator),
             "state": {name: module.state_dict() for name, module in self.modules.items()},
             "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
-            "history": self.history,
+            "history": self.history, "extra": self.extra,
         }
         _save_atomic(checkpoint, self.checkpoint_path())
         (self.out_dir / "history.json").write_text(json.dumps(self.history, indent=1))
@@ -462,10 +527,17 @@ def train_lama(cfg: LamaTrainConfig, resume: bool = True) -> TrainResult:
         raise ValueError(f"{cfg.data_dir} holds {tile} tiles; the model needs multiples of "
                          f"{cfg.model.size_multiple} of at least {2 * cfg.model.size_multiple}")
     unknown_channel = MODEL_CHANNELS[cfg.kind].index("unknown")
+    loss_fn = lambda logits, y, m, u: _lama_loss(cfg, logits, y, m, u)  # noqa: E731
     if resume:
         run.resume()
+    if run.start_epoch == 0 and cfg.init_checkpoint is not None:
+        run.extra["init_sha256"] = initialise_lama_from(generator, cfg.kind, cfg.init_checkpoint)
+        # epoch -1: the starting point's held-out score, the baseline the fine-tuning must beat
+        run.history = [{"epoch": -1, **_validate(run, generator, loss_fn, unknown_channel)}]
     for epoch in range(run.start_epoch, cfg.epochs):
         clock = time.perf_counter()
+        for group in optimizers["generator"].param_groups:
+            group["lr"] = epoch_learning_rate(cfg.lr, cfg.lr_schedule, epoch, cfg.epochs)
         rng, order = run.epoch_order(epoch)
         generator.train()
         total, n_batches = 0.0, 0
@@ -484,9 +556,9 @@ def train_lama(cfg: LamaTrainConfig, resume: bool = True) -> TrainResult:
                 n_batches += 1
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss.item():.4f}")
-        record = {"epoch": epoch, "train_loss": total / n_batches, "batches": n_batches}
-        record.update(_validate(run, generator, lambda logits, y, m, u: _lama_loss(cfg, logits, y, m, u),
-                                unknown_channel))
+        record = {"epoch": epoch, "train_loss": total / n_batches, "batches": n_batches,
+                  "lr": optimizers["generator"].param_groups[0]["lr"]}
+        record.update(_validate(run, generator, loss_fn, unknown_channel))
         record["seconds"] = time.perf_counter() - clock
         run.history.append(record)
         run.save(epoch, generator)

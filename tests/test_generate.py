@@ -1,9 +1,11 @@
 """Training-data generation from exploration episodes (superex_train.generate)."""
 
+import shutil
+
 import numpy as np
 import pytest
 
-from superex_deploy.inference import MODEL_CHANNELS, ModelKind
+from superex_deploy.inference import DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind
 from superex_deploy.maps import list_maps, load_map, map_building
 from superex_train.datasets import ShardDataset
 from superex_train.generate import (GenerationConfig, generate_lama, generate_pix2pix, heldout_buildings,
@@ -94,6 +96,18 @@ def test_lama_datasets_share_tiles_and_differ_only_by_nlos(tmp_path):
         assert np.all(wall[wall > 0] <= y_bp[wall > 0])  # observed walls are true walls
     assert carved_any
     assert 0 < np.mean([bp.arrays(i)[1].mean() for i in range(len(bp))]) < 5 * wall_share + 0.2
+
+
+def test_lama_data_hash_does_not_depend_on_where_the_filter_lies(tmp_path):
+    cfg = GenerationConfig(maps=(SMALL_MAP,), episodes_per_map=1, steps=20, sample_every=10, tile_cells=32)
+    hashes = []
+    for folder in ("checkout_a", "elsewhere/checkout_b"):
+        model = tmp_path / folder / "pix2pix.onnx"
+        model.parent.mkdir(parents=True)
+        shutil.copy(DEFAULT_MODEL_DIR / "pix2pix.onnx", model)
+        infos = generate_lama(tmp_path / folder / "bp", tmp_path / folder / "los", model, cfg, progress=False)
+        hashes.append([info.data_sha256 for info in infos])
+    assert hashes[0] == hashes[1]
 
 
 def test_lama_generation_checks_the_filter_model(tmp_path):

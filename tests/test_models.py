@@ -1,20 +1,22 @@
 """Networks, Fourier units, losses, the shard format and the training loops (torch, CPU, small sizes)."""
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from superex_deploy.inference import MODEL_CHANNELS, ModelKind, encode_map
+from superex_deploy.inference import MODEL_CHANNELS, ModelKind, encode_map, sha256_file
 from superex_train.datasets import (ShardDataset, ShardWriter, read_index, split_by_group, synthetic_walls,
                                     write_synthetic_dataset)
 from superex_train.losses import wall_weighted_bce, wall_weighted_l1, wall_weights
 from superex_train.models import (FourierUnit, LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig,
                                   SpectralBackend, UNetGenerator, calibrate_batchnorm, count_parameters,
                                   dft_basis, irfft2_ortho, rfft2_ortho)
-from superex_train.training import (LamaTrainConfig, Pix2PixTrainConfig, load_checkpoint, train_lama,
-                                    train_pix2pix)
+from superex_train.training import (LamaTrainConfig, Pix2PixTrainConfig, epoch_learning_rate,
+                                    initialise_lama_from, load_checkpoint, train_lama, train_pix2pix)
 
 torch.set_num_threads(2)
 
@@ -280,6 +282,70 @@ def test_lama_training_learns_and_resumes_exactly(synthetic_data, tmp_path):
         train_lama(LamaTrainConfig(out_dir=str(tmp_path / "resumed"), epochs=5, wall_weight=3.0, **base))
 
 
+def _lama_checkpoint(synthetic_data, tmp_path, kind: ModelKind, model: LamaConfig):
+    cfg = LamaTrainConfig(data_dir=str(synthetic_data[kind]), out_dir=str(tmp_path / kind.value), kind=kind,
+                          model=model, epochs=1, batch_size=8, max_batches=2, progress=False)
+    return train_lama(cfg).checkpoint
+
+
+def test_bp_member_started_from_los_first_predicts_what_los_does(synthetic_data, tmp_path):
+    los_model = LamaConfig(in_channels=2, **SMALL_LAMA)
+    los_path = _lama_checkpoint(synthetic_data, tmp_path, ModelKind.LAMA_LOS, los_model)
+    los = LamaGenerator(los_model)
+    los.load_state_dict(load_checkpoint(los_path)["state"]["generator"])
+    bp = LamaGenerator(LamaConfig(in_channels=3, **SMALL_LAMA))
+    initialise_lama_from(bp, ModelKind.LAMA_BP, los_path)
+    los.eval(), bp.eval()
+    generator = torch.Generator().manual_seed(0)
+    observed, unknown = (torch.rand(2, 2, 32, 48, generator=generator) > 0.7).float().unbind(1)
+    evidence = torch.rand(2, 1, 32, 48, generator=generator)
+    with torch.no_grad():
+        expected = los(torch.stack([observed, unknown], 1))
+        got = bp(torch.cat([observed[:, None], evidence, unknown[:, None]], 1))
+    torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-6)
+    assert float(expected.std()) > 0  # a constant output would make the comparison empty
+
+    # through the training loop: '{member}' resolves, epoch -1 records the starting point, the source is hashed
+    shutil.copy(los_path, tmp_path / "los_member_0.pt")
+    cfg = LamaTrainConfig(data_dir=str(synthetic_data[ModelKind.LAMA_BP]), out_dir=str(tmp_path / "fine"),
+                          model=LamaConfig(**SMALL_LAMA), epochs=2, batch_size=8, lr_schedule="cosine",
+                          init_from=str(tmp_path / "los_member_{member}.pt"), progress=False)
+    history = train_lama(cfg).history
+    assert [r["epoch"] for r in history] == [-1, 0, 1]
+    assert [r["lr"] for r in history[1:]] == [pytest.approx(cfg.lr), pytest.approx(cfg.lr / 2)]
+    assert load_checkpoint(tmp_path / "fine")["extra"]["init_sha256"] == sha256_file(los_path)
+
+
+def test_member_placeholder_and_bad_starting_points(synthetic_data, tmp_path):
+    bp_model = LamaConfig(in_channels=3, **SMALL_LAMA)
+    bp_path = _lama_checkpoint(synthetic_data, tmp_path, ModelKind.LAMA_BP, bp_model)
+    cfg = LamaTrainConfig(data_dir="d", out_dir="o", model=bp_model, member=2, init_from="runs/m{member}/c.pt")
+    assert cfg.init_checkpoint == Path("runs/m2/c.pt")
+    assert LamaTrainConfig(data_dir="d", out_dir="o").init_checkpoint is None
+    with pytest.raises(ValueError, match="evidence"):  # LOS would silently drop the evidence channel
+        initialise_lama_from(LamaGenerator(LamaConfig(in_channels=2, **SMALL_LAMA)), ModelKind.LAMA_LOS, bp_path)
+    with pytest.raises(ValueError, match="another architecture"):
+        initialise_lama_from(LamaGenerator(LamaConfig(in_channels=3, **dict(SMALL_LAMA, n_blocks=2))),
+                             ModelKind.LAMA_BP, bp_path)
+    with pytest.raises(ValueError, match="no checkpoint"):
+        initialise_lama_from(LamaGenerator(bp_model), ModelKind.LAMA_BP, tmp_path / "missing.pt")
+    pix2pix = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path / "p2p"),
+                                 epochs=1, model=SMALL_PIX2PIX, batch_size=8, max_batches=1, progress=False)
+    with pytest.raises(ValueError, match="starts only from a LaMa"):
+        initialise_lama_from(LamaGenerator(bp_model), ModelKind.LAMA_BP, train_pix2pix(pix2pix).checkpoint)
+
+
+def test_learning_rate_schedules():
+    assert [epoch_learning_rate(1e-3, "constant", e, 4) for e in range(4)] == [1e-3] * 4
+    cosine = [epoch_learning_rate(1e-3, "cosine", e, 4) for e in range(4)]
+    np.testing.assert_allclose(cosine, [1e-3, 1e-3 * (1 + np.cos(np.pi / 4)) / 2, 5e-4,
+                                        1e-3 * (1 + np.cos(3 * np.pi / 4)) / 2])
+    with pytest.raises(ValueError, match="schedule"):
+        epoch_learning_rate(1e-3, "step", 0, 4)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        LamaTrainConfig(data_dir="d", out_dir="o", lr_schedule="step")
+
+
 def test_pix2pix_training_learns(synthetic_data, tmp_path):
     cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path), epochs=4,
                              model=SMALL_PIX2PIX, batch_size=8, lr=2e-3, wall_weight=50.0,
@@ -375,7 +441,7 @@ def test_cli_defaults_are_the_training_config_defaults(model):
     defaults = {f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
     names = ["epochs", "batch_size", "lr", "wall_weight", "l1_weight", "seed", "threads"]
     names += (["adversarial_weight", "bce_weight", "input_encoding"] if model == "pix2pix"
-              else ["focal_gamma", "known_weight"])
+              else ["focal_gamma", "known_weight", "lr_schedule", "init_from"])
     for name in names:
         assert getattr(args, name) == defaults[name], name
     if model == "pix2pix":

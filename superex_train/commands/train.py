@@ -77,6 +77,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lama.add_argument("--base-channels", type=int, default=16)
     lama.add_argument("--max-channels", type=int, default=96)
     lama.add_argument("--blocks", type=int, default=5, help="FFC residual blocks")
+    lama.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                      help="per-epoch learning rate: constant, or cosine decay to 0 over --epochs")
+    lama.add_argument("--init-from", default="",
+                      help="start each member from this LaMa checkpoint ('{member}' is replaced by the member "
+                           "index), e.g. exported/checkpoints/lama_los_{member}.pt to fine-tune LaMa-BP from "
+                           "LaMa-LOS (input channels matched by name; a new channel starts with zero weights)")
 
     synthetic = sub.add_parser("synthetic", help="write a synthetic dataset (random floor plans; sanity runs only)")
     synthetic.add_argument("--kind", choices=("pix2pix", "lama_bp", "lama_los"), required=True)
@@ -181,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
     for member in range(args.members) if args.only_member is None else [args.only_member]:
         cfg = LamaTrainConfig(out_dir=str(args.out / f"member_{member}"), kind=kind, model=model, member=member,
                               focal_gamma=args.focal_gamma, known_weight=args.known_weight,
-                              subsets=args.members, **common)
+                              subsets=args.members, lr_schedule=args.lr_schedule, init_from=args.init_from,
+                              **common)
         result = train_lama(cfg, resume=not args.fresh)
         last = result.history[-1] if result.history else {}
         print(f"member {member}: {json.dumps(last)}\ncheckpoint: {result.checkpoint}")
