@@ -4,7 +4,7 @@ import pytest
 from superex_deploy.explore.episode import run_episode
 from superex_deploy.explore.frontiers import find_frontiers, frontier_cells
 from superex_deploy.explore.mapper import LidarConfig, Mapper
-from superex_deploy.explore.metrics import map_iou, summarise
+from superex_deploy.explore.metrics import map_iou, paired_differences, summarise
 from superex_deploy.explore.motion import MotionConfig, planning_map
 from superex_deploy.explore.planners import MapexPlanner, NearestFrontier, make_planner
 from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
@@ -164,3 +164,36 @@ def test_bad_inputs(small_map):
         MotionConfig(step_cells=0)
     with pytest.raises(ValueError, match="unknown planner"):
         make_planner("frontier")
+
+
+def _fake_result(map_name, start, coverage, iou, planner="mapex"):
+    return {"map": map_name, "start_index": start, "planner": planner, "coverage": coverage,
+            "coverage_with_carving": [c + 0.01 for c in coverage], "iou": {"iou": iou}}
+
+
+def test_paired_differences_on_hand_built_runs():
+    baseline = [_fake_result("a", 0, [0.1, 0.2, 0.3], [0.4]), _fake_result("a", 1, [0.1, 0.1], [0.5]),
+                _fake_result("b", 0, [0.2, 0.4, 0.6], [0.3])]
+    # listed in another order: pairing goes by scenario, not position
+    candidate = [_fake_result("b", 0, [0.2, 0.3, 0.5], [0.3]), _fake_result("a", 0, [0.2, 0.3, 0.5], [0.6]),
+                 _fake_result("a", 1, [0.1, 0.1], [0.5])]
+    paired = paired_differences(baseline, candidate, [1, 3])
+    assert paired["coverage@1"] == {"n": 3, "median": pytest.approx(0.0), "mean": pytest.approx(0.1 / 3),
+                                    "better": 1, "worse": 0, "tied": 2}
+    # step 3: +0.2 (a/0), 0 (a/1 ended at step 2 and keeps its last value), -0.1 (b/0)
+    assert paired["coverage@3"]["median"] == pytest.approx(0.0)
+    assert paired["coverage@3"]["mean"] == pytest.approx(0.1 / 3)
+    assert (paired["coverage@3"]["better"], paired["coverage@3"]["worse"], paired["coverage@3"]["tied"]) == (1, 1, 1)
+    assert paired["final_iou"]["mean"] == pytest.approx(0.2 / 3)
+    carved = paired_differences(baseline, candidate, [1], series="coverage_with_carving")
+    assert carved["coverage@1"]["mean"] == pytest.approx(0.1 / 3 + 0.01)
+
+
+def test_paired_differences_refuse_mismatched_runs():
+    run = [_fake_result("a", 0, [0.1], [0.4])]
+    with pytest.raises(ValueError, match="different scenarios"):
+        paired_differences(run, [_fake_result("a", 1, [0.1], [0.4])], [1])
+    with pytest.raises(ValueError, match="twice"):
+        paired_differences(run, run + run, [1])
+    with pytest.raises(ValueError, match="series"):
+        paired_differences(run, run, [1], series="coverage_auc")

@@ -16,7 +16,7 @@ from scipy import ndimage
 from superex_deploy.maps import OccupancyGrid
 
 __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
-           "results_markdown", "iou_by_coverage"]
+           "results_markdown", "iou_by_coverage", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
 
@@ -107,6 +107,59 @@ def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000)
         row["final_iou"] = _mean_std([r["iou"]["iou"][-1] for r in runs if r["iou"]["iou"]])
         rows.append(row)
     return rows
+
+
+def _scenario_key(result: dict) -> tuple:
+    return result["map"], int(result["start_index"]), result["planner"]
+
+
+def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints: Sequence[int],
+                       series: str = "coverage", baseline_series: str = "coverage",
+                       tie_tolerance: float = 1e-6) -> dict:
+    """Scenario-by-scenario comparison of two benchmark runs (``results.json`` episode dicts of ``superex
+    benchmark``), paired by (map, start index, planner).
+
+    For each checkpoint ``N`` (steps) the difference is ``candidate[series]@N - baseline[baseline_series]@N``
+    (coverage fractions); ``final_iou`` compares each episode's last logged map IoU. Each entry holds ``n``, the
+    ``median`` and ``mean`` difference, and how many scenarios are ``better`` / ``worse`` / ``tied`` (within
+    ``tie_tolerance``).
+
+    Raises:
+        ValueError: the runs do not cover the same scenarios, a scenario appears twice, or an unknown series.
+    """
+    runs = {}
+    for name, results in (("baseline", baseline), ("candidate", candidate)):
+        keyed = {}
+        for result in results:
+            key = _scenario_key(result)
+            if key in keyed:
+                raise ValueError(f"the {name} run holds scenario {key} twice")
+            keyed[key] = result
+        runs[name] = keyed
+    if set(runs["baseline"]) != set(runs["candidate"]):
+        missing = sorted(set(runs["baseline"]) ^ set(runs["candidate"]))
+        raise ValueError(f"the runs cover different scenarios (e.g. {missing[:3]}); pair runs of the same "
+                         f"maps, start poses and planners")
+    for name, key in (("series", series), ("baseline_series", baseline_series)):
+        if key not in ("coverage", "coverage_with_carving"):
+            raise ValueError(f"{name} must be 'coverage' or 'coverage_with_carving', got {key!r}")
+
+    def describe(differences: list[float]) -> dict:
+        values = np.asarray(differences, float)
+        return {"n": int(values.size), "median": float(np.median(values)), "mean": float(np.mean(values)),
+                "better": int(np.sum(values > tie_tolerance)), "worse": int(np.sum(values < -tie_tolerance)),
+                "tied": int(np.sum(np.abs(values) <= tie_tolerance))}
+
+    keys = sorted(runs["baseline"])
+    out = {}
+    for step in checkpoints:
+        out[f"coverage@{step}"] = describe(
+            [coverage_at(runs["candidate"][k][series], step) - coverage_at(runs["baseline"][k][baseline_series], step)
+             for k in keys])
+    ious = [(runs["candidate"][k]["iou"]["iou"], runs["baseline"][k]["iou"]["iou"]) for k in keys]
+    if all(c and b for c, b in ious):
+        out["final_iou"] = describe([c[-1] - b[-1] for c, b in ious])
+    return out
 
 
 def results_markdown(rows: list[dict]) -> str:
