@@ -14,9 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
-from superex_deploy.explore.metrics import coverage_at, paired_differences
+from superex_deploy.explore.metrics import paired_differences
 
 
 def _load(path: Path) -> list[dict]:
@@ -38,30 +36,20 @@ def main() -> None:
     checkpoints = [int(s) for s in args.checkpoints.split(",") if s.strip()]
     paired = paired_differences(baseline, candidate, checkpoints, series=args.candidate_series,
                                 baseline_series=args.baseline_series)
-    means = {}
-    for step in checkpoints:
-        means[f"coverage@{step}"] = (
-            float(np.mean([coverage_at(r[args.baseline_series], step) for r in baseline])),
-            float(np.mean([coverage_at(r[args.candidate_series], step) for r in candidate])))
-    if "final_iou" in paired:
-        means["final_iou"] = (float(np.mean([r["iou"]["iou"][-1] for r in baseline])),
-                              float(np.mean([r["iou"]["iou"][-1] for r in candidate])))
     print(f"baseline {args.baseline} ({args.baseline_series}) vs candidate {args.candidate} "
           f"({args.candidate_series}), {next(iter(paired.values()))['n']} paired scenarios\n")
     print("| metric | baseline mean | candidate mean | paired median | paired mean | better / worse / tied |")
     print("|---|---:|---:|---:|---:|---|")
     for metric, row in paired.items():
         scale, digits = (100.0, 1) if metric.startswith("coverage") else (1.0, 3)
-        base, cand = means[metric]
-        print(f"| {metric} | {base * scale:.{digits}f} | {cand * scale:.{digits}f} "
+        print(f"| {metric} | {row['baseline_mean'] * scale:.{digits}f} | {row['candidate_mean'] * scale:.{digits}f} "
               f"| {row['median'] * scale:+.{digits}f} | {row['mean'] * scale:+.{digits}f} "
               f"| {row['better']} / {row['worse']} / {row['tied']} |")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({"baseline": str(args.baseline), "candidate": str(args.candidate),
                                         "baseline_series": args.baseline_series,
-                                        "candidate_series": args.candidate_series, "means": means,
-                                        "paired": paired}, indent=1))
+                                        "candidate_series": args.candidate_series, "paired": paired}, indent=1))
         print(f"\nwrote {args.out}")
 
 

@@ -179,7 +179,8 @@ def test_paired_differences_on_hand_built_runs():
                  _fake_result("a", 1, [0.1, 0.1], [0.5])]
     paired = paired_differences(baseline, candidate, [1, 3])
     assert paired["coverage@1"] == {"n": 3, "median": pytest.approx(0.0), "mean": pytest.approx(0.1 / 3),
-                                    "better": 1, "worse": 0, "tied": 2}
+                                    "better": 1, "worse": 0, "tied": 2,
+                                    "baseline_mean": pytest.approx(0.4 / 3), "candidate_mean": pytest.approx(0.5 / 3)}
     # step 3: +0.2 (a/0), 0 (a/1 ended at step 2 and keeps its last value), -0.1 (b/0)
     assert paired["coverage@3"]["median"] == pytest.approx(0.0)
     assert paired["coverage@3"]["mean"] == pytest.approx(0.1 / 3)

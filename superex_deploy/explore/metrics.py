@@ -120,9 +120,9 @@ def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints:
     benchmark``), paired by (map, start index, planner).
 
     For each checkpoint ``N`` (steps) the difference is ``candidate[series]@N - baseline[baseline_series]@N``
-    (coverage fractions); ``final_iou`` compares each episode's last logged map IoU. Each entry holds ``n``, the
-    ``median`` and ``mean`` difference, and how many scenarios are ``better`` / ``worse`` / ``tied`` (within
-    ``tie_tolerance``).
+    (coverage fractions); ``final_iou`` compares each episode's last logged map IoU. Each entry holds ``n``,
+    each run's mean (``baseline_mean``, ``candidate_mean``), the ``median`` and ``mean`` difference, and how
+    many scenarios are ``better`` / ``worse`` / ``tied`` (within ``tie_tolerance``).
 
     Raises:
         ValueError: the runs do not cover the same scenarios, a scenario appears twice, or an unknown series.
@@ -144,21 +144,22 @@ def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints:
         if key not in ("coverage", "coverage_with_carving"):
             raise ValueError(f"{name} must be 'coverage' or 'coverage_with_carving', got {key!r}")
 
-    def describe(differences: list[float]) -> dict:
-        values = np.asarray(differences, float)
-        return {"n": int(values.size), "median": float(np.median(values)), "mean": float(np.mean(values)),
+    def describe(baseline_values: list[float], candidate_values: list[float]) -> dict:
+        base, cand = np.asarray(baseline_values, float), np.asarray(candidate_values, float)
+        values = cand - base
+        return {"n": int(values.size), "baseline_mean": float(base.mean()), "candidate_mean": float(cand.mean()),
+                "median": float(np.median(values)), "mean": float(np.mean(values)),
                 "better": int(np.sum(values > tie_tolerance)), "worse": int(np.sum(values < -tie_tolerance)),
                 "tied": int(np.sum(np.abs(values) <= tie_tolerance))}
 
     keys = sorted(runs["baseline"])
     out = {}
     for step in checkpoints:
-        out[f"coverage@{step}"] = describe(
-            [coverage_at(runs["candidate"][k][series], step) - coverage_at(runs["baseline"][k][baseline_series], step)
-             for k in keys])
-    ious = [(runs["candidate"][k]["iou"]["iou"], runs["baseline"][k]["iou"]["iou"]) for k in keys]
-    if all(c and b for c, b in ious):
-        out["final_iou"] = describe([c[-1] - b[-1] for c, b in ious])
+        out[f"coverage@{step}"] = describe([coverage_at(runs["baseline"][k][baseline_series], step) for k in keys],
+                                           [coverage_at(runs["candidate"][k][series], step) for k in keys])
+    ious = [(runs["baseline"][k]["iou"]["iou"], runs["candidate"][k]["iou"]["iou"]) for k in keys]
+    if all(b and c for b, c in ious):
+        out["final_iou"] = describe([b[-1] for b, _ in ious], [c[-1] for _, c in ious])
     return out
 
 
