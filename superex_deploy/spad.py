@@ -32,7 +32,11 @@ Distances ``d1, d2`` are floored at half a cell so eq. (2) stays finite for a ro
 Cost. :func:`prepare_scene` computes, once per grid, the wall normals and a 4x4-block occupancy map (cached on
 the grid; 10-95 ms on the KTH eval floors). Every scan then traces the primaries and one
 fan per distinct hit cell with a two-level DDA that crosses wall-free 4x4 blocks in one step and returns the
-exact DDA's hits, groups the rays by hit cell and writes the histograms; nothing is cached between scans.
+exact DDA's hits, groups the rays by hit cell and writes the histograms. A fan depends on its wall cell and
+the normal it leaves along, not on the robot's pose, so each grid keeps the fans traced so far
+(:class:`FanCache`): along an exploration episode a scan traces only the fans of wall cells it is the first to
+see. The histograms are written sparse (:class:`SparseHistograms`: at most ``1 + n_secondary`` of the
+``n_bins`` bins of a noise-free ray are non-zero), and densified only when asked for.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Optional
+from typing import Optional, Union
 
 import numba
 import numpy as np
@@ -49,8 +53,8 @@ from scipy import ndimage
 from superex_deploy.geometry import _dda_start, cell_centre, ray_angles
 from superex_deploy.maps import OccupancyGrid
 
-__all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SpadScan", "SpadScene", "prepare_scene", "simulate_scan",
-           "SPEED_OF_LIGHT", "PLANCK"]
+__all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SparseHistograms", "SpadScan", "SpadScene", "FanCache",
+           "prepare_scene", "simulate_scan", "SPEED_OF_LIGHT", "PLANCK"]
 
 SPEED_OF_LIGHT = 299_792_458.0  # m/s
 PLANCK = 6.626_070_15e-34  # J s
@@ -177,11 +181,13 @@ class SpadConfig:
                 / np.pi ** 3 * self.photons_per_joule)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SpadTruth:
     """Simulation-only ground truth (labels and tests; never read by the NLOS processing).
 
-    Stored per fan (one per distinct primary-hit cell); the per-path views are derived on first access.
+    Stored per fan (one per distinct primary-hit cell) as rows of the grid's fan cache (:class:`FanCache`; rows
+    are written once and never changed, so a truth stays valid however the cache grows later); the per-fan and
+    per-path arrays are gathered on first access.
 
     Attributes:
         h1_rc: int32 ``[n_rays, 2]`` first wall cell of each primary ray, -1 where none within range.
@@ -189,9 +195,8 @@ class SpadTruth:
         normal1: float64 ``[n_rays, 2]`` unit outward normal ``(dy, dx)`` at ``h1`` facing the robot (0 if none).
         cos1: float64 ``[n_rays]`` incidence cosine of the primary at ``h1`` (0 if none).
         ray_fan: int64 ``[n_rays]`` fan index of each primary ray, -1 where it hit nothing.
-        fan_h2_rc: int32 ``[n_fans, n_secondary, 2]`` secondary hit cells (-1: no hit within range).
-        fan_d2_m: float64 ``[n_fans, n_secondary]`` distance from the fan origin ``X1`` to ``h2`` (NaN: no hit).
-        fan_cos2: float64 ``[n_fans, n_secondary]`` clamped incidence cosine at ``h2`` (0: back-facing).
+        fan_rows: int64 ``[n_fans]`` row of each fan in ``fan_store``.
+        fan_store: the cache's arrays ``(d2_m, cos2, h2_rc)`` as they were when the scan was taken.
         three_bounce_scale: eq. (2) without its geometric factor (see :meth:`SpadConfig.three_bounce_scale`).
     """
 
@@ -200,10 +205,24 @@ class SpadTruth:
     normal1: np.ndarray
     cos1: np.ndarray
     ray_fan: np.ndarray
-    fan_h2_rc: np.ndarray
-    fan_d2_m: np.ndarray
-    fan_cos2: np.ndarray
+    fan_rows: np.ndarray
+    fan_store: tuple[np.ndarray, np.ndarray, np.ndarray]
     three_bounce_scale: float
+
+    @cached_property
+    def fan_h2_rc(self) -> np.ndarray:
+        """int32 ``[n_fans, n_secondary, 2]`` secondary hit cells (-1: no hit within range)."""
+        return self.fan_store[2][self.fan_rows]
+
+    @cached_property
+    def fan_d2_m(self) -> np.ndarray:
+        """float64 ``[n_fans, n_secondary]`` distance from the fan origin ``X1`` to ``h2`` (NaN: no hit)."""
+        return self.fan_store[0][self.fan_rows]
+
+    @cached_property
+    def fan_cos2(self) -> np.ndarray:
+        """float64 ``[n_fans, n_secondary]`` clamped incidence cosine at ``h2`` (0: back-facing)."""
+        return self.fan_store[1][self.fan_rows]
 
     @cached_property
     def _paths(self) -> tuple[np.ndarray, np.ndarray]:
@@ -238,12 +257,84 @@ class SpadTruth:
                 / (self.d1_m[rays] * self.fan_d2_m[fan, slot] ** 2))
 
 
-@dataclass(frozen=True)
+@numba.njit(cache=True)
+def _sparse_to_dense(row_start, bins, counts, out):
+    for i in range(row_start.shape[0] - 1):
+        for j in range(row_start[i], row_start[i + 1]):
+            out[i, bins[j]] = counts[j]
+
+
+@numba.njit(cache=True)
+def _dense_to_sparse(histograms, threshold):
+    n_rays, n_bins = histograms.shape
+    row_start = np.zeros(n_rays + 1, np.int64)
+    for i in range(n_rays):
+        n = 0
+        for b in range(n_bins):
+            if histograms[i, b] > threshold:
+                n += 1
+        row_start[i + 1] = row_start[i] + n
+    bins = np.empty(row_start[n_rays], np.int32)
+    counts = np.empty(row_start[n_rays], np.float32)
+    for i in range(n_rays):
+        j = row_start[i]
+        for b in range(n_bins):
+            if histograms[i, b] > threshold:
+                bins[j] = b
+                counts[j] = histograms[i, b]
+                j += 1
+    return row_start, bins, counts
+
+
+@dataclass(frozen=True, eq=False)
+class SparseHistograms:
+    """Histograms stored by their non-zero bins, ray by ray (compressed sparse rows).
+
+    A noise-free SPAD histogram has at most ``1 + n_secondary`` non-zero bins of ``n_bins`` (65 of 801 at the
+    defaults): the simulator writes this form and the NLOS processing reads it, neither touches the zeros.
+
+    Attributes:
+        row_start: int64 ``[n_rays + 1]``; ray ``i``'s entries are ``row_start[i]:row_start[i + 1]``.
+        bins: int32 ``[nnz]`` bin indices, strictly increasing within a ray, in ``[0, n_bins)``.
+        counts: float32 ``[nnz]`` photon counts of those bins.
+        n_bins: bins per ray.
+    """
+
+    row_start: np.ndarray
+    bins: np.ndarray
+    counts: np.ndarray
+    n_bins: int
+
+    @property
+    def n_rays(self) -> int:
+        return self.row_start.shape[0] - 1
+
+    def to_dense(self) -> np.ndarray:
+        """float32 ``[n_rays, n_bins]``."""
+        out = np.zeros((self.n_rays, self.n_bins), np.float32)
+        _sparse_to_dense(self.row_start, self.bins, self.counts, out)
+        return out
+
+    @classmethod
+    def from_dense(cls, histograms: np.ndarray, threshold: float = 0.0) -> "SparseHistograms":
+        """The bins of float32 ``[n_rays, n_bins]`` ``histograms`` whose count exceeds ``threshold``."""
+        histograms = np.asarray(histograms)
+        if histograms.dtype != np.float32 or histograms.ndim != 2:
+            raise ValueError(f"histograms must be float32 [n_rays, n_bins], got {histograms.dtype} "
+                             f"{histograms.shape}")
+        row_start, bins, counts = _dense_to_sparse(np.ascontiguousarray(histograms), float(threshold))
+        return cls(row_start, bins, counts, histograms.shape[1])
+
+
+@dataclass(frozen=True, eq=False)
 class SpadScan:
     """One SPAD scan.
 
+    The counts are held in the form they were made in: sparse for the noise-free model (what
+    :func:`simulate_scan` writes), dense for noisy scans, whose background fills every bin. :attr:`histograms`
+    and :attr:`sparse` give either form, converting once on first access.
+
     Attributes:
-        histograms: float32 ``[n_rays, n_bins]`` photon counts per ray and time bin.
         angles: float64 ``[n_rays]`` ray angles (radians; ``superex_deploy.geometry`` convention).
         origin_yx: sensor position (cells): the centre of ``pose_rc``.
         pose_rc: robot cell (row, col).
@@ -252,9 +343,9 @@ class SpadScan:
         grid_shape: ``(rows, cols)`` of the map the scan was taken in.
         config: the sensor configuration.
         truth: simulation-only ground truth.
+        stored: the counts as made: :class:`SparseHistograms`, or float32 ``[n_rays, n_bins]``.
     """
 
-    histograms: np.ndarray
     angles: np.ndarray
     origin_yx: tuple[float, float]
     pose_rc: tuple[int, int]
@@ -263,6 +354,26 @@ class SpadScan:
     grid_shape: tuple[int, int]
     config: SpadConfig
     truth: SpadTruth
+    stored: Union[SparseHistograms, np.ndarray]
+
+    @property
+    def n_bins(self) -> int:
+        return self.stored.n_bins if isinstance(self.stored, SparseHistograms) else self.stored.shape[1]
+
+    @property
+    def is_sparse(self) -> bool:
+        """True when the counts are held sparse (reading :attr:`sparse` costs nothing)."""
+        return isinstance(self.stored, SparseHistograms)
+
+    @cached_property
+    def histograms(self) -> np.ndarray:
+        """float32 ``[n_rays, n_bins]`` photon counts per ray and time bin."""
+        return self.stored.to_dense() if self.is_sparse else self.stored
+
+    @cached_property
+    def sparse(self) -> SparseHistograms:
+        """The non-zero bins (:class:`SparseHistograms`)."""
+        return self.stored if self.is_sparse else SparseHistograms.from_dense(self.stored, 0.0)
 
 
 @numba.njit(cache=True)
@@ -314,6 +425,80 @@ def _thin_wall_normals(occupied, weak, normals):
             normals[r, c, 1] = vx / norm
 
 
+FAN_VARIANTS = 4
+"""Fans cached per wall cell: a cell with a normal leaves along it or its reverse (variants 0, 1); a cell
+without one along the face the light entered (variants 0-3: +rows, -rows, +cols, -cols)."""
+MAX_CACHED_FAN_BYTES = 64 << 20
+"""A grid's fan cache starts afresh when it would outgrow this (about 26,000 fans at 64 secondary rays)."""
+
+
+class FanCache:
+    """Secondary fans already traced in one grid, for one ``(n_secondary, range)``, reused across scans.
+
+    A fan depends on its wall cell and the normal it leaves along, never on where the robot stands (the robot
+    only picks which of a cell's :data:`FAN_VARIANTS` it sees), so a robot exploring a building traces each
+    fan once instead of once per scan. Rows are written once and never changed: a scan's
+    :class:`SpadTruth` keeps the arrays it was taken with, and growing or restarting the cache allocates new
+    ones. Not thread-safe (one cache per grid object; worker processes have their own). ``traced``, ``reused``
+    and ``restarts`` count fans traced, fans found cached, and restarts.
+
+    Per row (fan): ``d2_m`` float64 ``[K]`` (NaN: no hit), ``cos2`` float64 ``[K]``, ``h2_rc`` int32 ``[K, 2]``
+    in secondary-ray order, and the returning paths (hit, front-facing, non-vanishing gain) sorted by length:
+    ``path_m`` float64 ``[K]`` (``2 d2``, metres), ``gain`` float64 ``[K]`` (``cos2 / d2^2``), ``n_paths``.
+    """
+
+    def __init__(self, n_wall_cells: int, n_secondary: int, max_bytes: int = MAX_CACHED_FAN_BYTES):
+        self.n_secondary = int(n_secondary)
+        self.row_of_key = np.full(max(int(n_wall_cells), 1) * FAN_VARIANTS, -1, np.int64)
+        bytes_per_fan = self.n_secondary * 5 * 8 + 8
+        self.max_fans = max(1, int(max_bytes) // bytes_per_fan)
+        self.size = 0
+        self.traced = 0
+        self.reused = 0
+        self.restarts = 0
+        self._allocate(0, min(1024, self.max_fans))
+
+    def _allocate(self, keep: int, capacity: int) -> None:
+        k = self.n_secondary
+        arrays = (np.empty((capacity, k)), np.empty((capacity, k)), np.empty((capacity, k, 2), np.int32),
+                  np.empty((capacity, k)), np.empty((capacity, k)), np.empty(capacity, np.int64))
+        if keep:
+            for new, old in zip(arrays, self.arrays):
+                new[:keep] = old[:keep]
+        self.d2_m, self.cos2, self.h2_rc, self.path_m, self.gain, self.n_paths = arrays
+
+    @property
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return self.d2_m, self.cos2, self.h2_rc, self.path_m, self.gain, self.n_paths
+
+    @property
+    def capacity(self) -> int:
+        return self.n_paths.shape[0]
+
+    def clear(self) -> None:
+        """Forget every fan (scans already taken keep theirs)."""
+        self.row_of_key.fill(-1)
+        self.size = 0
+        self._allocate(0, min(1024, self.max_fans))
+
+    def reserve(self, n_new: int, n_if_cleared: int) -> tuple[np.ndarray, bool]:
+        """Rows for ``n_new`` fans: ``(rows int64, cleared)``. When they do not fit within the cache's size it
+        starts afresh (``cleared``; the rows looked up before are gone) and returns ``n_if_cleared`` rows, for
+        every fan of the scan."""
+        cleared = self.size > 0 and self.size + n_new > self.max_fans
+        if cleared:
+            self.row_of_key.fill(-1)
+            self.size = 0
+            self.restarts += 1
+            n_new = n_if_cleared
+            self._allocate(0, max(min(1024, self.max_fans), n_new))
+        elif self.size + n_new > self.capacity:
+            self._allocate(self.size, max(2 * self.capacity, self.size + n_new))
+        rows = np.arange(self.size, self.size + n_new, dtype=np.int64)
+        self.size += n_new
+        return rows, cleared
+
+
 @dataclass(frozen=True, eq=False)
 class SpadScene:
     """Per-grid precomputation shared by every scan in that grid (ground-truth geometry only).
@@ -328,6 +513,9 @@ class SpadScene:
         cell_kind: uint8 ``[H, W]``: ``CELL_WALL`` at walls, ``CELL_OPEN_BLOCK`` at free cells of wall-free
             blocks, ``CELL_FREE`` at the other free cells. Rays cross wall-free blocks four cells at a time (see
             :func:`_trace_first_hit_blocks`); one byte per cell tells a cell step both outcomes at once.
+        wall_index: int32 ``[H, W]``: running index of each wall cell (row-major), -1 at free cells; keys the
+            fan caches.
+        fan_caches: ``(n_secondary, range in cells) -> FanCache``, filled by the scans.
     """
 
     grid: OccupancyGrid
@@ -335,6 +523,21 @@ class SpadScene:
     two_sided: np.ndarray
     wall_blocks: np.ndarray
     cell_kind: np.ndarray
+    wall_index: np.ndarray
+    fan_caches: dict = field(default_factory=dict, repr=False)
+
+    def fan_cache(self, n_secondary: int, max_t: float) -> FanCache:
+        """The fan cache for ``n_secondary`` rays of range ``max_t`` cells (created empty on first use)."""
+        key = (int(n_secondary), float(max_t))
+        cache = self.fan_caches.get(key)
+        if cache is None:
+            cache = self.fan_caches[key] = FanCache(int(self.wall_index.max(initial=-1)) + 1, n_secondary,
+                                                    MAX_CACHED_FAN_BYTES)
+        return cache
+
+    def clear_fan_caches(self) -> None:
+        """Forget every cached fan: the next scan traces all of its fans (a cold scan)."""
+        self.fan_caches.clear()
 
 
 _SCENES: "weakref.WeakKeyDictionary[OccupancyGrid, SpadScene]" = weakref.WeakKeyDictionary()
@@ -359,7 +562,8 @@ def _cell_kind(occupied: np.ndarray, wall_blocks: np.ndarray) -> np.ndarray:
 
 def prepare_scene(grid: OccupancyGrid) -> SpadScene:
     """Wall normals and wall blocks of a grid, computed once and cached for the grid's lifetime (a weak
-    reference to the grid keys the cache: scans of one grid share them, and they go when the grid goes)."""
+    reference to the grid keys the cache: scans of one grid share them and its fan caches, and they go when the
+    grid goes)."""
     if not isinstance(grid, OccupancyGrid):
         raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
     scene = _SCENES.get(grid)
@@ -376,8 +580,9 @@ def prepare_scene(grid: OccupancyGrid) -> SpadScene:
         weak = grid.occupied & ~strong
         _thin_wall_normals(grid.occupied, weak, normals)
         wall_blocks = _wall_blocks(grid.occupied)
+        wall_index = np.where(grid.occupied, np.cumsum(grid.occupied.ravel()).reshape(grid.shape) - 1, -1)
         scene = SpadScene(grid=grid, normals=normals, two_sided=weak, wall_blocks=wall_blocks,
-                          cell_kind=_cell_kind(grid.occupied, wall_blocks))
+                          cell_kind=_cell_kind(grid.occupied, wall_blocks), wall_index=wall_index.astype(np.int32))
         _SCENES[grid] = scene
     return scene
 
@@ -576,94 +781,148 @@ def _facing_normal(normals, two_sided, r, c, entry_axis, dy, dx, towards_y, towa
 
 
 @numba.njit(cache=True)
-def _trace_fans(cell_kind, wall_blocks, normals, two_sided, fan_cells, fan_entry_axis, robot_y, robot_x,
-                n_secondary, max_t, resolution_m, min_distance_m, fan_normal, fan_d2_m, fan_cos2, fan_h2):
-    """Trace the secondary fan of every unique primary-hit cell.
-
-    Outputs per fan ``u`` and secondary ray ``k``: ``fan_d2_m[u, k]`` distance from ``X1`` to the hit (metres,
-    at least ``min_distance_m``; NaN if none), ``fan_cos2`` the clamped incidence cosine at ``h2``, ``fan_h2``
-    the hit cell (-1 if none); ``fan_normal[u]`` the normal at ``h1`` facing the robot.
-    """
-    phi = -0.5 * np.pi + (np.arange(n_secondary) + 0.5) * (np.pi / n_secondary)
-    cos_phi = np.cos(phi)
-    sin_phi = np.sin(phi)
+def _fan_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_axis, robot_y, robot_x,
+              fan_normal, fan_key, fan_row):
+    """Per fan: ``fan_normal`` the unit normal at its cell facing the robot, ``fan_key`` its cache key
+    (``wall_index * FAN_VARIANTS + variant``; -1 for a normal that is no face and no stored normal, which only a
+    ray starting inside a wall produces) and ``fan_row`` its cached row (-1: not cached). Returns the number of
+    fans not cached."""
+    missing = 0
     for u in range(fan_cells.shape[0]):
         r1 = fan_cells[u, 0]
         c1 = fan_cells[u, 1]
         cy = r1 + 0.5
         cx = c1 + 0.5
-        ny, nx, physical = _facing_normal(normals, two_sided, r1, c1, fan_entry_axis[u], cy - robot_y,
-                                          cx - robot_x, robot_y - cy, robot_x - cx)
+        ny, nx, _ = _facing_normal(normals, two_sided, r1, c1, fan_entry_axis[u], cy - robot_y, cx - robot_x,
+                                   robot_y - cy, robot_x - cx)
         if ny * (robot_y - cy) + nx * (robot_x - cx) < 0.0:
             ny = -ny
             nx = -nx
         fan_normal[u, 0] = ny
         fan_normal[u, 1] = nx
-        # X1: where the normal through the cell centre leaves the cell.
-        half = 0.5 / max(abs(ny), abs(nx))
-        x1_y = cy + half * ny
-        x1_x = cx + half * nx
-        oy = x1_y + FAN_OFFSET_CELLS * ny
-        ox = x1_x + FAN_OFFSET_CELLS * nx
-        inside = 0.0 <= oy < cell_kind.shape[0] and 0.0 <= ox < cell_kind.shape[1]
-        for k in range(n_secondary):
-            fan_d2_m[u, k] = np.nan
-            fan_cos2[u, k] = 0.0
-            fan_h2[u, k, 0] = -1
-            fan_h2[u, k, 1] = -1
-            if not inside:
-                continue
-            dy = ny * cos_phi[k] - nx * sin_phi[k]
-            dx = ny * sin_phi[k] + nx * cos_phi[k]
-            r2, c2, t, axis = _trace_first_hit_blocks(cell_kind, wall_blocks, oy, ox, dy, dx, max_t)
-            if r2 < 0:
-                continue
-            hy = oy + t * dy
-            hx = ox + t * dx
-            fan_d2_m[u, k] = max(np.sqrt((hy - x1_y) ** 2 + (hx - x1_x) ** 2) * resolution_m, min_distance_m)
-            fan_h2[u, k, 0] = r2
-            fan_h2[u, k, 1] = c2
-            if t == 0.0:
-                # The offset start lies inside a wall: an early return straight back, full cosine.
-                fan_cos2[u, k] = 1.0
-                continue
-            n2y, n2x, _ = _facing_normal(normals, two_sided, r2, c2, axis, dy, dx, -dy, -dx)
-            fan_cos2[u, k] = max(0.0, -(dy * n2y + dx * n2x))
+        sy = normals[r1, c1, 0]
+        sx = normals[r1, c1, 1]
+        if sy != 0.0 or sx != 0.0:
+            variant = 0 if (ny == sy and nx == sx) else 1
+        elif fan_entry_axis[u] < 0:
+            variant = -1
+        elif nx == 0.0:
+            variant = 0 if ny > 0.0 else 1
+        else:
+            variant = 2 if nx > 0.0 else 3
+        key = -1 if variant < 0 else np.int64(wall_index[r1, c1]) * FAN_VARIANTS + variant
+        fan_key[u] = key
+        fan_row[u] = -1 if key < 0 else row_of_key[key]
+        if fan_row[u] < 0:
+            missing += 1
+    return missing
 
 
 @numba.njit(cache=True)
-def _fill_histograms(direction, hit_fan, d1_cells, fan_normal, fan_d2_m, fan_cos2, resolution_m, bin_path_m,
-                     direct_counts, three_bounce_scale, min_distance_m, histograms, d1_out, cos1_out, normal1_out):
-    """Write eq. (1) and eq. (2) into ``histograms`` (float32 ``[n_rays, n_bins]``, every row overwritten).
-
-    Counts are computed in float64 and saturate at float32's largest finite value. Per ray ``i`` it also writes
-    ``d1_out[i]`` (metres, at least ``min_distance_m``; NaN for no hit), the incidence cosine ``cos1_out[i]`` and
-    ``normal1_out[i]`` (0 for no hit). The returning secondary paths of every fan are first packed (``2 d2`` in
-    bins and ``cos2 / d2^2``), so the per-ray loop only visits paths that carry photons.
-    """
-    n_rays = direction.shape[0]
-    n_bins = histograms.shape[1]
-    n_fans, n_secondary = fan_d2_m.shape
-    top = np.float64(np.finfo(np.float32).max)
-    bins_per_m = 1.0 / bin_path_m
-    fan_start = np.zeros(n_fans + 1, np.int64)
-    path2_bins = np.empty(n_fans * n_secondary)
-    gain = np.empty(n_fans * n_secondary)
+def _trace_fan(cell_kind, wall_blocks, normals, two_sided, r1, c1, ny, nx, cos_phi, sin_phi, max_t,
+               resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain):
+    """Trace one fan leaving wall cell ``(r1, c1)`` along the unit normal ``(ny, nx)``; fills the row views
+    ``d2_m``, ``cos2``, ``h2_rc`` (secondary-ray order) and ``path_m``, ``gain`` (returning paths, shortest
+    first; see :class:`FanCache`). Returns the number of returning paths."""
+    n_secondary = cos_phi.shape[0]
+    cy = r1 + 0.5
+    cx = c1 + 0.5
+    # X1: where the normal through the cell centre leaves the cell.
+    half = 0.5 / max(abs(ny), abs(nx))
+    x1_y = cy + half * ny
+    x1_x = cx + half * nx
+    oy = x1_y + FAN_OFFSET_CELLS * ny
+    ox = x1_x + FAN_OFFSET_CELLS * nx
+    inside = 0.0 <= oy < cell_kind.shape[0] and 0.0 <= ox < cell_kind.shape[1]
+    for k in range(n_secondary):
+        d2_m[k] = np.nan
+        cos2[k] = 0.0
+        h2_rc[k, 0] = -1
+        h2_rc[k, 1] = -1
+        if not inside:
+            continue
+        dy = ny * cos_phi[k] - nx * sin_phi[k]
+        dx = ny * sin_phi[k] + nx * cos_phi[k]
+        r2, c2, t, axis = _trace_first_hit_blocks(cell_kind, wall_blocks, oy, ox, dy, dx, max_t)
+        if r2 < 0:
+            continue
+        hy = oy + t * dy
+        hx = ox + t * dx
+        d2_m[k] = max(np.sqrt((hy - x1_y) ** 2 + (hx - x1_x) ** 2) * resolution_m, min_distance_m)
+        h2_rc[k, 0] = r2
+        h2_rc[k, 1] = c2
+        if t == 0.0:
+            # The offset start lies inside a wall: an early return straight back, full cosine.
+            cos2[k] = 1.0
+            continue
+        n2y, n2x, _ = _facing_normal(normals, two_sided, r2, c2, axis, dy, dx, -dy, -dx)
+        cos2[k] = max(0.0, -(dy * n2y + dx * n2x))
     n = 0
-    for u in range(n_fans):
-        for k in range(n_secondary):
-            d2 = fan_d2_m[u, k]
-            if d2 == d2 and fan_cos2[u, k] > 0.0:
-                path2_bins[n] = 2.0 * d2 * bins_per_m
-                gain[n] = fan_cos2[u, k] / (d2 * d2)
-                # A vanishing gain is skipped: times an overflowing pulse scale it would make inf * 0 = NaN.
-                if gain[n] > 0.0:
-                    n += 1
-        fan_start[u + 1] = n
+    for k in range(n_secondary):
+        if d2_m[k] == d2_m[k] and cos2[k] > 0.0:
+            g = cos2[k] / (d2_m[k] * d2_m[k])
+            # A vanishing gain is skipped: times an overflowing pulse scale it would make inf * 0 = NaN.
+            if g > 0.0:
+                path_m[n] = 2.0 * d2_m[k]
+                gain[n] = g
+                n += 1
+    # Insertion sort by path length (stable, at most n_secondary entries).
+    for j in range(1, n):
+        p = path_m[j]
+        g = gain[j]
+        i = j - 1
+        while i >= 0 and path_m[i] > p:
+            path_m[i + 1] = path_m[i]
+            gain[i + 1] = gain[i]
+            i -= 1
+        path_m[i + 1] = p
+        gain[i + 1] = g
+    return n
+
+
+@numba.njit(cache=True, parallel=True)
+def _trace_fans(cell_kind, wall_blocks, normals, two_sided, fan_cells, fan_normal, todo, rows, n_secondary,
+                max_t, resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain, n_paths, n_parts):
+    """Trace the fans ``todo`` (indices into ``fan_cells`` / ``fan_normal``) into cache rows ``rows``; the
+    fans are dealt round-robin into ``n_parts`` parts traced in parallel (each fan is independent, so the
+    result does not depend on the split)."""
+    phi = -0.5 * np.pi + (np.arange(n_secondary) + 0.5) * (np.pi / n_secondary)
+    cos_phi = np.cos(phi)
+    sin_phi = np.sin(phi)
+    for part in numba.prange(n_parts):
+        for j in range(part, todo.shape[0], n_parts):
+            u = todo[j]
+            row = rows[j]
+            n_paths[row] = _trace_fan(cell_kind, wall_blocks, normals, two_sided, fan_cells[u, 0],
+                                      fan_cells[u, 1], fan_normal[u, 0], fan_normal[u, 1], cos_phi, sin_phi,
+                                      max_t, resolution_m, min_distance_m, d2_m[row], cos2[row], h2_rc[row],
+                                      path_m[row], gain[row])
+
+
+@numba.njit(cache=True)
+def _fill_sparse(direction, hit_fan, d1_cells, fan_normal, fan_row, path_m, gain, n_paths, resolution_m,
+                 bin_path_m, n_bins, direct_counts, three_bounce_scale, min_distance_m, d1_out, cos1_out,
+                 normal1_out):
+    """Eq. (1) and eq. (2) as sparse histograms: returns ``(row_start, bins, counts)`` (see
+    :class:`SparseHistograms`).
+
+    Counts are summed per bin in float64 and saturate at float32's largest finite value. A ray's returning
+    paths come sorted by length from the fan cache, so its bins come out in order and equal bins are adjacent;
+    they are merged without branching on the data (such a branch mispredicts about every other path). Per
+    ray it also writes ``d1_out[i]`` (metres, at least ``min_distance_m``; NaN for no hit), the incidence cosine
+    ``cos1_out[i]`` and ``normal1_out[i]`` (0 for no hit)."""
+    n_rays = direction.shape[0]
+    bins_per_m = 1.0 / bin_path_m
+    capacity = 0
     for i in range(n_rays):
-        # Zeroing row by row (instead of a calloc'ed array) keeps the row in cache for the writes below.
-        row = histograms[i]
-        row[:] = 0.0
+        if hit_fan[i] >= 0:
+            capacity += 1 + n_paths[fan_row[hit_fan[i]]]
+    row_start = np.empty(n_rays + 1, np.int64)
+    bins = np.empty(capacity, np.int32)
+    totals = np.empty(capacity)
+    n = 0
+    for i in range(n_rays):
+        row_start[i] = n
         u = hit_fan[i]
         cos1_out[i] = 0.0
         if u < 0:
@@ -675,19 +934,35 @@ def _fill_histograms(direction, hit_fan, d1_cells, fan_normal, fan_d2_m, fan_cos
         d1_out[i] = d1
         normal1_out[i, 0] = fan_normal[u, 0]
         normal1_out[i, 1] = fan_normal[u, 1]
-        b1 = int(2.0 * d1 / bin_path_m)
-        if b1 < n_bins:
-            row[b1] = min(direct_counts, top)
         cos1 = max(0.0, -(direction[i, 0] * fan_normal[u, 0] + direction[i, 1] * fan_normal[u, 1]))
         cos1_out[i] = cos1
-        if cos1 == 0.0:
-            continue
-        scale = three_bounce_scale * cos1 / d1
-        path1_bins = 2.0 * d1 * bins_per_m
-        for j in range(fan_start[u], fan_start[u + 1]):
-            b = int(path1_bins + path2_bins[j])
-            if b < n_bins:
-                row[b] = min(np.float64(row[b]) + scale * gain[j], top)
+        b1 = int(2.0 * d1 / bin_path_m)
+        if b1 >= n_bins:
+            continue  # every late bin lies further still
+        # The open entry (bin, total) stays in registers; it is stored at slot n on every path and n moves on
+        # when the bin changes, so equal bins merge without a branch on the data.
+        current = b1
+        total = direct_counts
+        if cos1 > 0.0:
+            scale = three_bounce_scale * cos1 / d1
+            path1_bins = 2.0 * d1 * bins_per_m
+            row = fan_row[u]
+            for j in range(n_paths[row]):
+                b = max(int(path1_bins + path_m[row, j] * bins_per_m), b1)
+                if b >= n_bins:
+                    break  # the paths are sorted: the rest lie beyond the last bin too
+                bins[n] = current
+                totals[n] = total
+                new = b != current
+                n += new
+                total = (0.0 if new else total) + scale * gain[row, j]
+                current = b
+        bins[n] = current
+        totals[n] = total
+        n += 1
+    row_start[n_rays] = n
+    counts = np.minimum(totals[:n], np.finfo(np.float32).max).astype(np.float32)
+    return row_start, bins[:n], counts
 
 
 def _check_rng(cfg: SpadConfig, rng) -> Optional[np.random.Generator]:
@@ -717,6 +992,9 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
                   rng: Optional[np.random.Generator] = None) -> SpadScan:
     """Simulate one SPAD scan from the centre of cell ``pose_rc``.
 
+    Secondary fans are reused from the grid's :class:`FanCache` where an earlier scan traced them (the result is
+    the same either way); new ones are traced on numba's threads.
+
     Args:
         grid: ground-truth occupancy grid.
         pose_rc: robot cell ``(row, col)``: inside the grid, not a wall.
@@ -724,7 +1002,8 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
         rng: random generator, required when ``cfg.noise.enabled`` (ignored otherwise).
 
     Returns:
-        The :class:`SpadScan`; histograms are float32 and clamped to float32's finite range.
+        The :class:`SpadScan`: sparse counts without noise, dense with it; counts are float32 and clamped to
+        float32's finite range.
 
     Raises:
         ValueError: bad grid, pose outside the map or in a wall, noise without a generator.
@@ -745,28 +1024,43 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
                     entry_axis, direction)
     hit_fan, fan_cells, fan_entry_axis = _group_fans(hit_rc, entry_axis, grid.shape[1])
-    n_fans, k = fan_cells.shape[0], cfg.n_secondary
-    min_distance_m = MIN_DISTANCE_CELLS * resolution
-    fan_normal = np.empty((n_fans, 2))
-    fan_d2_m = np.empty((n_fans, k))
-    fan_cos2 = np.empty((n_fans, k))
-    fan_h2 = np.empty((n_fans, k, 2), np.int32)
-    _trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, fan_cells, fan_entry_axis,
-                origin[0], origin[1], k, max_t, resolution, min_distance_m, fan_normal, fan_d2_m, fan_cos2, fan_h2)
 
-    histograms = np.empty((cfg.n_rays, cfg.n_bins), np.float32)
+    n_fans = fan_cells.shape[0]
+    cache = scene.fan_cache(cfg.n_secondary, max_t)
+    fan_normal = np.empty((n_fans, 2))
+    fan_key = np.empty(n_fans, np.int64)
+    fan_row = np.empty(n_fans, np.int64)
+    n_missing = _fan_rows(scene.normals, scene.two_sided, scene.wall_index, cache.row_of_key, fan_cells,
+                          fan_entry_axis, origin[0], origin[1], fan_normal, fan_key, fan_row)
+    min_distance_m = MIN_DISTANCE_CELLS * resolution
+    if n_missing:
+        rows, cleared = cache.reserve(n_missing, n_fans)
+        if cleared:  # the cache started afresh: every fan of this scan is traced
+            fan_row[:] = -1
+        todo = np.flatnonzero(fan_row < 0)
+        fan_row[todo] = rows
+        keyed = fan_key[todo] >= 0
+        cache.row_of_key[fan_key[todo][keyed]] = rows[keyed]
+        _trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, fan_cells, fan_normal,
+                    todo, rows, cfg.n_secondary, max_t, resolution, min_distance_m, cache.d2_m, cache.cos2,
+                    cache.h2_rc, cache.path_m, cache.gain, cache.n_paths, numba.get_num_threads())
+        cache.traced += len(todo)
+    cache.reused += n_fans - n_missing
+
     d1_m = np.empty(cfg.n_rays)
     cos1 = np.empty(cfg.n_rays)
     normal1 = np.empty((cfg.n_rays, 2))
     three_bounce_scale = cfg.three_bounce_scale(resolution)
-    _fill_histograms(direction, hit_fan, distance, fan_normal, fan_d2_m, fan_cos2, resolution, cfg.bin_path_m,
-                     cfg.direct_counts, three_bounce_scale, min_distance_m, histograms, d1_m, cos1, normal1)
+    row_start, bins, counts = _fill_sparse(direction, hit_fan, distance, fan_normal, fan_row, cache.path_m,
+                                           cache.gain, cache.n_paths, resolution, cfg.bin_path_m, cfg.n_bins,
+                                           cfg.direct_counts, three_bounce_scale, min_distance_m, d1_m, cos1,
+                                           normal1)
+    stored: Union[SparseHistograms, np.ndarray] = SparseHistograms(row_start, bins, counts, cfg.n_bins)
     if rng is not None:
-        histograms = np.minimum(_add_noise(histograms.astype(np.float64), cfg, rng), _FLOAT32_MAX)
-        histograms = histograms.astype(np.float32)
+        noisy = np.minimum(_add_noise(stored.to_dense().astype(np.float64), cfg, rng), _FLOAT32_MAX)
+        stored = noisy.astype(np.float32)
 
-    truth = SpadTruth(h1_rc=hit_rc, d1_m=d1_m, normal1=normal1, cos1=cos1, ray_fan=hit_fan, fan_h2_rc=fan_h2,
-                      fan_d2_m=fan_d2_m, fan_cos2=fan_cos2, three_bounce_scale=three_bounce_scale)
-    return SpadScan(histograms=histograms, angles=angles, origin_yx=origin, pose_rc=pose_rc,
-                    bin_path_m=cfg.bin_path_m, resolution_m=resolution, grid_shape=grid.shape, config=cfg,
-                    truth=truth)
+    truth = SpadTruth(h1_rc=hit_rc, d1_m=d1_m, normal1=normal1, cos1=cos1, ray_fan=hit_fan, fan_rows=fan_row,
+                      fan_store=(cache.d2_m, cache.cos2, cache.h2_rc), three_bounce_scale=three_bounce_scale)
+    return SpadScan(angles=angles, origin_yx=origin, pose_rc=pose_rc, bin_path_m=cfg.bin_path_m,
+                    resolution_m=resolution, grid_shape=grid.shape, config=cfg, truth=truth, stored=stored)

@@ -18,7 +18,7 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
-__all__ = ["wall_weights", "wall_weighted_l1", "wall_weighted_bce", "gan_loss"]
+__all__ = ["wall_weights", "wall_weighted_l1", "wall_weighted_bce", "soft_dice_loss", "gan_loss"]
 
 
 def wall_weights(target: torch.Tensor, wall_weight: float, mask: Optional[torch.Tensor] = None) -> torch.Tensor:
@@ -74,6 +74,27 @@ def wall_weighted_bce(logits: torch.Tensor, target: torch.Tensor, wall_weight: f
         p_true = torch.exp(-per_cell)  # exp(-BCE) is the probability of the true class
         per_cell = per_cell * (1.0 - p_true) ** focal_gamma
     return _weighted_mean(per_cell, wall_weights(target, wall_weight, mask))
+
+
+def soft_dice_loss(probability: torch.Tensor, target: torch.Tensor, mask: Optional[torch.Tensor] = None,
+                   smooth: float = 1.0) -> torch.Tensor:
+    """``1 - Dice`` of the wall probabilities against the labels, pooled over the whole batch (Milletari et
+    al. 2016): ``1 - (2 sum(p y) + smooth) / (sum(p) + sum(y) + smooth)`` over the cells of ``mask``.
+
+    Pooled rather than per image, as the filter's IoU is scored: windows without hidden walls then neither
+    dominate nor vanish. Class imbalance needs no weight here (both sums count walls only). Shapes
+    ``[B, 1, H, W]``; ``smooth`` (cells) keeps the loss defined when neither predicts nor holds a wall.
+    """
+    if probability.shape != target.shape:
+        raise ValueError(f"probability has shape {tuple(probability.shape)}, target has {tuple(target.shape)}")
+    if mask is not None:
+        if mask.shape != target.shape:
+            raise ValueError(f"mask has shape {tuple(mask.shape)}, target has {tuple(target.shape)}")
+        probability, target = probability * mask, target * mask
+    if not smooth > 0:
+        raise ValueError(f"smooth must be > 0, got {smooth}")
+    overlap = (probability * target).sum()
+    return 1.0 - (2.0 * overlap + smooth) / (probability.sum() + target.sum() + smooth)
 
 
 def gan_loss(discriminator_logits: torch.Tensor, real: bool) -> torch.Tensor:

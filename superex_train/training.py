@@ -36,7 +36,7 @@ import torch
 
 from superex_deploy.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
 from superex_train.datasets import ShardDataset, split_by_group
-from superex_train.losses import gan_loss, wall_weighted_bce, wall_weighted_l1
+from superex_train.losses import gan_loss, soft_dice_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
                                   count_parameters)
 
@@ -68,6 +68,8 @@ class RunSettings:
         device: torch device (``"cpu"``, ``"cuda[:n]"``, or ``"auto"``: CUDA when available).
         max_batches: stop each epoch after this many batches (0: the whole split; for quick runs).
         progress: show a tqdm bar.
+        lr_schedule: ``"constant"`` or ``"cosine"`` (per epoch: ``lr * (1 + cos(pi * epoch / epochs)) / 2``;
+            changing ``epochs`` on resume reshapes the remaining schedule).
     """
 
     data_dir: str
@@ -80,6 +82,7 @@ class RunSettings:
     device: str = "cpu"
     max_batches: int = 0
     progress: bool = True
+    lr_schedule: str = "constant"
 
     def __post_init__(self) -> None:
         _check_common(self)
@@ -103,6 +106,9 @@ class Pix2PixTrainConfig(RunSettings):
         adversarial: train against the PatchGAN discriminator (False: reconstruction terms only).
         adversarial_weight: weight of the generator's adversarial term.
         bce_weight: weight of a wall-weighted binary cross-entropy term on the logits (0: none).
+        dice_weight: weight of a soft Dice term over each batch (0: none); Dice is ``2 IoU / (1 + IoU)``, so
+            this term aims at the pooled wall IoU the filter is scored by, which the per-cell terms reach only
+            through the choice of ``wall_weight``.
         input_encoding: :class:`~superex_deploy.inference.BpEncoding` value the generator reads; datasets
             store ``linear`` windows, re-encoded per batch, and the export declares this encoding.
     """
@@ -117,13 +123,14 @@ class Pix2PixTrainConfig(RunSettings):
     adversarial: bool = True
     adversarial_weight: float = 0.01
     bce_weight: float = 1.0
+    dice_weight: float = 0.0
     input_encoding: str = "log"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         BpEncoding(self.input_encoding)  # ValueError for an unknown encoding
-        if self.adversarial_weight < 0 or self.bce_weight < 0:
-            raise ValueError("Pix2PixTrainConfig: adversarial_weight and bce_weight must be >= 0")
+        if self.adversarial_weight < 0 or self.bce_weight < 0 or self.dice_weight < 0:
+            raise ValueError("Pix2PixTrainConfig: adversarial_weight, bce_weight and dice_weight must be >= 0")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -142,8 +149,6 @@ class LamaTrainConfig(RunSettings):
         known_weight: loss weight of observed cells relative to unknown ones.
         subsets: the training split is partitioned (seeded, the same for every member) into this many disjoint
             parts and the member trains on part ``member % subsets`` (1: the whole split).
-        lr_schedule: ``"constant"`` or ``"cosine"`` (per epoch: ``lr * (1 + cos(pi * epoch / epochs)) / 2``;
-            changing ``epochs`` on resume reshapes the remaining schedule).
         init_from: a LaMa checkpoint (file or run folder) whose generator weights start the run instead of a
             random initialisation; ``{member}`` in it is replaced by the member index. Its architecture must
             equal ``model`` except for the input channels, which are matched by name
@@ -163,7 +168,6 @@ class LamaTrainConfig(RunSettings):
     l1_weight: float = 1.0
     known_weight: float = 0.1
     subsets: int = 1
-    lr_schedule: str = "constant"
     init_from: str = ""
 
     def __post_init__(self) -> None:
@@ -175,8 +179,6 @@ class LamaTrainConfig(RunSettings):
                              f"LamaConfig.in_channels is {self.model.in_channels}")
         if self.member < 0 or self.focal_gamma < 0 or not 0 <= self.known_weight <= 1 or self.subsets < 1:
             raise ValueError("member and focal_gamma must be >= 0, subsets >= 1 and known_weight in [0, 1]")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"LamaTrainConfig.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
 
     @property
     def init_checkpoint(self) -> Optional[Path]:
@@ -195,6 +197,8 @@ def _check_common(cfg) -> None:
         raise ValueError(f"{type(cfg).__name__}.device must be 'cpu', 'cuda[:n]' or 'auto', got {cfg.device!r}")
     if not 0 <= cfg.val_fraction < 1:
         raise ValueError(f"{type(cfg).__name__}.val_fraction must lie in [0, 1), got {cfg.val_fraction}")
+    if cfg.lr_schedule not in LR_SCHEDULES:
+        raise ValueError(f"{type(cfg).__name__}.lr_schedule must be one of {LR_SCHEDULES}, got {cfg.lr_schedule!r}")
 
 
 def _config_dict(cfg) -> dict:
@@ -438,6 +442,9 @@ def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
         run.resume()
     for epoch in range(run.start_epoch, cfg.epochs):
         clock = time.perf_counter()
+        for optimizer in optimizers.values():
+            for group in optimizer.param_groups:
+                group["lr"] = epoch_learning_rate(cfg.lr, cfg.lr_schedule, epoch, cfg.epochs)
         rng, order = run.epoch_order(epoch)
         generator.train()
         discriminator.train()
@@ -462,6 +469,8 @@ def train_pix2pix(cfg: Pix2PixTrainConfig, resume: bool = True) -> TrainResult:
                 loss_g = cfg.l1_weight * l1
                 if cfg.bce_weight:
                     loss_g = loss_g + cfg.bce_weight * wall_weighted_bce(logits, target, cfg.wall_weight, 0.0, mask)
+                if cfg.dice_weight:
+                    loss_g = loss_g + cfg.dice_weight * soft_dice_loss(probability, target, mask)
                 if cfg.adversarial:
                     gan_g = gan_loss(discriminator(window, 2.0 * probability - 1.0), True)
                     loss_g = loss_g + cfg.adversarial_weight * gan_g

@@ -10,7 +10,7 @@ from superex_deploy.nlos import (
     NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
     _los_and_first_late_bins, _wall_points, _window, back_project, carve_radius_cap_m, estimate_los,
     laplacian_filter, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant)
-from superex_deploy.spad import SpadConfig, SpadNoise, simulate_scan
+from superex_deploy.spad import SpadConfig, SpadNoise, SparseHistograms, simulate_scan
 from tests.naive import (
     naive_back_projection, naive_draw_rings, naive_carve_sectors, naive_hit_normals,
     naive_los_and_first_late_bins)
@@ -69,7 +69,10 @@ def test_los_and_first_late_bins_match_naive():
     for guard, threshold in [(1, 0.0), (3, 0.5), (4, 0.0)]:
         los_bin = np.empty(40, np.int64)
         first_late = np.empty(40, np.int64)
-        _los_and_first_late_bins(histograms, threshold, guard, los_bin, first_late)
+        # The kernel reads only the detections: the dense rows thresholded, as estimate_los passes them.
+        detections = SparseHistograms.from_dense(histograms, threshold)
+        _los_and_first_late_bins(detections.row_start, detections.bins, detections.counts, threshold, guard,
+                                 los_bin, first_late)
         expected_los, expected_late = naive_los_and_first_late_bins(histograms, threshold, guard)
         np.testing.assert_array_equal(los_bin, expected_los)
         np.testing.assert_array_equal(first_late, expected_late)
@@ -131,16 +134,16 @@ def test_back_projection_matches_naive(noisy):
     for threads in (1, 2, 5):  # the parallel split changes only the order of additions
         np.testing.assert_allclose(back_project(scan, los, replace(cfg, bp_threads=threads), known), fast,
                                    rtol=1e-6, atol=0)
-    threshold, guard = _late_threshold(scan, cfg, scan.histograms.shape[1])
+    threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
+    assert scan.is_sparse != noisy  # noise-free scans come sparse, noisy ones dense
     apex, normals = _wall_points(los)
     n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
-    votes = [np.zeros((len(los.wall_cells), n_radii)) for _ in range(3)]
-    for n_parts, out in zip((1, 3, 2 * len(scan.angles)), votes):  # more parts than rays leaves some empty
-        _accumulate_votes(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), guard, threshold,
-                          scan.config.noise.background_per_bin, scan.bin_path_m, RES, out, n_parts)
-    assert votes[0].any()
-    np.testing.assert_allclose(votes[1], votes[0], rtol=1e-12)
-    np.testing.assert_allclose(votes[2], votes[0], rtol=1e-12)
+    votes = np.zeros((len(los.wall_cells), n_radii))
+    detections = los.detections
+    _accumulate_votes(detections.row_start, detections.bins, detections.counts, los.los_bin, los.ray_wall,
+                      np.nan_to_num(los.d1_m), guard, threshold, scan.config.noise.background_per_bin,
+                      scan.bin_path_m, RES, votes)
+    assert votes.any()
     slow = naive_back_projection(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), apex, normals,
                                  guard, threshold, scan.config.noise.background_per_bin, scan.bin_path_m, RES,
                                  _window(scan, cfg), known, n_radii)
@@ -171,8 +174,10 @@ def test_draw_rings_matches_naive_on_random_and_axis_aligned_wall_points():
         for window in ([0, 29, 0, 33], [5, 20, 8, 30], [12, 12, 3, 3]):
             expected = naive_draw_rings(apex, normals, votes, window, known)
             for n_parts in (1, 3, n_walls + 2):  # sequential, uneven parts, more parts than wall points
+                drawn = np.zeros((window[1] - window[0] + 1, window[3] - window[2] + 1))
+                _draw_rings(apex, normals, votes, np.array(window, np.int64), known, drawn, n_parts)
                 bp = np.zeros((30, 34))
-                _draw_rings(apex, normals, votes, np.array(window, np.int64), known, bp, n_parts)
+                bp[window[0]:window[1] + 1, window[2]:window[3] + 1] = drawn
                 np.testing.assert_allclose(bp, expected, rtol=1e-12)
                 assert not bp[known].any()
                 assert known.all() or bp.any()
@@ -186,7 +191,7 @@ def test_noisy_false_alarm_rate_matches_its_setting():
     n_rays = 4000
     cfg_spad = SpadConfig(n_rays=n_rays, n_secondary=4, noise=noise)
     scan = simulate_scan(grid, (200, 200), cfg_spad, rng=np.random.default_rng(3))
-    n_bins = scan.histograms.shape[1]
+    n_bins = scan.n_bins
     for stated in (0.05, 0.2):
         threshold, _ = _late_threshold(scan, NlosConfig(false_alarm_rate=stated), n_bins)
         rate = np.mean((scan.histograms > threshold).any(axis=1))
@@ -275,3 +280,19 @@ def test_bad_inputs():
     for threads in (-1, 1.5):
         with pytest.raises(ValueError, match="bp_threads"):
             NlosConfig(bp_threads=threads)
+
+
+def test_dense_histograms_give_the_same_results_as_sparse_ones():
+    """A sensor that delivers dense histograms (as a real one does) is processed exactly like the simulator's
+    sparse ones: only the detections are read."""
+    scan = simulate_scan(_l_corner(), (50, 10), SpadConfig(n_rays=360, n_secondary=32))
+    dense = replace(scan, stored=scan.histograms)
+    assert scan.is_sparse and not dense.is_sparse
+    known = np.zeros(scan.grid_shape, bool)
+    known[40:60, 0:20] = True
+    a, b = process_scan(scan, NlosConfig(), known), process_scan(dense, NlosConfig(), known)
+    for name in ("carved", "bp", "bp_filtered"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    for name in ("los_bin", "first_late_bin", "h1_rc", "wall_cells", "wall_normal", "normal_reliable"):
+        np.testing.assert_array_equal(getattr(a.los, name), getattr(b.los, name))
+    assert a.bp.any() and a.carved.any()

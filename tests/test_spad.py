@@ -3,9 +3,10 @@ import pytest
 
 from superex_deploy.geometry import cast_rays, ray_angles
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy import spad
 from superex_deploy.spad import (
-    BLOCK_CELLS, FAN_OFFSET_CELLS, SpadConfig, SpadNoise, _cast_primaries, _group_fans, _thin_wall_normals,
-    _trace_first_hit_blocks, prepare_scene, simulate_scan)
+    BLOCK_CELLS, FAN_OFFSET_CELLS, SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms, _cast_primaries,
+    _group_fans, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
 from tests.naive import naive_first_hit, naive_group_fans, naive_simulate_histograms, naive_thin_wall_normals
 
 RES = 0.1
@@ -187,8 +188,9 @@ def test_group_fans_matches_naive(seed):
     assert (none[0] == -1).all() and none[1].shape == (0, 2) and none[2].shape == (0,)
 
 
+@pytest.mark.parametrize("bin_path_m", [0.1, 0.45])  # 0.45 m: the direct and late photons share bins
 @pytest.mark.parametrize("seed", range(6))
-def test_simulate_scan_matches_naive_on_small_random_grids(seed):
+def test_simulate_scan_matches_naive_on_small_random_grids(seed, bin_path_m):
     rng = np.random.default_rng(seed)
     if seed >= 4:  # sparse rooms: fans cross wall-free blocks
         walls = _rooms(rng, (26, 30), n_walls=4)
@@ -203,7 +205,7 @@ def test_simulate_scan_matches_naive_on_small_random_grids(seed):
         assert (~scene.wall_blocks).sum() >= 4
     # 47 primaries and an even fan: no exact diagonals from a cell centre or a 45-degree wall corner, where
     # float rounding (not geometry) breaks the tie.
-    cfg = SpadConfig(n_rays=47, n_secondary=12, range_m=3.0)
+    cfg = SpadConfig(n_rays=47, n_secondary=12, range_m=3.0, bin_width_s=bin_path_m / SPEED_OF_LIGHT)
     scan = simulate_scan(grid, pose, cfg)
     reference = naive_simulate_histograms(scene, pose, cfg)
     # Same photons per ray; a path may only move to a neighbouring bin: with 0.1 m cells and 0.1 m bins, grid
@@ -216,6 +218,116 @@ def test_simulate_scan_matches_naive_on_small_random_grids(seed):
     slack = 2e-6 * ref_cum[:, -1:]
     assert np.all(cum >= lower - slack) and np.all(cum <= upper + slack)
     assert np.mean(np.isclose(actual, reference, rtol=2e-6, atol=0)) > 0.99
+
+
+def _random_rooms_and_walk(seed, shape=(60, 70), steps=12):
+    """A random room map and a random walk of free cells through it (neighbouring cells, as an episode)."""
+    rng = np.random.default_rng(seed)
+    walls = _rooms(rng, shape, n_walls=6)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    free = np.argwhere(~walls)
+    pose = free[rng.integers(len(free))]
+    walk = [tuple(pose)]
+    while len(walk) < steps:
+        step = pose + rng.integers(-1, 2, size=2)
+        if not walls[tuple(step)]:
+            pose = step
+            walk.append(tuple(pose))
+    return _grid(walls), walk
+
+
+def _assert_same_scan(a, b):
+    for name in ("row_start", "bins", "counts"):
+        np.testing.assert_array_equal(getattr(a.sparse, name), getattr(b.sparse, name))
+    for name in ("h1_rc", "d1_m", "normal1", "cos1", "ray_fan", "fan_h2_rc", "fan_d2_m", "fan_cos2"):
+        np.testing.assert_array_equal(getattr(a.truth, name), getattr(b.truth, name))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cached_fans_give_the_same_scans_as_fresh_ones(seed):
+    """Scans along a walk reuse the fans earlier scans traced: every scan equals the one traced from scratch."""
+    grid, walk = _random_rooms_and_walk(seed)
+    cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
+    scene = prepare_scene(grid)
+    cached = [simulate_scan(grid, pose, cfg) for pose in walk]
+    cache = scene.fan_cache(cfg.n_secondary, cfg.range_m / RES)
+    assert cache.reused > cache.traced > 0  # most fans of a walk are seen again
+    for pose, scan in zip(walk, cached):
+        scene.clear_fan_caches()
+        _assert_same_scan(scan, simulate_scan(grid, pose, cfg))
+        # Sparse rows: bins strictly increasing within a ray, every stored count positive.
+        sparse = scan.sparse
+        rays = np.repeat(np.arange(sparse.n_rays), np.diff(sparse.row_start))
+        assert np.all((np.diff(sparse.bins) > 0) | (np.diff(rays) > 0))
+        assert np.all(sparse.counts > 0) and sparse.bins.min() >= 0 and sparse.bins.max() < sparse.n_bins
+
+
+def test_fan_cache_restarts_within_its_size_and_earlier_truth_stays_valid(monkeypatch):
+    grid, walk = _random_rooms_and_walk(3, steps=20)
+    cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
+    fresh = []
+    for pose in walk:
+        prepare_scene(grid).clear_fan_caches()
+        fresh.append(simulate_scan(grid, pose, cfg))
+    prepare_scene(grid).clear_fan_caches()
+    # Room for a few more fans than one scan has: the cache restarts along the walk.
+    n_fans = max(len(scan.truth.fan_rows) for scan in fresh)
+    monkeypatch.setattr(spad, "MAX_CACHED_FAN_BYTES", (n_fans + 3) * (cfg.n_secondary * 5 * 8 + 8))
+    scans = [simulate_scan(grid, pose, cfg) for pose in walk]
+    cache = prepare_scene(grid).fan_cache(cfg.n_secondary, cfg.range_m / RES)
+    assert cache.restarts >= 2 and cache.reused > 0
+    # A cache smaller than one scan restarts at every scan that needs a new fan and still gives the same scans.
+    prepare_scene(grid).clear_fan_caches()
+    monkeypatch.setattr(spad, "MAX_CACHED_FAN_BYTES", n_fans // 3 * (cfg.n_secondary * 5 * 8 + 8))
+    for pose, reference in zip(walk, fresh):
+        _assert_same_scan(simulate_scan(grid, pose, cfg), reference)
+    for scan, reference in zip(scans, fresh):  # truth read after later scans restarted the cache
+        _assert_same_scan(scan, reference)
+
+
+def test_fan_tracing_does_not_depend_on_the_thread_split():
+    grid, walk = _random_rooms_and_walk(4)
+    cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
+    scan = simulate_scan(grid, walk[0], cfg)
+    scene = prepare_scene(grid)
+    fans = scan.truth.fan_rows.shape[0]
+    # The fans' cells and normals, recovered from the truth: each fan's first ray.
+    first_ray = np.array([np.flatnonzero(scan.truth.ray_fan == u)[0] for u in range(fans)])
+    cells = scan.truth.h1_rc[first_ray].astype(np.int64)
+    normals = scan.truth.normal1[first_ray]
+    outputs = []
+    for n_parts in (1, 3, fans + 2):
+        k = cfg.n_secondary
+        arrays = [np.zeros((fans, k)), np.zeros((fans, k)), np.zeros((fans, k, 2), np.int32), np.zeros((fans, k)),
+                  np.zeros((fans, k)), np.zeros(fans, np.int64)]
+        _trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, cells, normals,
+                    np.arange(fans), np.arange(fans), k, cfg.range_m / RES, RES, 0.05, *arrays, n_parts)
+        outputs.append(arrays)
+    np.testing.assert_array_equal(outputs[0][0], scan.truth.fan_d2_m)
+    for other in outputs[1:]:
+        for a, b in zip(outputs[0], other):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_sparse_histograms_round_trip_and_validation():
+    rng = np.random.default_rng(0)
+    dense = (rng.random((30, 50)) < 0.1).astype(np.float32) * rng.random((30, 50)).astype(np.float32)
+    dense[:4] = 0.0  # rays with no photon
+    sparse = SparseHistograms.from_dense(dense)
+    assert sparse.n_rays == 30 and sparse.n_bins == 50 and len(sparse.bins) == np.count_nonzero(dense)
+    np.testing.assert_array_equal(sparse.to_dense(), dense)
+    above = SparseHistograms.from_dense(dense, threshold=0.5)
+    np.testing.assert_array_equal(above.to_dense(), np.where(dense > 0.5, dense, 0.0))
+    for bad in (dense.astype(np.float64), dense[0]):
+        with pytest.raises(ValueError, match="float32"):
+            SparseHistograms.from_dense(bad)
+    # A simulated scan holds its counts sparse; its dense histograms are the same counts.
+    grid, walk = _random_rooms_and_walk(5)
+    scan = simulate_scan(grid, walk[0], SpadConfig(n_rays=120, n_secondary=16, range_m=5.0))
+    assert scan.is_sparse
+    again = SparseHistograms.from_dense(scan.histograms)
+    for name in ("row_start", "bins", "counts"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(scan.sparse, name))
 
 
 def test_numerical_stress_cases():

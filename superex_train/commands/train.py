@@ -29,6 +29,8 @@ def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: f
     parser.add_argument("--max-batches", type=int, default=0, help="batches per epoch (0: all)")
     parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint in --out")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                        help="per-epoch learning rate: constant, or cosine decay to 0 over --epochs")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,6 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pix2pix.add_argument("--adversarial-weight", type=float, default=0.01)
     pix2pix.add_argument("--bce-weight", type=float, default=1.0,
                          help="weight of a wall-weighted BCE term on the logits (0: none)")
+    pix2pix.add_argument("--dice-weight", type=float, default=0.0,
+                         help="weight of a soft Dice term pooled over each batch (0: none)")
     pix2pix.add_argument("--input-encoding", choices=("linear", "log"), default="log",
                          help="how the back-projection window is fed (linear: 2x-1; log: log-compressed)")
     pix2pix.add_argument("--channels", type=int, nargs="+", default=[16, 32, 64, 96, 96],
@@ -77,8 +81,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lama.add_argument("--base-channels", type=int, default=16)
     lama.add_argument("--max-channels", type=int, default=96)
     lama.add_argument("--blocks", type=int, default=5, help="FFC residual blocks")
-    lama.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
-                      help="per-epoch learning rate: constant, or cosine decay to 0 over --epochs")
     lama.add_argument("--init-from", default="",
                       help="start each member from this LaMa checkpoint ('{member}' is replaced by the member "
                            "index), e.g. exported/checkpoints/lama_los_{member}.pt to fine-tune LaMa-BP from "
@@ -158,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     common = dict(data_dir=str(args.data), epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                   wall_weight=args.wall_weight, val_fraction=args.val_fraction, augment=not args.no_augment,
                   seed=args.seed, threads=args.threads, max_batches=args.max_batches, progress=not args.quiet,
-                  l1_weight=args.l1_weight, device=args.device)
+                  l1_weight=args.l1_weight, device=args.device, lr_schedule=args.lr_schedule)
     if not args.random_heldout:
         from superex_train.generate import heldout_buildings
 
@@ -171,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
                                                                             channels=tuple(args.channels)),
                                  adversarial=not args.no_adversarial,
                                  adversarial_weight=args.adversarial_weight, bce_weight=args.bce_weight,
+                                 dice_weight=args.dice_weight,
                                  input_encoding=args.input_encoding, **common)
         result = train_pix2pix(cfg, resume=not args.fresh)
         print(json.dumps(result.history[-1] if result.history else {}, indent=1))
@@ -187,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     for member in range(args.members) if args.only_member is None else [args.only_member]:
         cfg = LamaTrainConfig(out_dir=str(args.out / f"member_{member}"), kind=kind, model=model, member=member,
                               focal_gamma=args.focal_gamma, known_weight=args.known_weight,
-                              subsets=args.members, lr_schedule=args.lr_schedule, init_from=args.init_from,
+                              subsets=args.members, init_from=args.init_from,
                               **common)
         result = train_lama(cfg, resume=not args.fresh)
         last = result.history[-1] if result.history else {}
