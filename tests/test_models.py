@@ -11,7 +11,7 @@ import torch
 from superex_deploy.inference import MODEL_CHANNELS, ModelKind, encode_map, sha256_file
 from superex_train.datasets import (ShardDataset, ShardWriter, read_index, split_by_group, synthetic_walls,
                                     write_synthetic_dataset)
-from superex_train.losses import wall_weighted_bce, wall_weighted_l1, wall_weights
+from superex_train.losses import soft_dice_loss, wall_weighted_bce, wall_weighted_l1, wall_weights
 from superex_train.models import (FourierUnit, LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig,
                                   SpectralBackend, UNetGenerator, calibrate_batchnorm, count_parameters,
                                   dft_basis, irfft2_ortho, rfft2_ortho)
@@ -176,6 +176,23 @@ def test_mask_removes_cells_from_the_loss_and_focal_down_weights_easy_cells():
     assert easy_share(2.0) < easy_share(0.0) / 100
 
 
+def test_soft_dice_is_one_minus_the_pooled_dice():
+    target = torch.zeros(2, 1, 3, 3)
+    target[0, 0, 0, :2] = 1.0  # two walls in the first window, none in the second
+    assert float(soft_dice_loss(target, target, smooth=1e-9)) == pytest.approx(0.0, abs=1e-6)
+    assert float(soft_dice_loss(1.0 - target, target, smooth=1e-9)) == pytest.approx(1.0, abs=1e-6)
+    probability = torch.full_like(target, 0.25)
+    # Pooled over the batch: 2 * (0.25 * 2) / (0.25 * 18 + 2)
+    expected = 1.0 - (2 * 0.5 + 1.0) / (4.5 + 2.0 + 1.0)
+    assert float(soft_dice_loss(probability, target)) == pytest.approx(expected)
+    mask = torch.ones_like(target)
+    mask[1] = 0.0  # the empty window no longer counts
+    assert float(soft_dice_loss(probability, target, mask)) == pytest.approx(1.0 - (2 * 0.5 + 1.0) / (2.25 + 2 + 1))
+    # Its gradient raises the walls' probability and lowers the rest.
+    grad = _grad(lambda p, y: soft_dice_loss(p, y), 0.25, target)
+    assert (grad[target > 0.5] < 0).all() and (grad[target < 0.5] > 0).all()
+
+
 def test_loss_inputs_are_checked():
     with pytest.raises(ValueError, match="wall_weight"):
         wall_weights(torch.zeros(1, 1, 2, 2), 0.0)
@@ -183,6 +200,10 @@ def test_loss_inputs_are_checked():
         wall_weighted_l1(torch.zeros(1, 1, 2, 2), torch.zeros(1, 1, 2, 3), 1.0)
     with pytest.raises(ValueError, match="focal_gamma"):
         wall_weighted_bce(torch.zeros(1, 1, 2, 2), torch.zeros(1, 1, 2, 2), 1.0, focal_gamma=-1.0)
+    with pytest.raises(ValueError, match="shape"):
+        soft_dice_loss(torch.zeros(1, 1, 2, 2), torch.zeros(1, 1, 2, 2), torch.ones(1, 1, 2, 3))
+    with pytest.raises(ValueError, match="smooth"):
+        soft_dice_loss(torch.zeros(1, 1, 2, 2), torch.zeros(1, 1, 2, 2), smooth=0.0)
 
 
 # --- shard format -----------------------------------------------------------------------------------------------
