@@ -18,7 +18,7 @@ The model is the seed paper's, in 2D and confocal (laser and detector at the rob
 
 Two discretisation choices, both at the grid's 0.1 m scale:
 
-* **Per-cell fans.** All primaries hitting the same cell share one secondary fan (traced once per scan), from
+* **Per-cell fans.** All primaries hitting the same cell share one secondary fan (traced once per grid), from
   the point ``X1`` where the normal through the cell centre leaves the cell. Rays reaching the same 0.1 m patch
   see the same hidden scene up to a few centimetres, and this makes the scan affordable.
 * **Staircase walls.** A fan started right at ``X1`` would graze the staircase of its own rasterised wall and
