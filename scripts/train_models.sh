@@ -26,14 +26,14 @@ step() { echo "== $(date +%H:%M:%S) $*"; }
 
 if [ ! -f "$WORK/pix2pix_data/index.json" ]; then
   step "Pix2Pix data"
-  $SUPEREX train data pix2pix --out "$WORK/pix2pix_data" --episodes-per-map 2 --steps 300 --sample-every 16 \
+  $SUPEREX train data pix2pix --out "$WORK/pix2pix_data" --episodes-per-map 4 --steps 300 --sample-every 16 \
     --jobs "$JOBS" $QUIET
 fi
 
 step "Pix2Pix training"
-$SUPEREX train pix2pix --data "$WORK/pix2pix_data" --out "$WORK/pix2pix" --epochs 6 --batch-size 16 --lr 1e-3 \
-  --wall-weight 12 --l1-weight 1 --bce-weight 1 --adversarial-weight 0.01 --input-encoding log \
-  --device "$DEVICE" --threads "$THREADS" $QUIET
+$SUPEREX train pix2pix --data "$WORK/pix2pix_data" --out "$WORK/pix2pix" --epochs 8 --batch-size 16 --lr 1e-3 \
+  --lr-schedule cosine --wall-weight 12 --l1-weight 1 --bce-weight 1 --dice-weight 1 --adversarial-weight 0.01 \
+  --input-encoding log --device "$DEVICE" --threads "$THREADS" $QUIET
 
 step "Pix2Pix export (filters the LaMa data's evidence)"
 $SUPEREX export --pix2pix "$WORK/pix2pix" --out "$WORK/pix2pix_export"

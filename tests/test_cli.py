@@ -32,6 +32,24 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
     assert len(results["episodes"]) == 8  # 4 start poses x 2 planners
     assert "| mapex | 4 |" in (out / "results.md").read_text()
     assert (out / "coverage.png").exists() and (out / "iou_vs_coverage.png").exists()
+    # A planner option reaches every episode: MapEx's straight-line divisor changes its goals.
+    straight = tmp_path / "straight"
+    assert main(["benchmark", "--maps", "50052750", "--planners", "mapex", "--planner-option", "distance=euclidean",
+                 "--steps", "20", "--jobs", "2", "--out", str(straight)]) == 0
+    other = json.loads((straight / "results.json").read_text())
+    assert other["planner_options"] == {"distance": "euclidean"}
+    assert ", distance=euclidean;" in (straight / "results.md").read_text()
+    goals = lambda run: [e["goals"] for e in run["episodes"] if e["planner"] == "mapex"]  # noqa: E731
+    assert goals(other) != goals(results)
+
+
+def test_planner_options_are_parsed_and_checked():
+    from superex_deploy.commands.explore import planner_options
+
+    assert planner_options(["distance=euclidean", "min_distance_cells=2", "weight=0.5", "flag=True"]) == {
+        "distance": "euclidean", "min_distance_cells": 2, "weight": 0.5, "flag": True}
+    with pytest.raises(ValueError, match="FIELD=VALUE"):
+        planner_options(["distance"])
 
 
 def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
@@ -60,6 +78,10 @@ def test_explore_with_spad_reports_carved_coverage(tmp_path):
     (["explore", "--map", "50052750", "--pose", "0", "1", "--steps", "5"], "inside a wall"),  # a wall cell
     (["explore", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
     (["benchmark", "--maps", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
+    (["benchmark", "--maps", "50052750", "--planners", "mapex", "--planner-option", "distance=manhattan",
+      "--steps", "5"], "distance must be"),
+    (["explore", "--map", "50052750", "--planner", "nearest", "--planner-option", "weight=2", "--steps", "5"],
+     "takes no configuration"),
 ])
 def test_bad_arguments_fail_with_a_clear_message(tmp_path, capsys, argv, message):
     assert main(argv + ["--out", str(tmp_path)]) == 2

@@ -370,7 +370,7 @@ def test_learning_rate_schedules():
 def test_pix2pix_training_learns(synthetic_data, tmp_path):
     cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path), epochs=4,
                              model=SMALL_PIX2PIX, batch_size=8, lr=2e-3, wall_weight=50.0,
-                             progress=False)
+                             lr_schedule="constant", progress=False)
     history = train_pix2pix(cfg).history
     assert history[-1]["train_l1"] < 0.8 * history[0]["train_l1"]
     assert history[-1]["train_gan_d"] > 0 and history[-1]["train_gan_g"] > 0

@@ -3,7 +3,7 @@ import pytest
 
 from superex_deploy.explore.episode import run_episode
 from superex_deploy.explore.planners import (
-    PLANNERS, HectorConfig, HectorPlanner, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
+    PLANNERS, HectorConfig, HectorPlanner, MapexConfig, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
     VisibilityConfig, _fill_visibility, _grow_rrt, _ray_visible_ranges, connected_unknown_gains, grow_rrt,
     make_planner, predicted_visibility, visible_gains, visible_ranges)
 from superex_deploy.explore.prediction import OraclePredictor
@@ -251,6 +251,16 @@ def test_mapex_prefers_high_variance_unknown_regions():
     _, _, halved = MapexPlanner().score(_context(observed, frontiers, travel, Prediction(mean, variance)))
     assert [f.cell_rc for f in frontiers_out] == [(20, 15), (20, 25)]
     assert halved[1] == pytest.approx(scores[1] / 2) and halved[0] == scores[0]
+    # MapEx's own divisor: the straight-line distance from the robot, whatever the travel cost.
+    euclidean = MapexPlanner(MapexConfig(distance="euclidean"))
+    information = euclidean.information(Prediction(mean, variance), observed, [(20, 15), (20, 25)], 0.1)
+    _, _, straight = euclidean.score(_context(observed, frontiers, travel, Prediction(mean, variance)))
+    np.testing.assert_allclose(straight, information / 5.0)  # both frontiers 5 cells from (20, 20)
+    travel[20, 15] *= 7  # a detour: the travel divisor changes, the straight line does not
+    _, _, detoured = euclidean.score(_context(observed, frontiers, travel, Prediction(mean, variance)))
+    np.testing.assert_array_equal(detoured, straight)
+    with pytest.raises(ValueError, match="distance"):
+        MapexConfig(distance="manhattan")
 
 
 def _long_corridor():

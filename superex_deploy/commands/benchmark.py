@@ -7,10 +7,13 @@ import json
 import os
 from pathlib import Path
 
+from superex_deploy.commands.explore import add_planner_option, planner_options
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps", default="eval", help="'eval', or comma-separated bundled eval map names")
     parser.add_argument("--planners", default="nearest,hector,upen,mapex")
+    add_planner_option(parser)
     parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los", "lama_bp"),
                         help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor); "
                              "lama_bp: the ensemble that also reads the Pix2Pix-filtered back-projection (needs "
@@ -29,9 +32,10 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.explore.planners import make_planner
     from superex_deploy.maps import load_map
 
-    map_name, start_index, start, planner_name, predictor_name, spad, steps, seed = task
+    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task
     grid = load_map(map_name)
-    result = run_episode(grid, start, make_planner(planner_name), make_predictor(predictor_name, grid), steps=steps,
+    result = run_episode(grid, start, make_planner(planner_name, **options), make_predictor(predictor_name, grid),
+                         steps=steps,
                          seed=seed, cfg=ExplorationConfig(iou_every=50),
                          nlos=make_sensing(predictor_name, spad, seed))
     summary = result.to_json()
@@ -45,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from superex_deploy.explore.metrics import results_markdown, summarise
-    from superex_deploy.explore.planners import PLANNERS
+    from superex_deploy.explore.planners import PLANNERS, make_planner
     from superex_deploy.maps import list_maps, start_poses
     from superex_deploy.parallel import process_pool
     from superex_deploy.render import save_benchmark_plots
@@ -59,18 +63,23 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     if args.predictor == "lama_bp" and not args.spad:
         raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
-    tasks = [(name, k, pose, planner, args.predictor, args.spad, args.steps, args.seed)
+    options = planner_options(args.planner_option)
+    for planner in planners:  # a bad option fails here, not in a worker
+        make_planner(planner, **options)
+    tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed)
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     args.out.mkdir(parents=True, exist_ok=True)
     with process_pool(args.jobs) as pool:
         results = list(tqdm(pool.map(_episode, tasks), total=len(tasks), desc="episodes", unit="episode"))
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)
-    (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table}))
+    (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table,
+                                                       "planner_options": options}))
     table_text = results_markdown(table)
+    settings = "".join(f", {k}={v}" for k, v in options.items())
     (args.out / "results.md").write_text(
-        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}; {len(names)} maps, {len(tasks) // max(len(planners), 1)} scenarios, "
-        f"{args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios; coverage in percent of "
+        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}; {len(names)} maps, "
+        f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios; coverage in percent of "
         f"the valid area (carved: counting NLOS-carved cells), coverage_auc: mean coverage over the steps.\n\n"
         f"{table_text}")
     save_benchmark_plots(args.out, results)

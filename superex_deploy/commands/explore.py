@@ -14,6 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
     parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex")
+    add_planner_option(parser)
     parser.add_argument("--predictor", default="observed", choices=PREDICTORS,
                         help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only); "
                              "lama_los: the line-of-sight LaMa ensemble; lama_bp: the LaMa ensemble that also reads "
@@ -63,6 +64,33 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None):
     return SpadSensing(seed=seed, bp_filter=bp_filter)
 
 
+def add_planner_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
+                        help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
+                             "straight-line divisor (repeatable; numbers and true/false are converted)")
+
+
+def planner_options(pairs: list[str]) -> dict:
+    """``["field=value", ...]`` -> config overrides; ints, floats and true / false are converted."""
+    options = {}
+    for pair in pairs:
+        field_name, separator, text = pair.partition("=")
+        if not separator or not field_name.strip():
+            raise ValueError(f"--planner-option takes FIELD=VALUE, got {pair!r}")
+        value: object = text.strip()
+        if text.strip().lower() in ("true", "false"):
+            value = text.strip().lower() == "true"
+        else:
+            for convert in (int, float):
+                try:
+                    value = convert(text)
+                    break
+                except ValueError:
+                    pass
+        options[field_name.strip()] = value
+    return options
+
+
 def resolve_start(grid, start_index: int, pose):
     from superex_deploy.maps import start_poses
 
@@ -84,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     grid = load_map(args.map)
     start = resolve_start(grid, args.start, args.pose)
-    planner = make_planner(args.planner)
+    planner = make_planner(args.planner, **planner_options(args.planner_option))
     nlos = make_sensing(args.predictor, args.spad, args.seed, args.models)
     predictor = make_predictor(args.predictor, grid, args.models)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -3,7 +3,8 @@
 A frontier cell is a FREE cell with an UNKNOWN 4-neighbour (cells beyond the grid border count as neither).
 Frontier cells are grouped 8-connected (a diagonal step joins a region, as in MapEx's frontier detection);
 regions smaller than a minimum size are dropped (MapEx: 10 cells) because they are mostly single unknown cells
-wedged between walls that no scan will ever resolve. Each region is represented by its own cell nearest to the
+wedged between walls that no scan will ever resolve (the episode falls back on them only when no larger
+region gives a goal). Each region is represented by its own cell nearest to the
 region's centroid, so the goal is always a frontier cell (a centroid can lie in a wall or in the unknown).
 
 Whole-map cost per call, measured on the largest eval map (442 x 1327) late in an episode: about 2.5 ms (one

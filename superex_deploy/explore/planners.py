@@ -398,16 +398,22 @@ class MapexConfig:
 
     Attributes:
         visibility: the probabilistic raycast (MapEx: 250 rays over 20 m, hit threshold 0.8).
-        min_distance_cells: floor on the travel cost used as divisor. Frontiers within the goal tolerance (1 m)
-            are never offered, so it only guards against a zero cost.
+        distance: the divisor: ``"travel"`` (default), the cost-to-go of the planning map (path length weighted
+            by the wall-proximity cost), or ``"euclidean"``, the straight-line distance from the robot to the
+            frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
+        min_distance_cells: floor on the divisor. Frontiers within the goal tolerance (1 m) are never offered,
+            so it only guards against a zero distance.
     """
 
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+    distance: str = "travel"
     min_distance_cells: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.min_distance_cells > 0:
             raise ValueError(f"min_distance_cells must be positive, got {self.min_distance_cells}")
+        if self.distance not in ("travel", "euclidean"):
+            raise ValueError(f"MapexConfig.distance must be 'travel' or 'euclidean', got {self.distance!r}")
 
 
 class MapexPlanner(Planner):
@@ -416,7 +422,7 @@ class MapexPlanner(Planner):
 
     As MapEx, visibility comes from the probabilistic raycast on the ensemble mean and the variance from the
     ensemble. Differences: the divisor is the travel cost rather than the straight-line distance (see the
-    module docstring); and when the prediction carries no variance at all (a deterministic predictor such as
+    module docstring; ``MapexConfig(distance="euclidean")`` divides as MapEx's code does); and when the prediction carries no variance at all (a deterministic predictor such as
     :class:`~superex_deploy.explore.prediction.ObservedAsPrediction` or the oracle), where MapEx would tie every
     frontier at zero and take the first, the visible unknown cells are counted instead (MapEx's ``visunk``).
 
@@ -440,14 +446,18 @@ class MapexPlanner(Planner):
         return counts.astype(np.float64)
 
     def score(self, ctx: PlanningContext) -> tuple[list[Frontier], np.ndarray, np.ndarray]:
-        """The reachable frontiers, their travel costs and their scores (information per unit travel cost),
-        float64 ``[N]`` each."""
+        """The reachable frontiers, their travel costs and their scores (information per unit of
+        ``cfg.distance``), float64 ``[N]`` each."""
         frontiers, costs = _reachable(ctx)
         if not frontiers:
             return [], costs, np.zeros(0)
-        information = self.information(ctx.predict(), ctx.observed, [f.cell_rc for f in frontiers],
-                                       ctx.resolution_m)
-        return frontiers, costs, information / np.maximum(costs, self.cfg.min_distance_cells)
+        cells = np.array([f.cell_rc for f in frontiers], np.float64)
+        information = self.information(ctx.predict(), ctx.observed, cells.astype(np.int64), ctx.resolution_m)
+        if self.cfg.distance == "euclidean":
+            distance = np.hypot(cells[:, 0] - ctx.pose_rc[0], cells[:, 1] - ctx.pose_rc[1])
+        else:
+            distance = costs
+        return frontiers, costs, information / np.maximum(distance, self.cfg.min_distance_cells)
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         frontiers, costs, scores = self.score(ctx)

@@ -9,7 +9,8 @@ import os
 from pathlib import Path
 
 
-def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: float, wall_weight: float) -> None:
+def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: float, wall_weight: float,
+            lr_schedule: str = "constant") -> None:
     parser.add_argument("--data", required=True, type=Path, help="dataset folder (superex_train.datasets format)")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoint.pt, history.json)")
     parser.add_argument("--epochs", type=int, default=epochs)
@@ -29,7 +30,7 @@ def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: f
     parser.add_argument("--max-batches", type=int, default=0, help="batches per epoch (0: all)")
     parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint in --out")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+    parser.add_argument("--lr-schedule", choices=("constant", "cosine"), default=lr_schedule,
                         help="per-epoch learning rate: constant, or cosine decay to 0 over --epochs")
 
 
@@ -54,13 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--quiet", action="store_true", help="no progress bar")
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
-    _common(pix2pix, epochs=6, batch_size=16, lr=1e-3, wall_weight=12.0)
+    _common(pix2pix, epochs=8, batch_size=16, lr=1e-3, wall_weight=12.0, lr_schedule="cosine")
     pix2pix.add_argument("--l1-weight", type=float, default=1.0)
     pix2pix.add_argument("--no-adversarial", action="store_true", help="no discriminator")
     pix2pix.add_argument("--adversarial-weight", type=float, default=0.01)
     pix2pix.add_argument("--bce-weight", type=float, default=1.0,
                          help="weight of a wall-weighted BCE term on the logits (0: none)")
-    pix2pix.add_argument("--dice-weight", type=float, default=0.0,
+    pix2pix.add_argument("--dice-weight", type=float, default=1.0,
                          help="weight of a soft Dice term pooled over each batch (0: none)")
     pix2pix.add_argument("--input-encoding", choices=("linear", "log"), default="log",
                          help="how the back-projection window is fed (linear: 2x-1; log: log-compressed)")
