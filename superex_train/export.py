@@ -42,7 +42,7 @@ from superex_deploy.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANN
 from superex_train.models import (LamaConfig, LamaGenerator, Pix2PixConfig, SpectralBackend, UNetGenerator,
                                   calibrate_batchnorm, count_parameters)
 from superex_train.calibration import LogitCalibration
-from superex_train.training import build_generator, load_checkpoint
+from superex_train.training import CHECKPOINT_NAME, build_generator, load_checkpoint
 
 __all__ = ["Exporter", "ExportConfig", "WallProbabilityModel", "ExportRecord", "INPUT_NAMES", "OUTPUT_NAME",
            "export_generator", "export_checkpoint", "export_models", "write_manifest", "model_file_name",
@@ -322,6 +322,36 @@ def write_manifest(directory: PathLike, records: Sequence[ExportRecord]) -> Path
     return path
 
 
+CHECKPOINT_DIR = "checkpoints"
+"""Sub-folder of a model folder with each exported model's generator checkpoint (the parity tests' torch side)."""
+
+
+def _checkpoint_file(path: PathLike) -> Path:
+    path = Path(path)
+    return path / CHECKPOINT_NAME if path.is_dir() else path
+
+
+def write_generator_checkpoint(checkpoint_path: PathLike, out_path: PathLike) -> Path:
+    """Save the generator part of a training checkpoint: its weights and the run's record (model and training
+    config, data hash, history), without the discriminator and optimiser states (a third of the size). This is
+    what the parity tests rebuild the torch model from, next to the ONNX file exported from the same
+    checkpoint."""
+    checkpoint = load_checkpoint(checkpoint_path)
+    out_path = Path(out_path)
+    if out_path.exists() and out_path.resolve() == _checkpoint_file(checkpoint_path).resolve() \
+            and set(checkpoint["state"]) == {"generator"} and not checkpoint["optimizers"]:
+        return out_path  # exported from its own slim checkpoint: keep the file as it is
+    slim = {key: value for key, value in checkpoint.items() if key not in ("state", "optimizers")}
+    slim["kind"] = checkpoint["kind"].value
+    slim["state"] = {"generator": checkpoint["state"]["generator"]}
+    slim["optimizers"] = {}
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    partial = out_path.with_name(out_path.name + ".partial")
+    torch.save(slim, partial)
+    partial.replace(out_path)
+    return out_path
+
+
 def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp: Sequence[PathLike] = (),
                   lama_los: Sequence[PathLike] = (), cfg: ExportConfig = ExportConfig(),
                   calibration: Optional[dict[ModelKind, LogitCalibration]] = None) -> list[ExportRecord]:
@@ -336,12 +366,15 @@ def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp
         calibration: per LaMa kind, the Platt parameters its members' graphs apply (kinds absent: identity).
 
     Files that the folder's previous manifest listed and this export does not rewrite are deleted, so the
-    folder never holds a model the manifest does not describe.
+    folder never holds a model the manifest does not describe. Each model's generator checkpoint goes to
+    ``out_dir/checkpoints/<model>.pt`` (:func:`write_generator_checkpoint`).
     """
     out_dir = Path(out_dir)
     records: list[ExportRecord] = []
+    sources: list[Path] = []
     if pix2pix is not None:
         records.append(export_checkpoint(pix2pix, out_dir / model_file_name(ModelKind.PIX2PIX, 0), cfg))
+        sources.append(Path(pix2pix))
     for kind, checkpoints in ((ModelKind.LAMA_BP, lama_bp), (ModelKind.LAMA_LOS, lama_los)):
         seen = set()
         for checkpoint_path in checkpoints:
@@ -354,8 +387,11 @@ def export_models(out_dir: PathLike, pix2pix: Optional[PathLike] = None, lama_bp
             seen.add(member)
             records.append(export_checkpoint(checkpoint_path, out_dir / model_file_name(kind, member), cfg,
                                              (calibration or {}).get(kind)))
+            sources.append(Path(checkpoint_path))
     if not records:
         raise ValueError("nothing to export: give at least one checkpoint")
+    for record, source in zip(records, sources):
+        write_generator_checkpoint(source, out_dir / CHECKPOINT_DIR / f"{record.path.stem}.pt")
     old_manifest = out_dir / MANIFEST_NAME
     if old_manifest.is_file():
         written = {p.resolve() for r in records for p in (r.path, r.reference)}

@@ -447,6 +447,31 @@ def test_log_encoded_pix2pix_trains_exports_and_is_fed_its_encoding(synthetic_da
     assert np.abs(got - linear.numpy()).max() > 1e-3  # the encoding matters, so the check above is meaningful
 
 
+def test_export_models_writes_the_generator_checkpoints_the_parity_tests_read(synthetic_data, tmp_path):
+    from superex_deploy.inference import BpEncoding, Pix2PixFilter, read_manifest
+    from superex_train.export import export_models
+
+    cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path / "run"),
+                             epochs=1, model=SMALL_PIX2PIX, batch_size=8, progress=False)
+    train_pix2pix(cfg)
+    export_models(tmp_path / "models", pix2pix=tmp_path / "run")
+    full = load_checkpoint(tmp_path / "run")
+    slim = load_checkpoint(tmp_path / "models" / "checkpoints" / "pix2pix.pt")
+    assert set(full["state"]) == {"generator", "discriminator"} and full["optimizers"]
+    assert set(slim["state"]) == {"generator"} and slim["optimizers"] == {}
+    assert slim["kind"] is ModelKind.PIX2PIX and slim["history"] == full["history"]
+    assert slim["training_data_sha256"] == full["training_data_sha256"]
+    generator = UNetGenerator(SMALL_PIX2PIX)
+    generator.load_state_dict(slim["state"]["generator"])  # the torch side of the parity check
+    entry = read_manifest(tmp_path / "models")[0]
+    windows = np.random.default_rng(2).random((2, 32, 32)).astype(np.float32) ** 6
+    with torch.no_grad():
+        encoded = BpEncoding(full["train_config"]["input_encoding"]).apply(windows)[:, None]
+        expected = torch.sigmoid(generator.eval()(torch.from_numpy(encoded)))[:, 0]
+    got = Pix2PixFilter(entry.path, entry.sha256).filter_windows(windows)
+    np.testing.assert_allclose(got, expected.numpy(), atol=1e-4, rtol=0)
+
+
 @pytest.mark.parametrize("model", ["pix2pix", "lama"])
 def test_cli_defaults_are_the_training_config_defaults(model):
     """`superex train pix2pix|lama` without options must train the recipe the config classes document."""
