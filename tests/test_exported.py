@@ -188,11 +188,14 @@ def test_missing_corrupt_and_mismatched_models_raise(tmp_path):
 
 def test_session_factory_applies_its_config():
     entry = ENTRIES["pix2pix"]
-    quiet = make_session(entry.path, SessionConfig(intra_op_threads=1))
-    spinning = make_session(entry.path, SessionConfig(allow_spinning=True))
-    key = "session.intra_op.allow_spinning"
-    assert quiet.get_session_options().get_session_config_entry(key) == "0"
-    assert spinning.get_session_options().get_session_config_entry(key) == "1"
+    quiet = make_session(entry.path, SessionConfig(intra_op_threads=1, allow_spinning=False))
+    default = make_session(entry.path)
+    left_spinning = make_session(entry.path, SessionConfig(stop_spinning_after_run=False))
+    spin, stop = "session.intra_op.allow_spinning", "session.force_spinning_stop"
+    assert quiet.get_session_options().get_session_config_entry(spin) == "0"
+    assert default.get_session_options().get_session_config_entry(spin) == "1"
+    assert default.get_session_options().get_session_config_entry(stop) == "1"
+    assert left_spinning.get_session_options().get_session_config_entry(stop) == "0"
     assert quiet.get_session_options().intra_op_num_threads == 1
     with pytest.raises(ValueError, match="thread counts"):
         SessionConfig(intra_op_threads=-1)
