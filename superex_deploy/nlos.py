@@ -3,8 +3,8 @@
 Everything here works from what a real sensor gives: the histograms, the ray angles, the robot pose, the bin
 width and the sensor's own configuration. Only the detections are read (bins whose count exceeds the detection
 threshold: every non-zero bin without noise), as :class:`~superex_deploy.spad.SparseHistograms`: the simulator's
-noise-free scans come in that form, dense (noisy) histograms are read once to extract them. The simulator's ground truth (``scan.truth``) is read only by
-:func:`nlos_ground_truth`, which builds labels.
+noise-free scans come in that form, dense (noisy) histograms are read once to extract them. The simulator's
+ground truth (``scan.truth``) is read only by :func:`nlos_ground_truth`, which builds labels.
 
 Space carving (Tsai et al., CVPR 2017) and why it is sound
 -----------------------------------------------------------
@@ -89,7 +89,8 @@ class NlosConfig:
         max_incidence_deg: wall points seen more obliquely than this are not carved: at grazing incidence a
             small error in the estimated normal flips which side of the wall faces the robot.
         bp_threads: the back-projection draws its wall points' rings in this many parts in parallel (0: numba's
-            thread count, ``NUMBA_NUM_THREADS`` or ``numba.set_num_threads``; 1: sequential). The parts change only the order of floating-point additions.
+            thread count, ``NUMBA_NUM_THREADS`` or ``numba.set_num_threads``; 1: sequential). The parts change
+            only the order of floating-point additions.
     """
 
     window_m: float = 8.0

@@ -358,7 +358,7 @@ class SpadScan:
 
     @property
     def n_bins(self) -> int:
-        return self.stored.n_bins if isinstance(self.stored, SparseHistograms) else self.stored.shape[1]
+        return self.stored.n_bins if self.is_sparse else self.stored.shape[1]
 
     @property
     def is_sparse(self) -> bool:
@@ -474,12 +474,6 @@ class FanCache:
     @property
     def capacity(self) -> int:
         return self.n_paths.shape[0]
-
-    def clear(self) -> None:
-        """Forget every fan (scans already taken keep theirs)."""
-        self.row_of_key.fill(-1)
-        self.size = 0
-        self._allocate(0, min(1024, self.max_fans))
 
     def reserve(self, n_new: int, n_if_cleared: int) -> tuple[np.ndarray, bool]:
         """Rows for ``n_new`` fans: ``(rows int64, cleared)``. When they do not fit within the cache's size it

@@ -79,8 +79,9 @@ def run(args: argparse.Namespace) -> int:
     settings = "".join(f", {k}={v}" for k, v in options.items())
     (args.out / "results.md").write_text(
         f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}; {len(names)} maps, "
-        f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard deviation over scenarios; coverage in percent of "
-        f"the valid area (carved: counting NLOS-carved cells), coverage_auc: mean coverage over the steps.\n\n"
+        f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
+        f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "
+        f"coverage_auc: mean coverage over the steps.\n\n"
         f"{table_text}")
     save_benchmark_plots(args.out, results)
     print(table_text)

@@ -422,7 +422,8 @@ class MapexPlanner(Planner):
 
     As MapEx, visibility comes from the probabilistic raycast on the ensemble mean and the variance from the
     ensemble. Differences: the divisor is the travel cost rather than the straight-line distance (see the
-    module docstring; ``MapexConfig(distance="euclidean")`` divides as MapEx's code does); and when the prediction carries no variance at all (a deterministic predictor such as
+    module docstring; ``MapexConfig(distance="euclidean")`` divides as MapEx's code does); and when the
+    prediction carries no variance at all (a deterministic predictor such as
     :class:`~superex_deploy.explore.prediction.ObservedAsPrediction` or the oracle), where MapEx would tie every
     frontier at zero and take the first, the visible unknown cells are counted instead (MapEx's ``visunk``).
 
