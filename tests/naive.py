@@ -98,6 +98,12 @@ def naive_group_fans(hit_rc, entry_axis, n_cols):
     return hit_fan, np.array(cells, int).reshape(-1, 2), np.array([first_axis[cell] for cell in cells], int)
 
 
+def naive_sort_paths(path_m, gain):
+    """spad._sort_paths: (path_m, gain) reordered by a stable sort of path_m."""
+    order = np.argsort(path_m, kind="stable")
+    return path_m[order], gain[order]
+
+
 def naive_simulate_histograms(scene, pose_rc, cfg):
     """Noise-free histograms by brute force: every primary ray traces its own fan with naive_first_hit.
 

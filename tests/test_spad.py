@@ -6,8 +6,9 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy import spad
 from superex_deploy.spad import (
     BLOCK_CELLS, FAN_OFFSET_CELLS, SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms, _cast_primaries,
-    _group_fans, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
-from tests.naive import naive_first_hit, naive_group_fans, naive_simulate_histograms, naive_thin_wall_normals
+    _group_fans, _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
+from tests.naive import (naive_first_hit, naive_group_fans, naive_simulate_histograms, naive_sort_paths,
+                         naive_thin_wall_normals)
 
 RES = 0.1
 
@@ -149,7 +150,8 @@ def test_block_tracer_matches_naive_first_hit(seed):
             r, c, 0.0, -1)
 
 
-def test_cast_primaries_match_geometry_cast_rays():
+@pytest.mark.parametrize("n_parts", [1, 2, 5])
+def test_cast_primaries_match_geometry_cast_rays(n_parts):
     rng = np.random.default_rng(11)
     walls = _rooms(rng, (57, 83), n_walls=12)
     scene = prepare_scene(_grid(walls))
@@ -163,7 +165,7 @@ def test_cast_primaries_match_geometry_cast_rays():
         entry_axis = np.empty(len(angles), np.int8)
         direction = np.empty((len(angles), 2))
         _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, 45.0, hit_rc, distance,
-                        entry_axis, direction)
+                        entry_axis, direction, n_parts)
         np.testing.assert_array_equal(hit_rc, reference.hit_rc)
         np.testing.assert_array_equal(entry_axis, reference.entry_axis)
         hit = reference.hit_mask
@@ -307,6 +309,42 @@ def test_fan_tracing_does_not_depend_on_the_thread_split():
     for other in outputs[1:]:
         for a, b in zip(outputs[0], other):
             np.testing.assert_array_equal(a, b)
+
+
+def test_sort_paths_matches_a_stable_sort():
+    rng = np.random.default_rng(5)
+    for trial in range(600):
+        n = int(rng.integers(0, 70))
+        if trial % 3 == 0:  # many ties: stability decides the order of the gains
+            path = rng.integers(0, 4, n).astype(float)
+        elif trial % 3 == 1:  # a wall across the fan: falling, then rising, with staircase jitter
+            path = np.abs(np.arange(n) - rng.integers(0, n + 1)) + 0.5 * rng.integers(0, 2, n)
+        else:
+            path = rng.random(n) * 40.0
+        gain = rng.random(n)
+        # Rows hold more entries than the returning paths: the sort must leave the tail alone.
+        row_path = np.concatenate([path, [-1.0, 7.0]])
+        row_gain = np.concatenate([gain, [3.0, 4.0]])
+        _sort_paths(row_path, row_gain, n, np.empty(n + 1), np.empty(n + 1), np.empty(n + 2, np.int64))
+        expected_path, expected_gain = naive_sort_paths(path, gain)
+        np.testing.assert_array_equal(row_path[:n], expected_path)
+        np.testing.assert_array_equal(row_gain[:n], expected_gain)
+        np.testing.assert_array_equal(row_path[n:], [-1.0, 7.0])
+        np.testing.assert_array_equal(row_gain[n:], [3.0, 4.0])
+
+
+def test_scans_do_not_depend_on_how_the_work_is_split(monkeypatch):
+    """Primaries, fans and histograms are split into parts for numba's threads: any split gives the same scan."""
+    grid, walk = _random_rooms_and_walk(6, steps=3)
+    cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
+    scans = {}
+    for n_parts in (1, 2, 7, 300):  # 300: more parts than rays, most of them empty
+        monkeypatch.setattr(spad, "_thread_parts", lambda n_parts=n_parts: n_parts)
+        prepare_scene(grid).clear_fan_caches()
+        scans[n_parts] = [simulate_scan(grid, pose, cfg) for pose in walk]
+    for n_parts in (2, 7, 300):
+        for scan, reference in zip(scans[n_parts], scans[1]):
+            _assert_same_scan(scan, reference)
 
 
 def test_sparse_histograms_round_trip_and_validation():
