@@ -231,3 +231,58 @@ def mark_rays(occupied: np.ndarray, origin_yx, angles, max_range_cells: float,
         if not out.flags.c_contiguous or not out.flags.writeable:
             raise ValueError(f"{name} must be C-contiguous and writeable (it is updated in place)")
     _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out)
+
+
+@numba.njit(cache=True)
+def _group_by_cell(hit_rc, n_cols):
+    """Group rays by the cell they hit, the groups ordered by linear cell index ``row * n_cols + col``.
+
+    Args:
+        hit_rc: int ``[n_rays, 2]`` hit cell of each ray, row -1 for none.
+        n_cols: columns of the grid.
+
+    Returns:
+        ``ray_group`` int64 ``[n_rays]`` (the group of each ray, -1 for no hit), ``cells`` int64 ``[n_groups, 2]``
+        and ``first_ray`` int64 ``[n_groups]``, the lowest-index ray of each group. Rays hitting one cell are
+        mostly consecutive, so runs of them are merged first and only the runs sorted.
+    """
+    n_rays = hit_rc.shape[0]
+    run_key = np.empty(n_rays, np.int64)
+    run_start = np.empty(n_rays, np.int64)
+    n_runs = 0
+    previous = -1
+    for i in range(n_rays):
+        key = hit_rc[i, 0] * np.int64(n_cols) + hit_rc[i, 1] if hit_rc[i, 0] >= 0 else -1
+        if key >= 0 and key != previous:
+            run_key[n_runs] = key
+            run_start[n_runs] = i
+            n_runs += 1
+        previous = key
+    # Stable: among runs of one cell, the earliest ray's run comes first.
+    order = np.argsort(run_key[:n_runs], kind="mergesort")
+    run_group = np.empty(n_runs, np.int64)
+    cells = np.empty((n_runs, 2), np.int64)
+    first_ray = np.empty(n_runs, np.int64)
+    n_groups = 0
+    previous = -1
+    for j in range(n_runs):
+        run = order[j]
+        if run_key[run] != previous:
+            first = run_start[run]
+            cells[n_groups, 0] = hit_rc[first, 0]
+            cells[n_groups, 1] = hit_rc[first, 1]
+            first_ray[n_groups] = first
+            n_groups += 1
+            previous = run_key[run]
+        run_group[run] = n_groups - 1
+    ray_group = np.full(n_rays, -1, np.int64)
+    run = -1
+    previous = -1
+    for i in range(n_rays):
+        key = hit_rc[i, 0] * np.int64(n_cols) + hit_rc[i, 1] if hit_rc[i, 0] >= 0 else -1
+        if key >= 0:
+            if key != previous:
+                run += 1
+            ray_group[i] = run_group[run]
+        previous = key
+    return ray_group, cells[:n_groups], first_ray[:n_groups]

@@ -1,6 +1,6 @@
 """Worker processes that coexist with numba's threaded kernels.
 
-The NLOS processing runs some kernels on numba's threads (``NlosConfig.bp_threads``). On Linux numba usually
+The NLOS processing runs some kernels on numba's threads (``NlosConfig.threads``). On Linux numba usually
 picks its OpenMP threading layer, and with GNU OpenMP a process that has run a threaded kernel cannot ``fork``
 a worker: the worker aborts ("fork() called from a process already using GNU OpenMP, this is unsafe"). Every
 process pool of the project therefore comes from :func:`process_pool`, whose workers start from a fresh

@@ -51,7 +51,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.geometry import _dda_start, cell_centre, ray_angles
+from superex_deploy.geometry import _dda_start, _group_by_cell, cell_centre, ray_angles
 from superex_deploy.maps import OccupancyGrid
 
 __all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SparseHistograms", "SpadScan", "SpadScene", "FanCache",
@@ -709,56 +709,6 @@ def _cast_primaries(cell_kind, wall_blocks, y0, x0, angles, max_t, hit_rc, dista
 
 
 @numba.njit(cache=True)
-def _group_fans(hit_rc, entry_axis, n_cols):
-    """One fan per distinct hit cell, ordered by linear cell index ``row * n_cols + col``.
-
-    Returns ``hit_fan`` int64 ``[n_rays]`` (the fan of each ray, -1 for no hit), ``fan_cells`` int64
-    ``[n_fans, 2]`` and ``fan_entry_axis`` int64 ``[n_fans]``, the entry axis of the lowest-index ray that hit
-    the cell. Rays hitting one cell are mostly consecutive, so runs are merged first and only the runs sorted.
-    """
-    n_rays = hit_rc.shape[0]
-    run_key = np.empty(n_rays, np.int64)
-    run_start = np.empty(n_rays, np.int64)
-    n_runs = 0
-    previous = -1
-    for i in range(n_rays):
-        key = hit_rc[i, 0] * np.int64(n_cols) + hit_rc[i, 1] if hit_rc[i, 0] >= 0 else -1
-        if key >= 0 and key != previous:
-            run_key[n_runs] = key
-            run_start[n_runs] = i
-            n_runs += 1
-        previous = key
-    # Stable: among runs of one cell, the earliest ray's run comes first.
-    order = np.argsort(run_key[:n_runs], kind="mergesort")
-    run_fan = np.empty(n_runs, np.int64)
-    fan_cells = np.empty((n_runs, 2), np.int64)
-    fan_entry_axis = np.empty(n_runs, np.int64)
-    n_fans = 0
-    previous = -1
-    for j in range(n_runs):
-        run = order[j]
-        if run_key[run] != previous:
-            first = run_start[run]
-            fan_cells[n_fans, 0] = hit_rc[first, 0]
-            fan_cells[n_fans, 1] = hit_rc[first, 1]
-            fan_entry_axis[n_fans] = entry_axis[first]
-            n_fans += 1
-            previous = run_key[run]
-        run_fan[run] = n_fans - 1
-    hit_fan = np.full(n_rays, -1, np.int64)
-    run = -1
-    previous = -1
-    for i in range(n_rays):
-        key = hit_rc[i, 0] * np.int64(n_cols) + hit_rc[i, 1] if hit_rc[i, 0] >= 0 else -1
-        if key >= 0:
-            if key != previous:
-                run += 1
-            hit_fan[i] = run_fan[run]
-        previous = key
-    return hit_fan, fan_cells[:n_fans], fan_entry_axis[:n_fans]
-
-
-@numba.njit(cache=True)
 def _facing_normal(normals, two_sided, r, c, entry_axis, dy, dx, towards_y, towards_x):
     """Unit normal at wall cell (r, c) for light arriving along (dy, dx). Thin-wall and undefined normals get
     the sign pointing towards (towards_y, towards_x) (the side the light comes from); Sobel normals keep their
@@ -1094,7 +1044,8 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     n_parts = _thread_parts()
     _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
                     entry_axis, direction, n_parts)
-    hit_fan, fan_cells, fan_entry_axis = _group_fans(hit_rc, entry_axis, grid.shape[1])
+    hit_fan, fan_cells, first_ray = _group_by_cell(hit_rc, grid.shape[1])
+    fan_entry_axis = entry_axis[first_ray]  # the lowest-index ray that hit the cell
 
     n_fans = fan_cells.shape[0]
     cache = scene.fan_cache(cfg.n_secondary, max_t)

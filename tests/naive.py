@@ -85,17 +85,17 @@ def _naive_facing_normal(scene, r, c, entry_axis, dy, dx, towards):
     return ny, nx
 
 
-def naive_group_fans(hit_rc, entry_axis, n_cols):
-    """Fans of spad._group_fans with a dict: distinct hit cells sorted by row * n_cols + col, each with the
-    entry axis of the first ray (in ray order) that hit it; the fan index of every ray (-1 for no hit)."""
-    first_axis = {}
-    for (r, c), axis in zip(hit_rc.tolist(), entry_axis.tolist()):
+def naive_group_by_cell(hit_rc, n_cols):
+    """geometry._group_by_cell with a dict: distinct hit cells sorted by row * n_cols + col, the first ray (in
+    ray order) that hit each, and the group of every ray (-1 for no hit)."""
+    first_ray = {}
+    for i, (r, c) in enumerate(hit_rc.tolist()):
         if r >= 0:
-            first_axis.setdefault((r, c), axis)
-    cells = sorted(first_axis, key=lambda rc: rc[0] * n_cols + rc[1])
+            first_ray.setdefault((r, c), i)
+    cells = sorted(first_ray, key=lambda rc: rc[0] * n_cols + rc[1])
     index = {cell: u for u, cell in enumerate(cells)}
-    hit_fan = np.array([index[(r, c)] if r >= 0 else -1 for r, c in hit_rc.tolist()])
-    return hit_fan, np.array(cells, int).reshape(-1, 2), np.array([first_axis[cell] for cell in cells], int)
+    ray_group = np.array([index[(r, c)] if r >= 0 else -1 for r, c in hit_rc.tolist()])
+    return ray_group, np.array(cells, int).reshape(-1, 2), np.array([first_ray[cell] for cell in cells], int)
 
 
 def naive_sort_paths(path_m, gain):

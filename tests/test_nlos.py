@@ -7,8 +7,8 @@ from scipy import ndimage, stats
 
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.nlos import (
-    NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
-    _los_and_first_late_bins, _wall_points, _window, back_project, carve_radius_cap_m, estimate_los,
+    RING_PAD, NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
+    _los_and_first_late_bins, _wall_points, _window, back_project, carve, carve_radius_cap_m, estimate_los,
     laplacian_filter, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant)
 from superex_deploy.spad import SpadConfig, SpadNoise, SparseHistograms, simulate_scan
 from tests.naive import (
@@ -92,12 +92,17 @@ def test_hit_normals_match_naive():
         points = points[np.argsort(points[:, 0], kind="stable")]  # the kernel's contract: sorted by row
         max_residual = [np.inf, 0.9, 0.6][trial % 3]
         max_gap = [np.inf, 2.0, 1.0, 1.5][trial % 4]
-        normals = np.zeros((60, 2))
-        reliable = np.zeros(60, bool)
-        _hit_normals(points, 5.0, 0.1, max_residual, max_gap, 1.5, normals, reliable)
         ref_normals, ref_reliable = naive_hit_normals(points, 5.0, max_residual=max_residual, max_gap=max_gap)
-        np.testing.assert_array_equal(reliable, ref_reliable)
-        np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
+        results = []
+        for n_parts in (1, 4, 70):  # sequential, uneven runs, more parts than points
+            normals = np.zeros((60, 2))
+            reliable = np.zeros(60, bool)
+            _hit_normals(points, 5.0, 0.1, max_residual, max_gap, 1.5, normals, reliable, n_parts)
+            np.testing.assert_array_equal(reliable, ref_reliable)
+            np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
+            results.append(normals)
+        for normals in results[1:]:
+            np.testing.assert_array_equal(normals, results[0])
 
 
 def test_carve_sectors_match_naive():
@@ -109,11 +114,17 @@ def test_carve_sectors_match_naive():
     normals[6:] = np.round(normals[6:], 15)
     radius = rng.uniform(0, 12, size=10)
     radius[6:] = 9.0  # reaching past the grid's edges
-    out = np.zeros((30, 32), bool)
-    _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), out)
-    np.testing.assert_array_equal(out, naive_carve_sectors((30, 32), apex, normals, radius, 1.5,
-                                                           np.cos(np.deg2rad(70))))
-    assert out.any()
+    expected = naive_carve_sectors((30, 32), apex, normals, radius, 1.5, np.cos(np.deg2rad(70)))
+    assert expected.any()
+    for n_parts in (1, 2, 5):  # rows dealt to parallel parts in blocks
+        out = np.zeros((30, 32), bool)
+        _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
+        np.testing.assert_array_equal(out, expected)
+        # A patch of the grid receives exactly its part of the carving.
+        for top, left, height, width in [(7, 3, 12, 20), (0, 20, 30, 12), (29, 31, 1, 1), (10, 10, 0, 5)]:
+            patch = np.zeros((height, width), bool)
+            _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
+            np.testing.assert_array_equal(patch, expected[top:top + height, left:left + width])
 
 
 @pytest.mark.parametrize("noisy", [False, True])
@@ -131,19 +142,27 @@ def test_back_projection_matches_naive(noisy):
     known = np.zeros(grid.shape, bool)
     known[25:35, 5:15] = True
     fast = back_project(scan, los, cfg, known)
-    for threads in (1, 2, 5):  # the parallel split changes only the order of additions
-        np.testing.assert_allclose(back_project(scan, los, replace(cfg, bp_threads=threads), known), fast,
-                                   rtol=1e-6, atol=0)
+    for threads in (1, 2, 5):  # the parallel split changes nothing
+        np.testing.assert_array_equal(back_project(scan, los, replace(cfg, threads=threads), known), fast)
     threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
     assert scan.is_sparse != noisy  # noise-free scans come sparse, noisy ones dense
     apex, normals = _wall_points(los)
     n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
-    votes = np.zeros((len(los.wall_cells), n_radii))
+    votes = np.zeros((len(los.wall_cells), n_radii + RING_PAD))
+    q_max = np.full(len(los.wall_cells), -1, np.int64)
     detections = los.detections
-    _accumulate_votes(detections.row_start, detections.bins, detections.counts, los.los_bin, los.ray_wall,
-                      np.nan_to_num(los.d1_m), guard, threshold, scan.config.noise.background_per_bin,
-                      scan.bin_path_m, RES, votes)
-    assert votes.any()
+    for n_parts in (3, 1):  # split over the wall cells: every part sums its own votes, so nothing changes
+        previous = votes.copy()
+        votes[:] = 0.0
+        q_max[:] = -1
+        _accumulate_votes(detections.row_start, detections.bins, detections.counts, los.los_bin, los.ray_wall,
+                          np.nan_to_num(los.d1_m), guard, threshold, scan.config.noise.background_per_bin,
+                          scan.bin_path_m, RES, votes, q_max, n_parts)
+    np.testing.assert_array_equal(votes, previous)
+    assert votes.any() and not votes[:, n_radii:].any()
+    voted = votes != 0
+    np.testing.assert_array_equal(q_max, np.where(voted.any(axis=1), voted.shape[1] - 1 - np.argmax(voted[:, ::-1],
+                                                                                                    axis=1), -1))
     slow = naive_back_projection(scan.histograms, los.los_bin, los.ray_wall, np.nan_to_num(los.d1_m), apex, normals,
                                  guard, threshold, scan.config.noise.background_per_bin, scan.bin_path_m, RES,
                                  _window(scan, cfg), known, n_radii)
@@ -167,20 +186,29 @@ def test_draw_rings_matches_naive_on_random_and_axis_aligned_wall_points():
     normals[4:] = np.round(normals[4:], 15)
     votes = rng.random((n_walls, 25)) * (rng.random((n_walls, 25)) < 0.4)
     votes[:, -1] = 1.0  # rings out to the last radius: the largest ring index must stay inside the votes
+    votes[-1, 10:] = 0.0  # a wall point whose rings stop early
+    votes[-2] = 0.0  # one without any vote
+    voted = votes != 0
+    q_max = np.where(voted.any(axis=1), 24 - np.argmax(voted[:, ::-1], axis=1), -1)
+    padded = np.concatenate([votes, np.zeros((n_walls, RING_PAD))], axis=1)
     # Known cells scattered, in long runs and blocks (the sweep jumps over runs of known cells), none and all.
     blocks = np.zeros((30, 34), bool)
     blocks[5:25, 10:20] = blocks[:, 30:] = blocks[14, :] = True
     for known in (rng.random((30, 34)) < 0.2, blocks, np.zeros((30, 34), bool), np.ones((30, 34), bool)):
         for window in ([0, 29, 0, 33], [5, 20, 8, 30], [12, 12, 3, 3]):
             expected = naive_draw_rings(apex, normals, votes, window, known)
-            for n_parts in (1, 3, n_walls + 2):  # sequential, uneven parts, more parts than wall points
+            draws = []
+            for n_parts in (1, 3, 7):  # sequential, uneven parts, more parts than row blocks
                 drawn = np.zeros((window[1] - window[0] + 1, window[3] - window[2] + 1))
-                _draw_rings(apex, normals, votes, np.array(window, np.int64), known, drawn, n_parts)
+                _draw_rings(apex, normals, padded, q_max, np.array(window, np.int64), known, drawn, n_parts)
+                draws.append(drawn)
                 bp = np.zeros((30, 34))
                 bp[window[0]:window[1] + 1, window[2]:window[3] + 1] = drawn
                 np.testing.assert_allclose(bp, expected, rtol=1e-12)
                 assert not bp[known].any()
                 assert known.all() or bp.any()
+            for drawn in draws[1:]:  # every cell adds its votes in the same order, whatever the split
+                np.testing.assert_array_equal(drawn, draws[0])
 
 
 def test_noisy_false_alarm_rate_matches_its_setting():
@@ -278,8 +306,32 @@ def test_bad_inputs():
     with pytest.raises(ValueError, match="window_m"):
         NlosConfig(window_m=-1.0)
     for threads in (-1, 1.5):
-        with pytest.raises(ValueError, match="bp_threads"):
-            NlosConfig(bp_threads=threads)
+        with pytest.raises(ValueError, match="threads"):
+            NlosConfig(threads=threads)
+
+
+def test_process_scan_patches_hold_the_whole_maps():
+    """process_scan keeps its maps as patches: each equals the public whole-map function's result, and nothing
+    non-zero lies outside it."""
+    grid = _l_corner()
+    scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=360, n_secondary=32))
+    known = np.zeros(grid.shape, bool)
+    known[45:55, 5:15] = True
+    cfg = NlosConfig(window_m=3.0)
+    result = process_scan(scan, cfg, known)
+    los = estimate_los(scan, cfg)
+    np.testing.assert_array_equal(result.carved, carve(scan, los, cfg))
+    np.testing.assert_array_equal(result.bp, back_project(scan, los, cfg, known))
+    np.testing.assert_array_equal(result.bp_filtered, laplacian_filter(result.bp))
+    for patch, whole in ((result.carved_patch, result.carved), (result.bp_patch, result.bp),
+                         (result.bp_filtered_patch, result.bp_filtered)):
+        assert patch.grid_shape == grid.shape and whole.any()
+        np.testing.assert_array_equal(whole[patch.slices], patch.values)
+        outside = np.ones(grid.shape, bool)
+        outside[patch.slices] = False
+        assert not whole[outside].any()
+    r0, r1, c0, c1 = _window(scan, cfg)
+    assert result.bp_patch.slices == (slice(r0, r1 + 1), slice(c0, c1 + 1))
 
 
 def test_dense_histograms_give_the_same_results_as_sparse_ones():

@@ -14,7 +14,7 @@ SPAD = SpadConfig(n_rays=400, n_secondary=16)
 def _back_projection(pose_index: int) -> tuple[np.ndarray, int]:
     grid = load_map(MAP)
     scan = simulate_scan(grid, start_poses(MAP)[pose_index], SPAD)
-    return process_scan(scan, NlosConfig(bp_threads=2)).bp, numba.get_num_threads()
+    return process_scan(scan, NlosConfig(threads=2)).bp, numba.get_num_threads()
 
 
 def test_pool_workers_run_threaded_kernels_after_the_parent_has():

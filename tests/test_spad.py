@@ -6,9 +6,8 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy import spad
 from superex_deploy.spad import (
     BLOCK_CELLS, FAN_OFFSET_CELLS, SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms, _cast_primaries,
-    _group_fans, _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
-from tests.naive import (naive_first_hit, naive_group_fans, naive_simulate_histograms, naive_sort_paths,
-                         naive_thin_wall_normals)
+    _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
+from tests.naive import naive_first_hit, naive_simulate_histograms, naive_sort_paths, naive_thin_wall_normals
 
 RES = 0.1
 
@@ -171,23 +170,6 @@ def test_cast_primaries_match_geometry_cast_rays(n_parts):
         hit = reference.hit_mask
         np.testing.assert_allclose(distance[hit], reference.distance_cells[hit], atol=1e-9)
         np.testing.assert_allclose(direction, np.stack([np.sin(angles), np.cos(angles)], axis=1), atol=1e-15)
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_group_fans_matches_naive(seed):
-    rng = np.random.default_rng(seed)
-    n_rays, n_cols = 300, 17
-    # Runs of repeated cells, cells that come back after other cells, and misses.
-    cells = rng.integers(0, 6, size=(n_rays // 5, 2)).repeat(5, axis=0)
-    cells[rng.random(n_rays) < 0.2] = -1
-    entry_axis = rng.integers(-1, 2, size=n_rays).astype(np.int8)
-    hit_fan, fan_cells, fan_axis = _group_fans(cells.astype(np.int32), entry_axis, n_cols)
-    expected = naive_group_fans(cells, entry_axis, n_cols)
-    np.testing.assert_array_equal(hit_fan, expected[0])
-    np.testing.assert_array_equal(fan_cells, expected[1])
-    np.testing.assert_array_equal(fan_axis, expected[2])
-    none = _group_fans(np.full((4, 2), -1, np.int32), np.zeros(4, np.int8), n_cols)
-    assert (none[0] == -1).all() and none[1].shape == (0, 2) and none[2].shape == (0,)
 
 
 @pytest.mark.parametrize("bin_path_m", [0.1, 0.45])  # 0.45 m: the direct and late photons share bins

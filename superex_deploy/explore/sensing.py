@@ -50,14 +50,16 @@ class SpadSensing:
         if self._rng is None:
             self._rng = np.random.default_rng(self.seed)
         scan = simulate_scan(grid, pose_rc, self.spad, rng=self._rng if self.spad.noise.enabled else None)
-        if self.bp_filter is None:
-            result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
-            carved, filtered = result.carved, result.bp_filtered
-        else:  # the learned filter replaces the Laplacian one: do not compute that too
-            los = estimate_los(scan, self.nlos)
-            carved = carve(scan, los, self.nlos)
-            filtered = self.bp_filter(back_project(scan, los, self.nlos, observed != UNKNOWN), pose_rc)
         if self._evidence is None or self._evidence.shape != grid.shape:
             self._evidence = np.zeros(grid.shape, np.float32)
+        if self.bp_filter is None:
+            result = process_scan(scan, self.nlos, known=observed != UNKNOWN)
+            # Only the filtered window can raise the running maximum.
+            area = result.bp_filtered_patch.slices
+            np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
+            return result.carved, self._evidence
+        # The learned filter replaces the Laplacian one: do not compute that too.
+        los = estimate_los(scan, self.nlos)
+        filtered = self.bp_filter(back_project(scan, los, self.nlos, observed != UNKNOWN), pose_rc)
         np.maximum(self._evidence, filtered, out=self._evidence)
-        return carved, self._evidence
+        return carve(scan, los, self.nlos), self._evidence
