@@ -59,7 +59,7 @@ whole-map copies.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Optional
 
 import numba
@@ -598,9 +598,9 @@ def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, 
                  cap_m, resolution_m, apex_margin_cells, cos_max_incidence):
     """Carve radius (cells) of each wall cell: the smallest empty radius of the rays that share it (rays sharing
     a wall-cell estimate may come from different true wall points), capped at ``cap_m`` and reduced by
-    ``apex_margin_cells`` and half a cell diagonal; zero for a wall cell with a ray that saw no late photon (at grazing incidence no
-    three-bounce light exists however empty the space is), without a ``reliable`` normal, or seen more obliquely
-    than ``cos_max_incidence``."""
+    ``apex_margin_cells`` and half a cell diagonal; zero for a wall cell with a ray that saw no late photon (at
+    grazing incidence no three-bounce light exists however empty the space is), without a ``reliable`` normal,
+    or seen more obliquely than ``cos_max_incidence``."""
     n_walls = wall_cells.shape[0]
     bound = np.full(n_walls, np.inf)
     for i in range(ray_wall.shape[0]):
@@ -622,6 +622,24 @@ def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, 
     return radius_cells
 
 
+@numba.njit(cache=True)
+def _carved_box(apex, radius_cells, strip_cells, n_rows, n_cols):
+    """Rows ``top:bottom`` and columns ``left:right`` of the grid holding the discs of every wall point that
+    carves (``radius_cells > strip_cells``): every carved cell lies inside. All zero when none carves."""
+    top, left, bottom, right = n_rows, n_cols, 0, 0
+    for u in range(apex.shape[0]):
+        radius = radius_cells[u]
+        if not radius > strip_cells:
+            continue
+        top = min(top, max(int(np.floor(apex[u, 0] - radius)), 0))
+        left = min(left, max(int(np.floor(apex[u, 1] - radius)), 0))
+        bottom = max(bottom, min(int(np.ceil(apex[u, 0] + radius)) + 1, n_rows))
+        right = max(right, min(int(np.ceil(apex[u, 1] + radius)) + 1, n_cols))
+    if bottom <= top or right <= left:
+        return 0, 0, 0, 0
+    return top, left, bottom, right
+
+
 def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig) -> GridPatch:
     """:func:`carve` as a patch around the carved sectors."""
     shape = scan.grid_shape
@@ -631,14 +649,8 @@ def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig) -> GridPatc
                                 los.wall_normal, los.normal_reliable, scan.origin_yx[0], scan.origin_yx[1],
                                 carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
                                 cfg.apex_margin_cells, np.cos(np.deg2rad(cfg.max_incidence_deg)))
-    carving = radius_cells > cfg.wall_strip_cells
-    if not carving.any():
-        return GridPatch(np.zeros((0, 0), bool), 0, 0, shape)
-    # The discs of the carving wall points bound every carved cell.
-    apex, radius = los.wall_apex[carving], radius_cells[carving][:, None]
-    top, left = np.maximum(np.floor(apex - radius).min(axis=0).astype(int), 0)
-    bottom, right = np.minimum(np.ceil(apex + radius).max(axis=0).astype(int) + 1, shape)
-    carved = np.zeros((max(bottom - top, 0), max(right - left, 0)), bool)
+    top, left, bottom, right = _carved_box(los.wall_apex, radius_cells, cfg.wall_strip_cells, shape[0], shape[1])
+    carved = np.zeros((bottom - top, right - left), bool)
     cos_limit = np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))
     _carve_sectors(los.wall_apex, los.wall_normal, radius_cells, cfg.wall_strip_cells, cos_limit, top, left, carved,
                    _thread_parts(cfg))
@@ -847,8 +859,8 @@ def _back_projection_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, kn
     n_parts = _thread_parts(cfg)
     detections = los.detections
     _accumulate_votes(detections.row_start, detections.bins, detections.counts, los.los_bin, los.ray_wall,
-                      np.nan_to_num(los.d1_m), guard, threshold, background, scan.bin_path_m, scan.resolution_m,
-                      votes, q_max, n_parts)
+                      los.d1_m, guard, threshold, background, scan.bin_path_m, scan.resolution_m, votes, q_max,
+                      n_parts)
     window = _window(scan, cfg)
     # Nothing is drawn outside the window: only the window is drawn into and normalised.
     drawn = np.zeros((window[1] - window[0] + 1, window[3] - window[2] + 1))
@@ -941,6 +953,17 @@ def _clipped_negative_laplacian(smoothed):
     return out, top
 
 
+@lru_cache(maxsize=8)
+def _gaussian_weights(sigma_cells: float) -> np.ndarray:
+    """scipy.ndimage.gaussian_filter1d's correlation weights (truncate = 4), read-only float64."""
+    reach = int(4.0 * sigma_cells + 0.5)
+    offsets = np.arange(-reach, reach + 1)
+    weights = np.exp(-0.5 / (sigma_cells * sigma_cells) * offsets ** 2)
+    weights = (weights / weights.sum())[::-1].copy()
+    weights.setflags(write=False)
+    return weights
+
+
 def _filtered_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
     """:func:`laplacian_filter` of a map that is zero outside the patch ``bp``: only the patch, widened by a margin,
     is filtered. float32 in [0, 1]."""
@@ -956,9 +979,7 @@ def _filtered_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
     box[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0] = bp.values
     # scipy.ndimage.gaussian_filter's steps (truncate = 4), in numba: the same kernel, axis 0 then axis 1.
     if sigma_cells > 1e-15:
-        offsets = np.arange(-reach, reach + 1)
-        weights = np.exp(-0.5 / (sigma_cells * sigma_cells) * offsets ** 2)
-        weights = (weights / weights.sum())[::-1].copy()
+        weights = _gaussian_weights(float(sigma_cells))
         box = _correlate_symmetric(_correlate_symmetric(box, weights, 0), weights, 1)
     box, top = _clipped_negative_laplacian(box)
     return GridPatch((box / top if top > 0 else box).astype(np.float32), r0, c0, shape)

@@ -773,7 +773,8 @@ def _fan_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_a
 
 @numba.njit(cache=True)
 def _trace_fan(cell_kind, wall_blocks, normals, two_sided, r1, c1, ny, nx, cos_phi, sin_phi, max_t,
-               resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain, scratch_path, scratch_gain, bucket_start):
+               resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain, scratch_path, scratch_gain,
+               bucket_start):
     """Trace one fan leaving wall cell ``(r1, c1)`` along the unit normal ``(ny, nx)``; fills the row views
     ``d2_m``, ``cos2``, ``h2_rc`` (secondary-ray order) and ``path_m``, ``gain`` (returning paths, shortest
     first; see :class:`FanCache`), using the scratch arrays for the sort (see :func:`_sort_paths`).
