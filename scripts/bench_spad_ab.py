@@ -29,8 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy import nlos, spad
-from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
+from superex_deploy.geometry import cast_rays, cell_centre, ray_angles
 from superex_deploy.maps import list_maps, load_map, start_poses
+
+from bench_spad import _hidden_mask  # scripts/ is on the path of a script run from it
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_PACKAGE = "superex_base"
@@ -51,13 +53,6 @@ def import_revision(revision: str, folder: Path):
         source.write_text(source.read_text().replace("superex_deploy", BASE_PACKAGE))
     sys.path.insert(0, str(folder))
     return tuple(importlib.import_module(f"{BASE_PACKAGE}.{name}") for name in ("spad", "nlos", "maps"))
-
-
-def _seen(grid, pose) -> np.ndarray:
-    seen_free = np.zeros(grid.shape, bool)
-    seen_wall = np.zeros(grid.shape, bool)
-    mark_rays(grid.occupied, cell_centre(pose), ray_angles(2500), 200.0, seen_free, seen_wall)
-    return seen_free | seen_wall
 
 
 def _stages(spad_module, nlos_module, grid, pose, known):
@@ -86,7 +81,7 @@ def main() -> None:
         for name in list_maps("eval"):
             for pose in start_poses(name):
                 grid, base_grid = load_map(name), base_maps.load_map(name)  # separate scene caches
-                known = _seen(grid, pose)
+                known, _ = _hidden_mask(grid, pose)
                 for module_spad, module_nlos, g in ((base_spad, base_nlos, base_grid), (spad, nlos, grid)):
                     _stages(module_spad, module_nlos, g, pose, known)  # compiled, caches warm
                 best = np.full(7, np.inf)

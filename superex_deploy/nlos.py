@@ -518,11 +518,6 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
     return normals, reliable, apex
 
 
-def _wall_points(los: LosEstimate) -> tuple[np.ndarray, np.ndarray]:
-    """Fan origin X1 (cells) and normal of each wall cell."""
-    return los.wall_apex, los.wall_normal
-
-
 RING_PAD = 3
 """Zero columns past the last radius in the vote table: a cell a little beyond a wall point's outermost ring, or
 behind its wall, reads one of them instead of being trimmed away (see :func:`_sweep_rings`)."""

@@ -738,8 +738,7 @@ def _fan_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_a
     """Per fan: ``fan_normal`` the unit normal at its cell facing the robot, ``fan_key`` its cache key
     (``wall_index * FAN_VARIANTS + variant``; -1 for a normal that is no face and no stored normal, which only a
     ray starting inside a wall produces) and ``fan_row`` its cached row (-1: not cached; ``row_of_key`` holds
-    row + 1, 0 for none). Returns the number of
-    fans not cached."""
+    row + 1, 0 for none). Returns the number of fans not cached."""
     missing = 0
     for u in range(fan_cells.shape[0]):
         r1 = fan_cells[u, 0]

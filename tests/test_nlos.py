@@ -8,7 +8,7 @@ from scipy import ndimage, stats
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.nlos import (
     RING_PAD, NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
-    _los_and_first_late_bins, _wall_points, _window, back_project, carve, carve_radius_cap_m, estimate_los,
+    _los_and_first_late_bins, _window, back_project, carve, carve_radius_cap_m, estimate_los,
     laplacian_filter, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant)
 from superex_deploy.spad import SpadConfig, SpadNoise, SparseHistograms, simulate_scan
 from tests.naive import (
@@ -146,7 +146,7 @@ def test_back_projection_matches_naive(noisy):
         np.testing.assert_array_equal(back_project(scan, los, replace(cfg, threads=threads), known), fast)
     threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
     assert scan.is_sparse != noisy  # noise-free scans come sparse, noisy ones dense
-    apex, normals = _wall_points(los)
+    apex, normals = los.wall_apex, los.wall_normal
     n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
     votes = np.zeros((len(los.wall_cells), n_radii + RING_PAD))
     q_max = np.full(len(los.wall_cells), -1, np.int64)
