@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "cell_centre"]
+__all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "line_of_sight", "cell_centre"]
 
 NO_HIT = -1
 
@@ -231,6 +231,34 @@ def mark_rays(occupied: np.ndarray, origin_yx, angles, max_range_cells: float,
         if not out.flags.c_contiguous or not out.flags.writeable:
             raise ValueError(f"{name} must be C-contiguous and writeable (it is updated in place)")
     _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out)
+
+
+def line_of_sight(blocked: np.ndarray, a_rc, b_rc) -> bool:
+    """Whether the segment between the centres of two cells crosses no blocked cell, both ends included.
+
+    The segment is walked by the same DDA as :func:`cast_rays` (an exact corner crossing steps along columns
+    first, so a line cannot slip between two blocked cells that touch only at a corner).
+
+    Args:
+        blocked: bool ``[H, W]`` cells that stop the line (for line of sight on an observed map: every cell
+            that is not known free).
+        a_rc, b_rc: the two cells (row, col), inside the grid.
+
+    Returns:
+        True when neither cell nor any cell the segment enters between them is blocked.
+
+    Raises:
+        ValueError: ``blocked`` not a non-empty bool 2-D array, or a cell outside it.
+    """
+    blocked, y0, x0 = _check_grid_and_origin(blocked, cell_centre(a_rc))
+    y1, x1 = cell_centre(b_rc)
+    if not (0.0 <= y1 < blocked.shape[0] and 0.0 <= x1 < blocked.shape[1]):
+        raise ValueError(f"cell {tuple(int(v) for v in b_rc)} lies outside the grid of shape {blocked.shape}")
+    length = float(np.hypot(y1 - y0, x1 - x0))
+    if length == 0.0:
+        return not bool(blocked[int(y0), int(x0)])
+    row, _, _, _ = _trace_first_hit(blocked, y0, x0, (y1 - y0) / length, (x1 - x0) / length, length)
+    return row < 0
 
 
 @numba.njit(cache=True)

@@ -15,7 +15,7 @@ from typing import Literal, Union
 
 import numpy as np
 
-__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "DATA_DIR"]
+__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start", "DATA_DIR"]
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "kth"
 _SPLITS = ("eval", "train")
@@ -212,3 +212,18 @@ def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> Occup
     if not (float(resolution_m) > 0.0 and np.isfinite(float(resolution_m))):
         raise ValueError(f"resolution_m must be positive, got {resolution_m}")
     return _grid_from_image(path, float(resolution_m), valid_path=path.with_name(f"{path.stem}_valid.png"))
+
+
+def random_start(grid: OccupancyGrid, rng: np.random.Generator, min_clearance_m: float) -> tuple[int, int]:
+    """A uniformly drawn valid free cell at least ``min_clearance_m`` from every wall (the clearest cell if
+    none is that clear): start cells for maps without benchmark start poses (the train floors)."""
+    from scipy import ndimage
+
+    clearance = ndimage.distance_transform_edt(~grid.occupied) * grid.resolution_m
+    candidates = grid.valid & ~grid.occupied & (clearance >= min_clearance_m)
+    cells = np.argwhere(candidates)
+    if len(cells) == 0:
+        cells = np.argwhere(clearance == clearance.max())
+    r, c = cells[rng.integers(len(cells))]
+    return int(r), int(c)
+

@@ -173,3 +173,52 @@ def save_benchmark_plots(out_dir: Path, results: list[dict]) -> None:
     fig.tight_layout()
     fig.savefig(Path(out_dir) / "iou_vs_coverage.png", dpi=90)
     plt.close(fig)
+
+
+def save_suite_plots(out_dir: Path, rows: dict, steps: int) -> None:
+    """The paper's two figures for ``superex benchmark --suite paper``: coverage.png (mean coverage with carving
+    against step, per row, its bootstrap 95 % interval shaded) and iou_vs_coverage.png (mean map IoU per 5 %
+    coverage bin, the interval over episodes shaded)."""
+    from superex_deploy.explore.suite import bootstrap_interval, coverage_curves
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    x = np.arange(1, steps + 1)
+    for name, episodes in rows.items():
+        curves = coverage_curves(episodes, steps)
+        rng = np.random.default_rng(0)
+        means = curves[rng.integers(0, len(curves), (1000, len(curves)))].mean(axis=1)
+        line, = ax.plot(x, 100 * curves.mean(axis=0), label=f"{name} ({len(episodes)})", lw=1.2)
+        ax.fill_between(x, 100 * np.quantile(means, 0.025, axis=0), 100 * np.quantile(means, 0.975, axis=0),
+                        color=line.get_color(), alpha=0.15, lw=0)
+    ax.set_xlabel("step (0.3 m each)")
+    ax.set_ylabel("coverage of the valid area, % (carving included)")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(Path(out_dir) / "coverage.png", dpi=100)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    edges = np.arange(0.0, 0.65, 0.05)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    for name, episodes in rows.items():
+        per_bin = [[] for _ in centres]
+        for episode in episodes:
+            cov, iou = np.asarray(episode["iou"]["coverage"]), np.asarray(episode["iou"]["iou"])
+            for b in range(len(centres)):
+                inside = (cov >= edges[b]) & (cov < edges[b + 1])
+                if inside.any():
+                    per_bin[b].append(float(iou[inside].mean()))
+        keep = [b for b in range(len(centres)) if len(per_bin[b]) >= 3]
+        if not keep:
+            continue
+        mean = np.array([np.mean(per_bin[b]) for b in keep])
+        interval = np.array([bootstrap_interval(per_bin[b], resamples=1000) for b in keep])
+        line, = ax.plot(100 * centres[keep], mean, marker="o", ms=3, lw=1.2, label=name)
+        ax.fill_between(100 * centres[keep], interval[:, 0], interval[:, 1], color=line.get_color(), alpha=0.15,
+                        lw=0)
+    ax.set_xlabel("coverage, % (carving included)")
+    ax.set_ylabel("wall IoU of the predicted map")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(Path(out_dir) / "iou_vs_coverage.png", dpi=100)
+    plt.close(fig)

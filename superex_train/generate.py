@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Callable, Iterator, Optional, Sequence, Union
 
 import numpy as np
-from scipy import ndimage
 
 from superex_deploy.explore.episode import EpisodeState, ExplorationConfig, run_episode
 from superex_deploy.explore.planners import make_planner
@@ -37,7 +36,7 @@ from superex_deploy.explore.sensing import SpadSensing
 from superex_deploy.explore.types import UNKNOWN
 from superex_deploy.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
                                       sha256_file)
-from superex_deploy.maps import OccupancyGrid, list_maps, load_map, map_building
+from superex_deploy.maps import list_maps, load_map, map_building, random_start
 from superex_deploy.nlos import NlosConfig, back_project, estimate_los, nlos_ground_truth
 from superex_deploy.parallel import process_pool
 from superex_deploy.spad import SpadConfig, simulate_scan
@@ -133,18 +132,6 @@ class GenerationConfig:
                 "tiles_per_sample": self.tiles_per_sample, "min_clearance_m": self.min_clearance_m,
                 "seed": self.seed, "spad": repr(self.spad), "nlos": repr(self.nlos),
                 "exploration": repr(self.exploration)}
-
-
-def random_start(grid: OccupancyGrid, rng: np.random.Generator, min_clearance_m: float) -> tuple[int, int]:
-    """A uniformly drawn valid free cell at least ``min_clearance_m`` from every wall (the clearest cell if
-    none is that clear)."""
-    clearance = ndimage.distance_transform_edt(~grid.occupied) * grid.resolution_m
-    candidates = grid.valid & ~grid.occupied & (clearance >= min_clearance_m)
-    cells = np.argwhere(candidates)
-    if len(cells) == 0:
-        cells = np.argwhere(clearance == clearance.max())
-    r, c = cells[rng.integers(len(cells))]
-    return int(r), int(c)
 
 
 @dataclass(frozen=True)

@@ -464,3 +464,31 @@ def naive_grow_rrt(passable, reachable, start_y, start_x, samples, expand_cells,
         outside = [k for k, cell in enumerate(cells) if not reachable[cell]]
         exits.append(cells[outside[0] - 1] if outside else cells[-1])
     return np.array(nodes), np.array(parents), np.array(depths), np.array(path_variance), np.array(exits)
+
+
+# --- superex planner ---
+
+
+def naive_path_gain(mean, observed, path, every, n_rays, range_cells, hit_threshold):
+    """Unknown cells visible from path[every], path[2 every], ... and the path's last cell (the SuperEx
+    planner's pathwise gain), by the naive visibility reference."""
+    seen = np.zeros(observed.shape, bool)
+    for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]:
+        r, c = path[k]
+        ranges = naive_visible_ranges(mean, r + 0.5, c + 0.5, n_rays, range_cells, hit_threshold, False)
+        visible, _, _ = naive_fill_visibility(ranges, r + 0.5, c + 0.5, observed, np.zeros(observed.shape))
+        seen |= visible
+    return int(np.count_nonzero(seen & (observed == -1)))
+
+
+def naive_open_tour_first(between, from_robot):
+    """First goal of the shortest open path that starts at the robot and visits every goal once, by trying
+    every order (ties: the lexicographically first order)."""
+    from itertools import permutations
+
+    best, best_first = np.inf, -1
+    for order in permutations(range(len(from_robot))):
+        length = from_robot[order[0]] + sum(between[a][b] for a, b in zip(order[:-1], order[1:]))
+        if length < best - 1e-9:
+            best, best_first = length, order[0]
+    return best_first, best

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from superex_deploy.explore.episode import STAGES, ExplorationConfig, run_episode
+from superex_deploy.explore.episode import STAGES, ExplorationConfig, _choose, _near_visited, _reached, run_episode
 from superex_deploy.explore.frontiers import find_frontiers
 from superex_deploy.explore.types import FREE, OCCUPIED, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
@@ -191,3 +191,58 @@ def test_bad_inputs_raise_value_error():
         run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: None)
     with pytest.raises(ValueError, match="frontier_min_cells"):
         ExplorationConfig(frontier_min_cells=0)
+
+
+def _two_side_rooms():
+    """A 2.5 m square: a corridor on the left (cols 1-8) and two rooms on the right whose doors open from it,
+    each door flanked by a two-cell-thick jamb. The rooms' far corners lie within 1 m of corridor cells from
+    which the jamb hides them: the geometry of eval map 50010539, where every planner used to shuttle between
+    two such corners for 900 steps (a frontier counted as reached by distance alone)."""
+    walls = np.zeros((25, 25), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[1:7, 9:11] = True  # thick jamb above room A's door
+    walls[11:14, 9:] = True  # the wall between the rooms
+    walls[18:24, 9:11] = True  # thick jamb below room B's door
+    return OccupancyGrid(walls, ~walls, 0.1, "two side rooms")
+
+
+def test_a_frontier_hidden_behind_a_door_jamb_is_not_reached_from_the_corridor():
+    grid = _two_side_rooms()
+    result = run_episode(grid, (12, 3), _Closest(), _CountingPredictor(), steps=300, seed=0,
+                         cfg=ExplorationConfig(iou_every=0))
+    assert result.finished and result.steps < 40
+    assert result.coverage[-1] == 1.0
+    assert len(set(result.goals)) == len(result.goals)  # no goal chosen twice
+    # A goal cell within the tolerance but behind the jamb does not count as reached; seen, it does.
+    not_free = result.final_observed != FREE
+    assert np.hypot(3 - 9, 11 - 4) < 10.0 and not _reached(not_free, (9, 4), (3, 11), reach_cells=10.0)
+    assert _reached(not_free, (12, 3), (12, 8), reach_cells=10.0)
+    assert not _reached(not_free, (12, 3), (12, 20), reach_cells=10.0)  # in sight but too far
+
+
+def test_goal_tiers_skip_visited_goals_and_fall_back_on_close_ones():
+    """_choose offers far regions first, never a region whose goal cell was reached before, and, when only
+    regions in sight within the tolerance are left, one of those with tolerance 0 (drive onto it)."""
+    observed = np.full((20, 40), -1, np.int8)
+    observed[7:14, 2:38] = OCCUPIED
+    observed[8:13, 2:38] = FREE  # a known corridor, open (unknown) at both ends
+    frontiers = find_frontiers(observed, 3)
+    assert sorted(f.cell_rc for f in frontiers) == [(10, 2), (10, 37)]
+    offered = []
+
+    def offer(regions):
+        offered.append({f.cell_rc for f in regions})
+        return regions[0].cell_rc if regions else None
+
+    not_free = observed != FREE
+    pose = (10, 8)  # the left end is in sight 0.6 m away, the right end 2.9 m away
+    assert _choose(offer, observed, frontiers, 3, not_free, pose, 10.0, set()) == ((10, 37), 10.0)
+    assert offered == [{(10, 37)}]
+    # The far end visited before (or a neighbour of its goal cell): only the close end is left, to be driven onto.
+    offered.clear()
+    assert _choose(offer, observed, frontiers, 3, not_free, pose, 10.0, {(9, 36)}) == ((10, 2), 0.0)
+    assert offered == [set(), {(10, 2)}]
+    # Both visited: nothing is left, the episode ends.
+    offered.clear()
+    assert _choose(offer, observed, frontiers, 3, not_free, pose, 10.0, {(9, 36), (10, 2)}) == (None, 0.0)
+    assert _near_visited((3, 3), {(4, 4)}) and not _near_visited((3, 3), {(5, 4)})

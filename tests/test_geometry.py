@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.geometry import _group_by_cell, cast_rays, cell_centre, mark_rays, ray_angles
+from superex_deploy.geometry import _group_by_cell, cast_rays, cell_centre, line_of_sight, mark_rays, ray_angles
 from tests.naive import naive_first_hit, naive_group_by_cell, naive_mark_rays
 
 
@@ -105,3 +105,63 @@ def test_bad_inputs_raise_clear_errors():
         ray_angles(0)
     with pytest.raises(ValueError, match="free_out"):
         mark_rays(occupied, (1.5, 1.5), [0.0], 3.0, np.zeros((4, 4), bool), np.zeros((5, 5), bool))
+
+
+def test_line_of_sight_on_a_hand_built_grid():
+    blocked = np.zeros((9, 9), bool)
+    blocked[4, 2:7] = True  # a wall across the middle, open at both ends
+    assert line_of_sight(blocked, (1, 4), (1, 8))  # along a free row
+    assert not line_of_sight(blocked, (1, 4), (7, 4))  # straight through the wall
+    assert line_of_sight(blocked, (1, 0), (7, 0))  # around its end
+    assert not line_of_sight(blocked, (4, 3), (4, 3))  # a blocked cell does not see itself
+    assert line_of_sight(blocked, (0, 0), (0, 0))
+    assert not line_of_sight(blocked, (1, 4), (4, 4))  # the far end itself is blocked
+    # Two blocked cells touching at a corner stop a diagonal line (columns are stepped first on the tie).
+    corner = np.zeros((4, 4), bool)
+    corner[1, 2] = corner[2, 1] = True
+    assert not line_of_sight(corner, (0, 3), (3, 0))
+    # On such a tie the cell beside the column step is entered, the one beside the row step is not.
+    side = np.zeros((4, 4), bool)
+    side[1, 0] = True
+    assert line_of_sight(side, (0, 0), (3, 3))
+    side[0, 1] = True
+    assert not line_of_sight(side, (0, 0), (3, 3))
+
+
+def _passes_a_cell_corner(y0, x0, y1, x1):
+    """Whether the open segment crosses a row and a column boundary at the same point (where the DDA's
+    column-first rule and the naive midpoint rule may pick different cells)."""
+    rows = [(k - y0) / (y1 - y0) for k in range(int(min(y0, y1)), int(max(y0, y1)) + 2)] if y1 != y0 else []
+    cols = [(k - x0) / (x1 - x0) for k in range(int(min(x0, x1)), int(max(x0, x1)) + 2)] if x1 != x0 else []
+    return any(0 < t < 1 and abs(t - u) < 1e-12 for t in rows for u in cols)
+
+
+def test_line_of_sight_matches_naive_first_hit_on_random_grids():
+    rng = np.random.default_rng(7)
+    compared = 0
+    for _ in range(600):
+        blocked = _random_grid(rng, (15, 20), 0.15)
+        a = tuple(int(v) for v in rng.integers((0, 0), blocked.shape))
+        b = tuple(int(v) for v in rng.integers((0, 0), blocked.shape))
+        y0, x0 = cell_centre(a)
+        y1, x1 = cell_centre(b)
+        length = np.hypot(y1 - y0, x1 - x0)
+        if _passes_a_cell_corner(y0, x0, y1, x1):
+            continue
+        compared += 1
+        if length == 0:
+            expected = not blocked[a]
+        else:
+            row, _, _, _ = naive_first_hit(blocked, y0, x0, np.arctan2(y1 - y0, x1 - x0), length)
+            expected = row < 0
+        assert line_of_sight(blocked, a, b) == expected
+    assert compared > 300
+
+
+def test_line_of_sight_rejects_bad_input():
+    with pytest.raises(ValueError, match="bool array"):
+        line_of_sight(np.zeros((3, 3), np.int8), (0, 0), (1, 1))
+    with pytest.raises(ValueError, match="outside the grid"):
+        line_of_sight(np.zeros((3, 3), bool), (0, 0), (3, 1))
+    with pytest.raises(ValueError, match="outside the grid"):
+        line_of_sight(np.zeros((3, 3), bool), (-1, 0), (1, 1))

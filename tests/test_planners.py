@@ -4,9 +4,10 @@ import pytest
 from superex_deploy.explore.episode import run_episode
 from superex_deploy.explore.planners import (
     PLANNERS, HectorConfig, HectorPlanner, MapexConfig, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
-    VisibilityConfig, _fill_visibility, _grow_rrt, _ray_visible_ranges, connected_unknown_gains, grow_rrt,
-    make_planner, predicted_visibility, visible_gains, visible_ranges)
+    VisibilityConfig, _grow_rrt, connected_unknown_gains, grow_rrt, make_planner, predicted_visibility,
+    visible_gains, visible_ranges)
 from superex_deploy.explore.prediction import OraclePredictor
+from superex_deploy.explore.visibility import _fill_visibility, _ray_visible_ranges
 from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_fill_visibility, naive_grow_rrt, naive_visible_ranges
@@ -333,10 +334,10 @@ def test_with_the_oracle_information_gain_covers_more_than_nearest_frontier():
 
 
 def test_registry_and_bad_inputs():
-    assert set(PLANNERS) == {"nearest", "hector", "upen", "mapex"}
+    assert set(PLANNERS) == {"nearest", "hector", "upen", "mapex", "superex"}
     assert all(make_planner(name).name == name for name in PLANNERS)
     assert make_planner("upen", rrt_samples=10).cfg.rrt_samples == 10
-    with pytest.raises(ValueError, match="unknown planner 'frontier'; choose one of hector, mapex, nearest, upen"):
+    with pytest.raises(ValueError, match="unknown planner 'frontier'; choose one of hector, mapex, nearest, superex, upen"):
         make_planner("frontier")
     with pytest.raises(ValueError, match="bad configuration"):
         make_planner("mapex", no_such_field=1)

@@ -1,4 +1,10 @@
-"""``superex benchmark``: every start pose of a set of maps x planners, in parallel processes."""
+"""``superex benchmark``: every start pose of a set of maps x planners, in parallel processes.
+
+``--suite paper`` runs the paper's table instead: the named rows of :data:`~superex_deploy.explore.suite.PAPER_ROWS`
+(planner x predictor x sensing) on the 40 eval scenarios, each row written to ``OUT/rows/ROW.json`` as soon as it
+is done (a rerun skips the rows already there), then the summary paired by scenario against MapEx on LaMa-LOS:
+``results.md``, ``results.json``, ``coverage.png``, ``iou_vs_coverage.png``.
+"""
 
 from __future__ import annotations
 
@@ -24,6 +30,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
     parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--suite", choices=("paper",), default=None,
+                        help="paper: the paper's rows (see --rows), IoU every 10 steps up to 35 %% coverage, "
+                             "paired against MapEx on LaMa-LOS; --planners / --predictor / --spad are ignored")
+    parser.add_argument("--rows", default="all",
+                        help="with --suite paper: comma-separated row names, or 'all'")
 
 
 def _episode(task: tuple) -> dict:
@@ -32,11 +43,12 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.explore.planners import make_planner
     from superex_deploy.maps import load_map
 
-    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task
+    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
+    iou_cfg = task[9] if len(task) > 9 else {"iou_every": 50}
     grid = load_map(map_name)
     result = run_episode(grid, start, make_planner(planner_name, **options), make_predictor(predictor_name, grid),
                          steps=steps,
-                         seed=seed, cfg=ExplorationConfig(iou_every=50),
+                         seed=seed, cfg=ExplorationConfig(**iou_cfg),
                          nlos=make_sensing(predictor_name, spad, seed))
     summary = result.to_json()
     summary["start_index"] = start_index
@@ -46,6 +58,10 @@ def _episode(task: tuple) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.suite == "paper":
+        from superex_deploy.commands.paper_benchmark import run_paper
+
+        return run_paper(args)
     from tqdm import tqdm
 
     from superex_deploy.explore.metrics import results_markdown, summarise

@@ -6,19 +6,21 @@ import argparse
 import json
 from pathlib import Path
 
-PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp")
+PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp", "evidence")
+EVIDENCE_PREDICTORS = ("lama_bp", "evidence")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="bundled map name or an image / ROS YAML path")
     parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
-    parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex")
+    parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex | superex")
     add_planner_option(parser)
     parser.add_argument("--predictor", default="observed", choices=PREDICTORS,
                         help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only); "
                              "lama_los: the line-of-sight LaMa ensemble; lama_bp: the LaMa ensemble that also reads "
-                             "the Pix2Pix-filtered back-projection (needs --spad)")
+                             "the Pix2Pix-filtered back-projection (needs --spad); evidence: the Pix2Pix evidence "
+                             "alone, no LaMa (needs --spad)")
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models with manifest.json (default: the repository's exported/)")
     parser.add_argument("--steps", type=int, default=1000)
@@ -31,10 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def make_predictor(name: str, grid, models=None):
-    from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
+    from superex_deploy.explore.prediction import EvidenceAsPrediction, ObservedAsPrediction, OraclePredictor
 
     if name == "observed":
         return ObservedAsPrediction()
+    if name == "evidence":
+        return EvidenceAsPrediction()
     if name == "oracle":
         return OraclePredictor(grid)
     if name in ("lama_los", "lama_bp"):
@@ -45,19 +49,20 @@ def make_predictor(name: str, grid, models=None):
 
 
 def make_sensing(predictor: str, spad: bool, seed: int, models=None):
-    """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` gets the Pix2Pix filter's evidence.
+    """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` and ``evidence`` get the Pix2Pix
+    filter's evidence.
 
     Raises:
-        ValueError: ``lama_bp`` without ``spad`` (it reads the SPAD evidence).
+        ValueError: ``lama_bp`` or ``evidence`` without ``spad`` (they read the SPAD evidence).
     """
-    if predictor == "lama_bp" and not spad:
-        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    if predictor in EVIDENCE_PREDICTORS and not spad:
+        raise ValueError(f"--predictor {predictor} reads the SPAD evidence: add --spad")
     if not spad:
         return None
     from superex_deploy.explore.sensing import SpadSensing
 
     bp_filter = None
-    if predictor == "lama_bp":
+    if predictor in EVIDENCE_PREDICTORS:
         from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
 
         bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map

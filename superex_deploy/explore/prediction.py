@@ -12,7 +12,7 @@ import numpy as np
 from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Prediction
 from superex_deploy.maps import OccupancyGrid
 
-__all__ = ["ObservedAsPrediction", "OraclePredictor", "check_observed"]
+__all__ = ["ObservedAsPrediction", "EvidenceAsPrediction", "OraclePredictor", "check_observed"]
 
 
 def check_observed(observed: np.ndarray, shape: Optional[tuple[int, int]] = None) -> np.ndarray:
@@ -39,6 +39,29 @@ class ObservedAsPrediction:
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
         observed = check_observed(observed)
         mean = (observed == OCCUPIED).astype(np.float32)
+        return Prediction(mean=mean, variance=np.zeros_like(mean))
+
+
+class EvidenceAsPrediction:
+    """The NLOS evidence taken as the prediction, with no learned map predictor (the *no LaMa* ablation).
+
+    Observed cells keep their observed value; an unknown cell's wall probability is the evidence there (the
+    running maximum of the Pix2Pix-filtered back-projection, in [0, 1]), or 0 where there is none. Variance is
+    zero.
+    """
+
+    name = "evidence"
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
+        observed = check_observed(observed)
+        mean = (observed == OCCUPIED).astype(np.float32)
+        if extra is not None:
+            extra = np.asarray(extra)
+            if extra.shape != observed.shape or not np.issubdtype(extra.dtype, np.floating):
+                raise ValueError(f"evidence must be a float {observed.shape} array, got {extra.dtype} "
+                                 f"{extra.shape}")
+            unknown = observed == UNKNOWN
+            mean[unknown] = np.clip(np.nan_to_num(extra[unknown], nan=0.0), 0.0, 1.0)
         return Prediction(mean=mean, variance=np.zeros_like(mean))
 
 

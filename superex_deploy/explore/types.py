@@ -95,3 +95,22 @@ class Planner(ABC):
     @abstractmethod
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         """Return the goal cell (row, col), reachable per ``ctx.travel_cost``, or None when nothing is left."""
+
+    def reset(self) -> None:
+        """Forget what the planner kept from an earlier episode (the episode loop calls it first). The default
+        planner keeps nothing."""
+
+    def keep_goal(self, observed: np.ndarray, pose_rc: tuple[int, int], goal_rc: tuple[int, int],
+                  steps_since_chosen: int) -> bool:
+        """Whether to keep driving to the locked goal at this step (called every step while a goal is locked,
+        not reached and its path not blocked). The default keeps it, as MapEx does; a planner that returns
+        False is asked for a new goal at once.
+
+        Args:
+            observed: int8 ``[H, W]`` observed map after this step's scan.
+            pose_rc: robot cell.
+            goal_rc: the locked goal cell.
+            steps_since_chosen: steps since the goal was chosen (0 on the step that chose it).
+        """
+        return True
+

@@ -1,0 +1,180 @@
+"""The paper's exploration benchmark: named rows (planner x predictor x sensing), per-scenario metrics, and
+comparisons paired by scenario against a reference row with bootstrap intervals.
+
+A row's episodes are :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts (plus ``start_index``),
+as ``superex benchmark`` writes them. Coverage is the known share of the valid area **with NLOS carving**
+(``coverage_with_carving``; equal to the line-of-sight coverage for rows without SPAD sensing); the line-of-sight
+share is reported beside it. An episode that ends early (nothing left to explore) keeps its final coverage.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from superex_deploy.explore.metrics import coverage_at
+
+__all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
+           "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary", "coverage_curves"]
+
+
+@dataclass(frozen=True)
+class BenchmarkRow:
+    """One row of the benchmark table.
+
+    Attributes:
+        planner: planner name (``planners.make_planner``).
+        predictor: predictor name (``observed``, ``oracle``, ``lama_los``, ``lama_bp``, ``evidence``).
+        spad: SPAD sensing every step (carving, and the Pix2Pix evidence for ``lama_bp`` / ``evidence``).
+        label: what the row is, for tables.
+    """
+
+    planner: str
+    predictor: str
+    spad: bool
+    label: str
+
+
+PAPER_ROWS: dict[str, BenchmarkRow] = {
+    "nearest": BenchmarkRow("nearest", "observed", False, "nearest frontier"),
+    "hector_lama_los": BenchmarkRow("hector", "lama_los", False, "IG-Hector on LaMa-LOS"),
+    "upen_lama_los": BenchmarkRow("upen", "lama_los", False, "UPEN on LaMa-LOS"),
+    "mapex_lama_los": BenchmarkRow("mapex", "lama_los", False, "MapEx on LaMa-LOS"),
+    "mapex_observed": BenchmarkRow("mapex", "observed", False, "MapEx, observed map"),
+    "superex_observed": BenchmarkRow("superex", "observed", False, "superex planner, observed map"),
+    "superex_lama_los": BenchmarkRow("superex", "lama_los", False, "superex planner on LaMa-LOS"),
+    "superex": BenchmarkRow("superex", "lama_bp", True, "SuperEx: superex planner, LaMa-BP + SPAD"),
+    "superex_oracle": BenchmarkRow("superex", "oracle", False, "superex planner, true map (ceiling)"),
+    "no_pix2pix": BenchmarkRow("superex", "lama_los", True, "ablation no Pix2Pix: LaMa-LOS + SPAD carving"),
+    "no_lama": BenchmarkRow("superex", "evidence", True, "ablation no LaMa: SPAD carving + Pix2Pix evidence"),
+}
+"""The rows of the paper's table, by name."""
+
+REFERENCE_ROW = "mapex_lama_los"
+"""Every row is paired against this one (MapEx as published: its planner on the line-of-sight ensemble)."""
+
+CHECKPOINTS = (100, 250, 500, 1000)
+IOU_LEVELS = (0.05, 0.10, 0.20, 0.30)
+IOU_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))
+
+
+def _series(episode: dict, key: str) -> list[float]:
+    return episode[key] if episode[key] else [0.0]
+
+
+def _auc(series: Sequence[float], first: int, last: int) -> float:
+    return float(np.mean([coverage_at(series, s) for s in range(first, last + 1)]))
+
+
+def scenario_metrics(episode: dict, steps: int = 1000) -> dict[str, float]:
+    """Metrics of one episode (fractions, not percent).
+
+    Returns:
+        ``coverage@N`` (with carving) and ``los_coverage@N`` for N in :data:`CHECKPOINTS` up to ``steps``;
+        ``auc_first_half``: mean coverage over steps 1..steps/2, ``auc``: over 1..steps (and ``los_auc_*``);
+        ``iou@L``: the map IoU at the first evaluation whose coverage reached L (:data:`IOU_LEVELS`; ``nan``
+        if never reached); ``iou_bin_A_B``: mean IoU of the evaluations with coverage in ``[A, B)``
+        (:data:`IOU_BINS`; ``nan`` if none); ``final_iou``; and, when the log has its stage times,
+        ``scoring_ms_per_goal`` and ``prediction_ms_per_goal`` (the mean time per goal choice).
+    """
+    carved, los = _series(episode, "coverage_with_carving"), _series(episode, "coverage")
+    half = max(steps // 2, 1)
+    out = {}
+    for n in CHECKPOINTS:
+        if n <= steps:
+            out[f"coverage@{n}"] = coverage_at(carved, n)
+            out[f"los_coverage@{n}"] = coverage_at(los, n)
+    out["auc_first_half"] = _auc(carved, 1, half)
+    out["auc"] = _auc(carved, 1, steps)
+    out["los_auc_first_half"] = _auc(los, 1, half)
+    out["los_auc"] = _auc(los, 1, steps)
+    iou_cov = np.asarray(episode["iou"]["coverage"], float)
+    iou = np.asarray(episode["iou"]["iou"], float)
+    for level in IOU_LEVELS:
+        reached = np.flatnonzero(iou_cov >= level)
+        out[f"iou@{level:.2f}"] = float(iou[reached[0]]) if len(reached) else float("nan")
+    for low, high in IOU_BINS:
+        inside = (iou_cov >= low) & (iou_cov < high)
+        out[f"iou_bin_{low:.1f}_{high:.1f}"] = float(iou[inside].mean()) if inside.any() else float("nan")
+    out["final_iou"] = float(iou[-1]) if len(iou) else float("nan")
+    if "mean_step_s" in episode and episode["goals"]["steps"]:
+        # Per goal choice: the planner's own work and the predictor's (metric evaluation excluded).
+        choices = len(episode["goals"]["steps"])
+        for stage in ("scoring", "prediction"):
+            out[f"{stage}_ms_per_goal"] = 1000 * episode["mean_step_s"][stage] * episode["steps"] / choices
+    return out
+
+
+def bootstrap_interval(values: Sequence[float], confidence: float = 0.95, resamples: int = 10000,
+                       seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``values`` (finite ones; ``(nan, nan)`` if none)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    means = values[rng.integers(0, values.size, (resamples, values.size))].mean(axis=1)
+    tail = (1.0 - confidence) / 2.0
+    return float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))
+
+
+def _key(episode: dict) -> tuple:
+    return episode["map"], int(episode["start_index"])
+
+
+def row_summary(episodes: list[dict], steps: int) -> dict[str, float]:
+    """Mean of each :func:`scenario_metrics` entry over a row's episodes (``nan`` entries skipped); the
+    per-goal times are medians over episodes (a loaded machine makes a few episodes slow)."""
+    per = [scenario_metrics(e, steps) for e in episodes]
+    out = {}
+    for key in (per[0] if per else ()):
+        values = np.array([p.get(key, np.nan) for p in per], float)
+        if not np.isfinite(values).any():
+            out[key] = float("nan")
+        elif key.endswith("_ms_per_goal"):
+            out[key] = float(np.nanmedian(values))
+        else:
+            out[key] = float(np.nanmean(values))
+    return out
+
+
+def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie_tolerance: float = 1e-6
+                   ) -> dict[str, dict]:
+    """Each metric of ``candidate`` minus ``reference``, paired by (map, start index).
+
+    Returns:
+        metric -> ``{"n", "mean", "low", "high" (bootstrap 95 % interval of the mean difference), "ratio"
+        (candidate mean / reference mean - 1), "better", "worse", "tied"}``.
+
+    Raises:
+        ValueError: the two rows do not hold the same scenarios.
+    """
+    ref = {_key(e): scenario_metrics(e, steps) for e in reference}
+    cand = {_key(e): scenario_metrics(e, steps) for e in candidate}
+    if set(ref) != set(cand):
+        raise ValueError(f"the rows hold different scenarios (e.g. {sorted(set(ref) ^ set(cand))[:3]})")
+    keys = sorted(ref)
+    out = {}
+    for metric in ref[keys[0]] if keys else ():
+        if metric.endswith("_ms_per_goal") or any(metric not in cand[k] for k in keys):
+            continue
+        pairs = np.array([(ref[k][metric], cand[k][metric]) for k in keys], float)
+        pairs = pairs[np.isfinite(pairs).all(axis=1)]
+        if len(pairs) == 0:
+            continue
+        diff = pairs[:, 1] - pairs[:, 0]
+        low, high = bootstrap_interval(diff)
+        base = pairs[:, 0].mean()
+        out[metric] = {"n": int(len(diff)), "mean": float(diff.mean()), "low": low, "high": high,
+                       "ratio": float(pairs[:, 1].mean() / base - 1.0) if base else float("nan"),
+                       "better": int(np.sum(diff > tie_tolerance)), "worse": int(np.sum(diff < -tie_tolerance)),
+                       "tied": int(np.sum(np.abs(diff) <= tie_tolerance))}
+    return out
+
+
+def coverage_curves(episodes: list[dict], steps: int) -> np.ndarray:
+    """float64 ``[n_episodes, steps]`` coverage with carving at steps 1..steps (early ends keep their value)."""
+    return np.array([[coverage_at(_series(e, "coverage_with_carving"), s) for s in range(1, steps + 1)]
+                     for e in episodes])

@@ -1,0 +1,365 @@
+"""The SuperEx planner: pathwise predicted gain per unit of travel, with rollouts and tours as measured options.
+
+MapEx scores a frontier by what its predicted map says is visible from the frontier cell alone. The robot,
+though, scans every 0.3 m on its way there: a frontier down a corridor lined with doors is worth what the robot
+sees through every door it passes, a frontier behind a wall that the prediction closes is worth little even if
+its own view is open. The SuperEx planner scores each reachable frontier by the **pathwise gain** (as the PIPE
+planner does): the currently unknown cells predicted visible from its goal cell *or* from any point of the path
+to it, sampled every ``sense_every_m``, per unit of travel cost; the best frontier wins and is kept until
+reached or blocked (MapEx's locked goal). Rays stop at cells predicted walls at or above ``wall_threshold``.
+
+Ideas measured on the train floors (``scripts/ceiling_study.py``, oracle against observed predictor; see the
+README) and kept as options because each answers a question:
+
+* ``choice="rollout"``: for the ``candidates`` best frontiers, play the rest of the exploration out on the
+  predicted map (pooled into ``rollout_cell_m`` cells; greedy goals, travel priced through predicted-free
+  unknown space, sensing along each path) and head to the first goal of the rollout with the most area under its
+  known-cells curve over ``horizon_m`` of travel;
+* ``choice="tour"``: the first goal of the shortest open tour through the nearest ``tour_frontiers`` frontiers
+  (``fast-tsp``, exact up to 20 nodes), travel between them priced on the predicted map;
+* ``gain="goal"``: MapEx's gain (the view from the goal cell only);
+* ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.explore.frontiers import find_frontiers
+from superex_deploy.explore.motion import dijkstra
+from superex_deploy.explore.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
+                                               visible_gains)
+from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
+
+__all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
+
+
+@dataclass(frozen=True)
+class SuperexConfig:
+    """Settings of :class:`SuperexPlanner` (chosen on the train floors only, never on ``eval/``).
+
+    Attributes:
+        gain: ``"path"``: unknown cells predicted visible from the goal or along the path to it; ``"goal"``:
+            from the goal cell only (MapEx).
+        choice: ``"greedy"``: the best gain per unit of travel; ``"rollout"``: the best of ``candidates``
+            rollouts; ``"tour"``: the first goal of the shortest tour through the nearest frontiers.
+        wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.2 maximises the
+            calibrated ensembles' held-out wall IoU (README, calibration table); binary maps (observed, oracle)
+            do not depend on it.
+        sense_every_m: the path is sampled every this many metres for the pathwise gain and in rollouts.
+        range_m: the sensor's range (metres; the LiDAR's 20 m).
+        n_rays: rays of each visibility cast (over a full turn).
+        drop_resolved_m: None keeps a goal until it is reached or blocked (MapEx); a distance drops it as soon as
+            no unknown cell is left that close to it.
+        candidates: frontiers compared by rollouts (``choice="rollout"``).
+        rollout_goals: goals a rollout plays after the forced first one.
+        horizon_m: travel over which a rollout's known-area curve is integrated (metres).
+        rollout_cell_m: side of a rollout cell (metres; a whole number of map cells).
+        rollout_frontier_cells: smallest frontier region (rollout cells) and gain a rollout goes for.
+        tour_frontiers: frontiers in a tour (``choice="tour"``; at most 18 keeps the solver exact).
+    """
+
+    gain: str = "path"
+    choice: str = "greedy"
+    wall_threshold: float = 0.2
+    sense_every_m: float = 1.5
+    range_m: float = 20.0
+    n_rays: int = 250
+    drop_resolved_m: Optional[float] = None
+    candidates: int = 5
+    rollout_goals: int = 4
+    horizon_m: float = 60.0
+    rollout_cell_m: float = 0.3
+    rollout_frontier_cells: int = 3
+    tour_frontiers: int = 18
+
+    def __post_init__(self) -> None:
+        if self.gain not in ("path", "goal"):
+            raise ValueError(f"gain must be 'path' or 'goal', got {self.gain!r}")
+        if self.choice not in ("greedy", "rollout", "tour"):
+            raise ValueError(f"choice must be 'greedy', 'rollout' or 'tour', got {self.choice!r}")
+        if not 0.0 < self.wall_threshold <= 1.0:
+            raise ValueError(f"wall_threshold must lie in (0, 1], got {self.wall_threshold}")
+        for name in ("sense_every_m", "range_m", "horizon_m", "rollout_cell_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+        if self.drop_resolved_m is not None and not (np.isfinite(self.drop_resolved_m)
+                                                     and self.drop_resolved_m >= 0):
+            raise ValueError(f"drop_resolved_m must be None or finite and >= 0, got {self.drop_resolved_m}")
+        for name, low in (("n_rays", 3), ("candidates", 1), ("rollout_goals", 0), ("rollout_frontier_cells", 1),
+                          ("tour_frontiers", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value}")
+        if self.tour_frontiers > 18:
+            raise ValueError(f"tour_frontiers must be at most 18 (the solver is exact up to 20 nodes), got "
+                             f"{self.tour_frontiers}")
+
+
+@dataclass(frozen=True)
+class RolloutWorld:
+    """The pooled world a rollout plays in (cells of ``factor`` x ``factor`` map cells).
+
+    Attributes:
+        factor: map cells per rollout cell along each axis.
+        walls: float32 ``[h, w]`` 1 where the rollout cell is a wall (observed or predicted), else 0.
+        known: int8 ``[h, w]`` UNKNOWN / FREE / OCCUPIED: the rollout's starting knowledge.
+        resolution_m: metres per rollout cell.
+    """
+
+    factor: int
+    walls: np.ndarray
+    known: np.ndarray
+    resolution_m: float
+
+    def cell(self, map_rc) -> tuple[int, int]:
+        """Rollout cell holding map cell ``map_rc``."""
+        return int(map_rc[0]) // self.factor, int(map_rc[1]) // self.factor
+
+
+def _pool(mask: np.ndarray, factor: int, how: str) -> np.ndarray:
+    rows, cols = -(-mask.shape[0] // factor) * factor, -(-mask.shape[1] // factor) * factor
+    padded = np.zeros((rows, cols), mask.dtype)
+    padded[:mask.shape[0], :mask.shape[1]] = mask
+    blocks = padded.reshape(rows // factor, factor, cols // factor, factor)
+    if how == "any":
+        return blocks.any(axis=(1, 3))
+    return blocks.sum(axis=(1, 3)) * 2 > factor * factor
+
+
+def rollout_world(observed: np.ndarray, prediction: Prediction, resolution_m: float, cell_m: float,
+                  wall_threshold: float) -> RolloutWorld:
+    """Pool the observed map and the prediction into a :class:`RolloutWorld`.
+
+    Args:
+        observed: int8 ``[H, W]`` observed map.
+        prediction: its prediction (``mean`` float32 ``[H, W]``).
+        resolution_m: metres per map cell.
+        cell_m: side of a rollout cell in metres (rounded to a whole number of map cells, at least 1).
+        wall_threshold: predicted wall probability from which an unknown map cell is a wall.
+    """
+    factor = max(1, int(round(cell_m / resolution_m)))
+    unknown = observed == UNKNOWN
+    walls = (observed == OCCUPIED) | (unknown & (prediction.mean >= wall_threshold))
+    wall_cells = _pool(walls, factor, "any")
+    known_cells = _pool(~unknown, factor, "majority")
+    known = np.full(wall_cells.shape, UNKNOWN, np.int8)
+    known[known_cells] = FREE
+    known[known_cells & wall_cells] = OCCUPIED
+    return RolloutWorld(factor, wall_cells.astype(np.float32), known, resolution_m * factor)
+
+
+def _visible_unknown(world: RolloutWorld, known: np.ndarray, cell, visibility: VisibilityConfig) -> np.ndarray:
+    """bool ``[h, w]`` unknown rollout cells visible from ``cell`` through the rollout's walls."""
+    return predicted_visibility(world.walls, cell, visibility, world.resolution_m) & (known == UNKNOWN)
+
+
+def rollout_value(world: RolloutWorld, start, first_goal, cfg: SuperexConfig,
+                  first_leg: Optional[tuple[list, np.ndarray]] = None) -> float:
+    """Area under the known-cells curve of one rollout, over ``cfg.horizon_m`` of travel.
+
+    The robot starts at rollout cell ``start``, travels to ``first_goal`` (a rollout cell), then the base policy
+    (greedy visible-unknown per unit of travel over the rollout's frontiers) picks up to ``cfg.rollout_goals``
+    more; at each arrival the unknown cells visible from the goal become known.
+
+    ``first_leg``: the robot's real path to the first goal as rollout cells and the travel (rollout cells) to
+    each; without it the first leg is planned in the rollout world like the others (through unknown cells
+    predicted free, which the robot cannot drive through yet: that would credit what it sees on a shortcut).
+
+    Returns:
+        ``sum over the horizon of known cells x travel`` in cells x metres (the rollout's coverage AUC, unnormalised);
+        ``-inf`` when ``first_goal`` cannot be reached in the rollout world.
+    """
+    visibility = VisibilityConfig(n_rays=max(3, cfg.n_rays // 2), range_m=cfg.range_m, hit_threshold=0.5)
+    passable = np.where(world.walls > 0, np.inf, 1.0)
+    known = world.known.copy()
+    position = (int(start[0]), int(start[1]))
+    passable[position] = 1.0
+    horizon = cfg.horizon_m / world.resolution_m
+    clock, area, leg_clock = 0.0, 0.0, 0.0
+    count = float(np.count_nonzero(known != UNKNOWN))
+    goal: Optional[tuple[int, int]] = (int(first_goal[0]), int(first_goal[1]))
+    passable[goal] = 1.0  # a real frontier cell is known free, whatever else shares its rollout cell
+    sense_every = max(1, int(round(cfg.sense_every_m / world.resolution_m)))
+    width = world.walls.shape[1]
+    for step in range(cfg.rollout_goals + 1):
+        cost, parent = dijkstra(passable, position)
+        if step > 0:
+            goal = None
+            frontiers = find_frontiers(known, cfg.rollout_frontier_cells)
+            cells = np.array([f.cell_rc for f in frontiers], np.int64).reshape(-1, 2)
+            if len(cells):
+                travel = cost[cells[:, 0], cells[:, 1]]
+                ok = np.isfinite(travel) & (travel > 0)
+                if ok.any():
+                    gains = np.array([np.count_nonzero(_visible_unknown(world, known, tuple(c), visibility))
+                                      if o else 0 for c, o in zip(cells, ok)], np.float64)
+                    ratio = np.where(ok, gains / np.maximum(travel, 1.0), -np.inf)
+                    best = int(np.argmax(ratio))
+                    if gains[best] >= cfg.rollout_frontier_cells:
+                        goal = (int(cells[best, 0]), int(cells[best, 1]))
+            if goal is None:
+                break
+        if not np.isfinite(cost[goal]) and not (step == 0 and first_leg is not None):
+            return -np.inf if step == 0 else area + count * max(horizon - clock, 0.0)
+        # The robot scans all along its way: sense every few cells of the path and at the goal.
+        if step == 0 and first_leg is not None:
+            path, path_cost = first_leg
+        else:
+            path = [goal]
+            while parent[path[-1]] >= 0:
+                flat = int(parent[path[-1]])
+                path.append((flat // width, flat % width))
+            path.reverse()
+            path_cost = np.array([cost[cell] for cell in path])
+        stops = list(range(sense_every, len(path) - 1, sense_every)) + [len(path) - 1]
+        for index in stops:
+            at = float(path_cost[index]) + leg_clock
+            stop = min(at, horizon)
+            area += count * (stop - clock)
+            clock = stop
+            if clock >= horizon:
+                return area
+            newly = _visible_unknown(world, known, path[index], visibility)
+            known[newly] = np.where(world.walls[newly] > 0, OCCUPIED, FREE)
+            count += float(np.count_nonzero(newly))
+        leg_clock = clock
+        position = goal
+        passable[position] = 1.0
+    return area + count * max(horizon - clock, 0.0)
+
+
+def tour_first(world: RolloutWorld, goals_rc: list, robot_costs: np.ndarray) -> int:
+    """Index of the first goal of the shortest open tour from the robot through every goal (fast-tsp, exact
+    for the at most 18 goals plus the robot and a dummy node that makes the tour open-ended).
+
+    Travel between goals is the Dijkstra cost on the rollout world (through cells predicted free); from the
+    robot, its real cost-to-go (``robot_costs``, map cells)."""
+    import fast_tsp
+
+    n = len(goals_rc)
+    if n == 1:
+        return 0
+    passable = np.where(world.walls > 0, np.inf, 1.0)
+    cells = [world.cell(g) for g in goals_rc]
+    for cell in cells:
+        passable[cell] = 1.0
+    scale = world.factor  # rollout cells -> map cells
+    between = np.zeros((n, n))
+    for a in range(n):
+        cost, _ = dijkstra(passable, cells[a])
+        for b in range(n):
+            between[a, b] = cost[cells[b]] * scale
+    between = np.minimum(between, between.T)  # symmetric; unreachable pairs stay large
+    big = 10 * (np.nanmax(np.where(np.isfinite(between), between, 0)) + np.max(robot_costs) + 1)
+    between = np.where(np.isfinite(between), between, big)
+    size = n + 2  # goals, the robot (n), a dummy (n + 1) tied to the robot only
+    matrix = np.zeros((size, size))
+    matrix[:n, :n] = between
+    matrix[n, :n] = matrix[:n, n] = robot_costs
+    matrix[n + 1, :n] = matrix[:n, n + 1] = big
+    tour = fast_tsp.find_tour(np.rint(matrix).astype(int).tolist())
+    at = tour.index(n)
+    after, before = tour[(at + 1) % size], tour[(at - 1) % size]
+    return int(before if after == n + 1 else after)
+
+
+def descend(travel_cost: np.ndarray, goal_rc) -> list[tuple[int, int]]:
+    """The least-cost path from the robot (cost 0) to ``goal_rc`` down a Dijkstra cost-to-go field.
+
+    Args:
+        travel_cost: float64 ``[H, W]`` cost-to-go from the robot, ``inf`` where unreachable.
+        goal_rc: a cell of finite cost.
+
+    Returns:
+        Cells from the robot's to the goal's, 8-connected; each step goes to the neighbour of least cost.
+    """
+    r, c = int(goal_rc[0]), int(goal_rc[1])
+    if not np.isfinite(travel_cost[r, c]):
+        raise ValueError(f"goal {(r, c)} is unreachable (infinite travel cost)")
+    path = [(r, c)]
+    n_rows, n_cols = travel_cost.shape
+    while travel_cost[r, c] > 0.0:
+        window = travel_cost[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2]
+        k = int(np.argmin(window))
+        nr, nc = max(r - 1, 0) + k // window.shape[1], max(c - 1, 0) + k % window.shape[1]
+        if travel_cost[nr, nc] >= travel_cost[r, c]:
+            break  # a local minimum other than the robot: cannot happen on a Dijkstra field
+        r, c = nr, nc
+        path.append((r, c))
+    return path[::-1]
+
+
+class SuperexPlanner(Planner):
+    """Pathwise predicted gain per unit of travel (see the module docstring)."""
+
+    name = "superex"
+
+    def __init__(self, cfg: SuperexConfig = SuperexConfig()):
+        self.cfg = cfg
+        self._resolution_m = 0.1
+
+    def keep_goal(self, observed: np.ndarray, pose_rc, goal_rc, steps_since_chosen: int) -> bool:
+        if self.cfg.drop_resolved_m is None:
+            return True
+        radius = int(np.ceil(self.cfg.drop_resolved_m / self._resolution_m))
+        r, c = goal_rc
+        window = observed[max(r - radius, 0):r + radius + 1, max(c - radius, 0):c + radius + 1]
+        return bool(np.any(window == UNKNOWN))
+
+    def gains(self, ctx: PlanningContext, prediction: Prediction, frontiers) -> np.ndarray:
+        """float64 ``[N]`` gain of each frontier (``cfg.gain``): unknown cells predicted visible from its goal
+        cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it."""
+        visibility = VisibilityConfig(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
+                                      hit_threshold=self.cfg.wall_threshold)
+        if self.cfg.gain == "goal":
+            cells = np.array([f.cell_rc for f in frontiers], np.int64)
+            return visible_gains(prediction, ctx.observed, cells, visibility, ctx.resolution_m)[0].astype(float)
+        unknown = ctx.observed == UNKNOWN
+        every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
+        gains = np.zeros(len(frontiers))
+        seen_from: dict = {}  # paths share their first cells: cast once per viewpoint
+        for i, frontier in enumerate(frontiers):
+            path = descend(ctx.travel_cost, frontier.cell_rc)
+            seen = np.zeros(ctx.observed.shape, bool)
+            for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]:
+                cell = path[k]
+                if cell not in seen_from:
+                    seen_from[cell] = predicted_visibility(prediction.mean, cell, visibility, ctx.resolution_m)
+                seen |= seen_from[cell]
+            gains[i] = np.count_nonzero(seen & unknown)
+        return gains
+
+    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+        self._resolution_m = float(ctx.resolution_m)
+        frontiers, costs = reachable_frontiers(ctx)
+        if not frontiers:
+            return None
+        prediction = ctx.predict()
+        gains = self.gains(ctx, prediction, frontiers)
+        ratio = gains / np.maximum(costs, 1.0)
+        order = sorted(range(len(frontiers)), key=lambda i: (-ratio[i], costs[i], frontiers[i].cell_rc))
+        if self.cfg.choice == "greedy" or len(frontiers) == 1:
+            return frontiers[order[0]].cell_rc
+        world = rollout_world(ctx.observed, prediction, ctx.resolution_m, self.cfg.rollout_cell_m,
+                              self.cfg.wall_threshold)
+        if self.cfg.choice == "tour":
+            useful = [i for i in range(len(frontiers)) if gains[i] > 0] or list(range(len(frontiers)))
+            near = sorted(useful, key=lambda i: (costs[i], frontiers[i].cell_rc))[:self.cfg.tour_frontiers]
+            first = tour_first(world, [frontiers[i].cell_rc for i in near], costs[near])
+            return frontiers[near[first]].cell_rc
+        shortlist = order[:self.cfg.candidates]
+        start = world.cell(ctx.pose_rc)
+        values = []
+        for i in shortlist:
+            path = descend(ctx.travel_cost, frontiers[i].cell_rc)
+            coarse = [world.cell(cell) for cell in path]
+            keep = [0] + [k for k in range(1, len(coarse)) if coarse[k] != coarse[k - 1]]
+            leg = ([coarse[k] for k in keep], np.array([ctx.travel_cost[path[k]] for k in keep]) / world.factor)
+            values.append(rollout_value(world, start, world.cell(frontiers[i].cell_rc), self.cfg, leg))
+        # The greedy choice wins ties (it is first in the shortlist).
+        return frontiers[shortlist[int(np.argmax(values))]].cell_rc

@@ -1,0 +1,292 @@
+"""Predicted visibility and the frontier helpers that every planner shares.
+
+The **predicted visibility** of a viewpoint (MapEx's ``get_vis_mask`` in ``probabilistic``
+mode): rays are cast on the predicted mean wall probability and stop at the first cell that blocks them; the
+visible region is the polygon through the rays' end points, filled. MapEx rasterises that polygon's outline
+(grown by one cell) and flood-fills inside it from the viewpoint; we fill the polygon by scanlines
+(:func:`_fill_visibility`): a cell is visible when its centre lies inside, with no outline to leak through and
+no seed to re-pick, at a cost proportional to the visible area. A cell blocks a ray when its own
+probability reaches the hit threshold (0.8): that is what MapEx's ``get_free_points(use_prob=True)`` computes,
+since it resets its "accumulated" probability at every cell. The accumulated rule that MapEx's paper describes,
+``1 - prod(1 - p_i) >= threshold``, is available as ``VisibilityConfig(accumulate=True)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from superex_deploy.explore.types import UNKNOWN, Frontier, PlanningContext, Prediction
+from superex_deploy.geometry import _dda_start
+
+__all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "connected_unknown_gains",
+           "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
+
+
+@dataclass(frozen=True)
+class VisibilityConfig:
+    """Predicted-visibility raycast (MapEx ``pred_vis_configs`` and ``hit_prob_threshold``).
+
+    Attributes:
+        n_rays: rays over a full turn from each viewpoint (MapEx: 250).
+        range_m: ray range in metres (MapEx: 20).
+        hit_threshold: probability at which a cell blocks a ray (MapEx: 0.8), in (0, 1].
+        accumulate: False: a cell blocks when its own wall probability reaches the threshold (MapEx as run).
+            True: when the accumulated blocking probability ``1 - prod(1 - p_i)`` along the ray, the viewpoint's
+            cell included, reaches it (MapEx as described in its paper).
+    """
+
+    n_rays: int = 250
+    range_m: float = 20.0
+    hit_threshold: float = 0.8
+    accumulate: bool = False
+
+    def __post_init__(self) -> None:
+        if int(self.n_rays) != self.n_rays or self.n_rays < 3:
+            raise ValueError(f"n_rays must be an integer >= 3, got {self.n_rays}")
+        if not (np.isfinite(self.range_m) and self.range_m > 0):
+            raise ValueError(f"range_m must be positive and finite, got {self.range_m}")
+        if not 0.0 < self.hit_threshold <= 1.0:
+            raise ValueError(f"hit_threshold must lie in (0, 1], got {self.hit_threshold}")
+
+
+@numba.njit(cache=True)
+def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, ranges):
+    """Visible range (cells) of ray ``k`` at angle ``2 pi k / n_rays``: to the centre of the first blocking cell
+    (entry + 0.5 cells), to ``max_t``, or to the grid border, whichever comes first. All zero when the
+    viewpoint's own cell blocks (MapEx: nothing is visible from inside a wall)."""
+    n_rows, n_cols = mean.shape
+    own = mean[int(np.floor(y0)), int(np.floor(x0))]
+    if own >= hit_threshold:
+        ranges[:] = 0.0
+        return
+    for k in range(n_rays):
+        angle = 2.0 * np.pi * k / n_rays
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+            y0, x0, np.sin(angle), np.cos(angle))
+        transmittance = 1.0 - own
+        reach = max_t
+        while True:
+            if t_next_c <= t_next_r:
+                t = t_next_c
+                c += step_c
+                t_next_c += t_delta_c
+            else:
+                t = t_next_r
+                r += step_r
+                t_next_r += t_delta_r
+            if t >= max_t:
+                break
+            if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
+                reach = t
+                break
+            p = mean[r, c]
+            if accumulate:
+                transmittance *= 1.0 - p
+                blocked = 1.0 - transmittance >= hit_threshold
+            else:
+                blocked = p >= hit_threshold
+            if blocked:
+                reach = min(t + 0.5, max_t)
+                break
+        ranges[k] = reach
+
+
+@numba.njit(cache=True)
+def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask):
+    """Cells whose centre lies inside the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 +
+    ranges[k] cos a_k)``, ``a_k = 2 pi k / n``, by scanline fill: each row's centre line crosses the polygon's
+    edges (half-open in y, so a vertex on the line counts once) and the cells whose centres lie between
+    crossings ``2j`` and ``2j + 1`` are inside. The work is the edges' row spans plus the visible cells.
+
+    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
+    is UNKNOWN (-1) and the sum of their ``variance``. Nothing is visible when every range is zero."""
+    n_rays = ranges.shape[0]
+    n_rows, n_cols = observed.shape
+    if ranges.max() <= 0.0:
+        return 0, 0.0
+    step = 2.0 * np.pi / n_rays
+    vert_y = np.empty(n_rays)
+    vert_x = np.empty(n_rays)
+    for k in range(n_rays):
+        vert_y[k] = y0 + ranges[k] * np.sin(step * k)
+        vert_x[k] = x0 + ranges[k] * np.cos(step * k)
+    # Row r is scanned along y = r + 0.5; an edge meets it when min(y) <= r + 0.5 < max(y).
+    row_lo = max(0, int(np.ceil(vert_y.min() - 0.5)))
+    row_hi = min(n_rows - 1, int(np.ceil(vert_y.max() - 0.5)) - 1)
+    if row_hi < row_lo:
+        return 0, 0.0
+    n_scan = row_hi - row_lo + 1
+    offsets = np.zeros(n_scan + 1, np.int64)
+    for k in range(n_rays):
+        k1 = (k + 1) % n_rays
+        first = max(row_lo, int(np.ceil(min(vert_y[k], vert_y[k1]) - 0.5)))
+        last = min(row_hi, int(np.ceil(max(vert_y[k], vert_y[k1]) - 0.5)) - 1)
+        for r in range(first, last + 1):
+            offsets[r - row_lo + 1] += 1
+    for i in range(n_scan):
+        offsets[i + 1] += offsets[i]
+    crossings = np.empty(offsets[n_scan])
+    filled = offsets[:n_scan].copy()
+    for k in range(n_rays):
+        k1 = (k + 1) % n_rays
+        first = max(row_lo, int(np.ceil(min(vert_y[k], vert_y[k1]) - 0.5)))
+        last = min(row_hi, int(np.ceil(max(vert_y[k], vert_y[k1]) - 0.5)) - 1)
+        for r in range(first, last + 1):
+            fraction = (r + 0.5 - vert_y[k]) / (vert_y[k1] - vert_y[k])
+            crossings[filled[r - row_lo]] = vert_x[k] + fraction * (vert_x[k1] - vert_x[k])
+            filled[r - row_lo] += 1
+    count = 0
+    var_sum = 0.0
+    for i in range(n_scan):
+        r = row_lo + i
+        lo, hi = offsets[i], offsets[i + 1]
+        for a in range(lo + 1, hi):  # insertion sort: a row crosses few edges
+            x = crossings[a]
+            b = a - 1
+            while b >= lo and crossings[b] > x:
+                crossings[b + 1] = crossings[b]
+                b -= 1
+            crossings[b + 1] = x
+        for j in range(lo, hi - 1, 2):
+            c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
+            c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+            for c in range(c_first, c_last + 1):
+                if write_mask:
+                    visible_out[r, c] = True
+                if observed[r, c] == -1:
+                    count += 1
+                    var_sum += variance[r, c]
+    return count, var_sum
+
+
+def check_map(name: str, array, dtype, shape=None) -> np.ndarray:
+    if not isinstance(array, np.ndarray) or array.dtype != dtype or array.ndim != 2 or min(array.shape) < 1:
+        found = f"{array.dtype} {array.shape}" if isinstance(array, np.ndarray) else type(array).__name__
+        raise ValueError(f"{name} must be a non-empty {np.dtype(dtype).name} [H, W] array, got {found}")
+    if shape is not None and array.shape != tuple(shape):
+        raise ValueError(f"{name} has shape {array.shape}, expected {tuple(shape)}")
+    return np.ascontiguousarray(array)
+
+
+def check_cells(cells_rc, shape) -> np.ndarray:
+    cells = np.asarray(cells_rc, dtype=np.int64).reshape(-1, 2)
+    outside = (cells[:, 0] < 0) | (cells[:, 0] >= shape[0]) | (cells[:, 1] < 0) | (cells[:, 1] >= shape[1])
+    if outside.any():
+        raise ValueError(f"cell {tuple(int(v) for v in cells[np.argmax(outside)])} lies outside the map of "
+                         f"shape {tuple(shape)}")
+    return cells
+
+
+def _max_range_cells(cfg: VisibilityConfig, resolution_m: float) -> float:
+    if not (np.isfinite(resolution_m) and resolution_m > 0):
+        raise ValueError(f"resolution_m must be positive and finite, got {resolution_m}")
+    return cfg.range_m / float(resolution_m)
+
+
+def visible_ranges(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
+    """Per-ray visible range from the centre of a cell on the predicted mean map.
+
+    Args:
+        mean: float32 ``[H, W]`` predicted wall probability.
+        cell_rc: viewpoint cell (row, col).
+        cfg: ray count, range, hit rule.
+        resolution_m: metres per cell.
+
+    Returns:
+        float64 ``[cfg.n_rays]`` ranges in cells; ray ``k`` points at angle ``2 pi k / n_rays`` (geometry's
+        convention: 0 along +col, pi/2 along +row).
+    """
+    mean = check_map("mean", mean, np.float32)
+    (r, c), = check_cells([cell_rc], mean.shape)
+    ranges = np.empty(cfg.n_rays, np.float64)
+    _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, _max_range_cells(cfg, resolution_m), cfg.hit_threshold,
+                        cfg.accumulate, ranges)
+    return ranges
+
+
+def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
+    """Region predicted visible from a cell: the filled polygon of :func:`visible_ranges`.
+
+    Returns:
+        bool ``[H, W]`` visible cells (empty when the viewpoint's own cell blocks).
+    """
+    ranges = visible_ranges(mean, cell_rc, cfg, resolution_m)
+    r, c = int(cell_rc[0]), int(cell_rc[1])
+    visible = np.zeros(mean.shape, bool)
+    _fill_visibility(ranges, r + 0.5, c + 0.5, np.zeros(mean.shape, np.int8), np.zeros(mean.shape, np.float32),
+                     visible, True)
+    return visible
+
+
+def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
+                  resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Information of viewpoints: the currently unknown cells predicted visible from each.
+
+    Args:
+        prediction: float32 ``[H, W]`` mean and variance.
+        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
+        cells_rc: ``[N, 2]`` viewpoint cells (row, col).
+        cfg, resolution_m: as in :func:`visible_ranges`.
+
+    Returns:
+        ``(unknown_count int64 [N], variance_sum float64 [N])`` over the visible unknown cells.
+    """
+    mean = check_map("prediction.mean", prediction.mean, np.float32)
+    variance = check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
+    observed = check_map("observed", observed, np.int8, mean.shape)
+    cells = check_cells(cells_rc, mean.shape)
+    counts = np.zeros(len(cells), np.int64)
+    var_sums = np.zeros(len(cells), np.float64)
+    ranges = np.empty(cfg.n_rays, np.float64)
+    no_mask = np.zeros((1, 1), bool)
+    max_t = _max_range_cells(cfg, resolution_m)
+    for i, (r, c) in enumerate(cells):
+        _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate, ranges)
+        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False)
+    return counts, var_sums
+
+
+def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,
+                            wall_threshold: float = 0.5) -> np.ndarray:
+    """Unknown cells in the predicted-free region 4-connected to each cell (MapEx ``hectoraug`` as coded).
+
+    The prediction is binarised (a wall where ``mean > wall_threshold``; MapEx: its visualised prediction above
+    128 of 255) and each cell's 4-connected non-wall component is taken whole, with no ray range.
+
+    Args:
+        mean: float32 ``[H, W]`` predicted wall probability.
+        observed: int8 ``[H, W]`` observed map.
+        cells_rc: ``[N, 2]`` cells (row, col).
+        wall_threshold: binarisation threshold.
+
+    Returns:
+        int64 ``[N]``; 0 for a cell predicted to be a wall.
+    """
+    mean = check_map("mean", mean, np.float32)
+    observed = check_map("observed", observed, np.int8, mean.shape)
+    cells = check_cells(cells_rc, mean.shape)
+    labels, n_labels = ndimage.label(mean <= wall_threshold)
+    unknown_per_label = np.bincount(labels[observed == UNKNOWN], minlength=n_labels + 1)
+    unknown_per_label[0] = 0
+    return unknown_per_label[labels[cells[:, 0], cells[:, 1]]].astype(np.int64)
+
+
+def reachable_frontiers(ctx: PlanningContext) -> tuple[list[Frontier], np.ndarray]:
+    """The frontiers of finite travel cost and those costs (float64 ``[N]``)."""
+    frontiers, costs = [], []
+    for frontier in ctx.frontiers:
+        cost = float(ctx.travel_cost[frontier.cell_rc])
+        if np.isfinite(cost):
+            frontiers.append(frontier)
+            costs.append(cost)
+    return frontiers, np.asarray(costs, np.float64)
+
+
+def best_frontier(values: np.ndarray, costs: np.ndarray, frontiers: list[Frontier]) -> tuple[int, int]:
+    """Cell of the frontier with the least value; ties to the lower travel cost, then the lower cell."""
+    best = min(range(len(frontiers)), key=lambda i: (values[i], costs[i], frontiers[i].cell_rc))
+    return frontiers[best].cell_rc

@@ -1,0 +1,89 @@
+"""The paper benchmark's metrics, intervals and pairing, on hand-built episode logs; its command end to end."""
+
+import json
+
+import numpy as np
+import pytest
+
+from superex_deploy.cli import main
+from superex_deploy.explore.prediction import EvidenceAsPrediction
+from superex_deploy.explore.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
+
+
+def _episode(coverage, carved=None, iou=((0, 0.0, 0.0),), start=0, name="m"):
+    steps, values, covs = zip(*iou)
+    return {"map": name, "start_index": start, "coverage": list(coverage),
+            "coverage_with_carving": list(carved if carved is not None else coverage),
+            "iou": {"steps": list(steps), "iou": list(values), "coverage": list(covs)}}
+
+
+def test_scenario_metrics_on_a_hand_built_log():
+    # Linear growth to 0.5 over 10 steps, then the episode ends (it keeps its final coverage).
+    coverage = np.linspace(0.05, 0.5, 10)
+    iou = [(0, 0.1, 0.04), (3, 0.2, 0.08), (5, 0.3, 0.12), (7, 0.4, 0.25), (9, 0.5, 0.5)]
+    m = scenario_metrics(_episode(coverage, iou=iou), steps=20)
+    assert m["auc_first_half"] == pytest.approx(np.mean(coverage))
+    assert m["auc"] == pytest.approx((coverage.sum() + 10 * 0.5) / 20)
+    assert m["los_auc"] == m["auc"]
+    assert m["iou@0.05"] == 0.2 and m["iou@0.10"] == 0.3 and m["iou@0.20"] == 0.4 and m["iou@0.30"] == 0.5
+    assert m["iou_bin_0.0_0.1"] == pytest.approx(0.15) and m["iou_bin_0.1_0.2"] == 0.3
+    assert m["iou_bin_0.2_0.3"] == 0.4 and m["final_iou"] == 0.5
+    assert "coverage@100" not in m  # beyond the horizon
+    never = scenario_metrics(_episode([0.01, 0.02], iou=[(0, 0.1, 0.01)]), steps=4)
+    assert np.isnan(never["iou@0.05"]) and np.isnan(never["iou_bin_0.1_0.2"])
+    carved = scenario_metrics(_episode([0.1, 0.2], carved=[0.2, 0.3]), steps=2)
+    assert carved["auc"] == pytest.approx(0.25) and carved["los_auc"] == pytest.approx(0.15)
+
+
+def test_bootstrap_interval_brackets_the_mean_and_narrows_with_more_data():
+    rng = np.random.default_rng(0)
+    small, large = rng.normal(1.0, 1.0, 20), rng.normal(1.0, 1.0, 2000)
+    for values in (small, large):
+        low, high = bootstrap_interval(values)
+        assert low < values.mean() < high
+    assert np.diff(bootstrap_interval(large)) < np.diff(bootstrap_interval(small))
+    assert bootstrap_interval([2.0, 2.0, 2.0]) == (2.0, 2.0)
+    assert all(np.isnan(bootstrap_interval([np.nan])))
+
+
+def test_paired_summary_pairs_by_scenario_and_counts_better_and_worse():
+    reference = [_episode([0.1] * 4, start=k) for k in range(3)]
+    candidate = [_episode([0.2] * 4, start=0), _episode([0.1] * 4, start=1), _episode([0.05] * 4, start=2)]
+    paired = paired_summary(reference, candidate[::-1], steps=4)["auc"]  # order does not matter
+    assert paired["mean"] == pytest.approx(0.05 / 3) and paired["n"] == 3
+    assert (paired["better"], paired["worse"], paired["tied"]) == (1, 1, 1)
+    assert paired["ratio"] == pytest.approx(0.35 / 0.3 - 1)
+    with pytest.raises(ValueError, match="different scenarios"):
+        paired_summary(reference, candidate[:2], steps=4)
+
+
+def test_the_evidence_predictor_reads_the_evidence_only_on_unknown_cells():
+    observed = np.array([[-1, 0], [1, -1]], np.int8)
+    evidence = np.array([[0.7, 0.9], [0.1, np.nan]], np.float32)
+    mean = EvidenceAsPrediction().predict(observed, evidence).mean
+    np.testing.assert_array_equal(mean, np.array([[0.7, 0.0], [1.0, 0.0]], np.float32))
+    assert np.array_equal(EvidenceAsPrediction().predict(observed).mean, np.array([[0, 0], [1, 0]], np.float32))
+    with pytest.raises(ValueError, match="evidence must be a float"):
+        EvidenceAsPrediction().predict(observed, np.zeros((3, 3), np.float32))
+
+
+def test_paper_suite_runs_rows_resumes_and_refuses_other_settings(tmp_path, capsys):
+    out = tmp_path / "paper"
+    argv = ["benchmark", "--suite", "paper", "--rows", "nearest,superex_oracle", "--maps", "50052750",
+            "--steps", "40", "--jobs", "1", "--out", str(out)]
+    assert main(argv) == 0
+    rows = json.loads((out / "rows" / "superex_oracle.json").read_text())
+    assert rows["row"] == "superex_oracle" and len(rows["episodes"]) == 4
+    assert all(e["planner"] == "superex" and e["predictor"] == "oracle" for e in rows["episodes"])
+    assert (out / "results.md").is_file() and (out / "coverage.png").is_file()
+    assert (out / "iou_vs_coverage.png").is_file()
+    summary = json.loads((out / "results.json").read_text())["summary"]
+    assert set(summary) == {"nearest", "superex_oracle"}
+    capsys.readouterr()
+    assert main(argv) == 0  # resumes: both rows are there already
+    assert capsys.readouterr().out.count("done already") == 2
+    assert main(argv[:8] + ["30"] + argv[9:]) == 2  # the same folder with other settings
+    assert "other settings" in capsys.readouterr().err
+    assert main(argv[:4] + ["nearest,frontier"] + argv[5:]) == 2
+    assert "unknown row(s) ['frontier']" in capsys.readouterr().err
+    assert set(PAPER_ROWS) >= {"mapex_lama_los", "superex", "no_lama", "no_pix2pix", "superex_oracle"}
