@@ -7,7 +7,7 @@ from superex_deploy.explore.planners import (
     VisibilityConfig, _grow_rrt, connected_unknown_gains, grow_rrt, make_planner, predicted_visibility,
     visible_gains, visible_ranges)
 from superex_deploy.explore.prediction import OraclePredictor
-from superex_deploy.explore.visibility import _fill_visibility, _ray_visible_ranges
+from superex_deploy.explore.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges, union_visible_unknown
 from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_fill_visibility, naive_grow_rrt, naive_visible_ranges
@@ -89,7 +89,8 @@ def test_probabilistic_ray_stops_at_the_hit_threshold():
 def _fill(ranges, observed, variance=None):
     variance = np.ones(observed.shape, np.float32) if variance is None else variance
     visible = np.zeros(observed.shape, bool)
-    count, var_sum = _fill_visibility(np.asarray(ranges, float), 5.5, 5.5, observed, variance, visible, True)
+    count, var_sum = _fill_visibility(np.asarray(ranges, float), 5.5, 5.5, observed, variance, visible, True,
+                                      _NO_STAMP, -1)
     return visible, count, var_sum
 
 
@@ -145,12 +146,13 @@ def test_visibility_kernels_match_naive_on_random_maps(accumulate):
         np.testing.assert_allclose(ranges, naive_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate),
                                    atol=1e-9)
         visible = np.zeros(shape, bool)
-        count, var_sum = _fill_visibility(ranges, y0, x0, observed, variance, visible, True)
+        count, var_sum = _fill_visibility(ranges, y0, x0, observed, variance, visible, True, _NO_STAMP, -1)
         ref_visible, ref_count, ref_var = naive_fill_visibility(ranges, y0, x0, observed, variance)
         np.testing.assert_array_equal(visible, ref_visible)
         assert count == ref_count and var_sum == pytest.approx(ref_var, rel=1e-6)
         # Counting without the mask gives the same numbers.
-        assert _fill_visibility(ranges, y0, x0, observed, variance, np.zeros((1, 1), bool), False) == (
+        no_mask = np.zeros((1, 1), bool)
+        assert _fill_visibility(ranges, y0, x0, observed, variance, no_mask, False, _NO_STAMP, -1) == (
             count, pytest.approx(var_sum))
 
 
@@ -337,7 +339,8 @@ def test_registry_and_bad_inputs():
     assert set(PLANNERS) == {"nearest", "hector", "upen", "mapex", "superex"}
     assert all(make_planner(name).name == name for name in PLANNERS)
     assert make_planner("upen", rrt_samples=10).cfg.rrt_samples == 10
-    with pytest.raises(ValueError, match="unknown planner 'frontier'; choose one of hector, mapex, nearest, superex, upen"):
+    with pytest.raises(ValueError,
+                       match="unknown planner 'frontier'; choose one of hector, mapex, nearest, superex, upen"):
         make_planner("frontier")
     with pytest.raises(ValueError, match="bad configuration"):
         make_planner("mapex", no_such_field=1)
@@ -357,3 +360,20 @@ def test_registry_and_bad_inputs():
                       VisibilityConfig(), 0.1)
     with pytest.raises(ValueError, match="observed has shape"):
         connected_unknown_gains(mean, np.zeros((4, 5), np.int8), [(0, 0)])
+
+
+def test_union_of_views_counts_each_unknown_cell_once_per_group():
+    rng = np.random.default_rng(11)
+    mean = (rng.random((40, 50)) < 0.08).astype(np.float32)
+    observed = rng.integers(-1, 2, size=(40, 50)).astype(np.int8)
+    cfg = VisibilityConfig(n_rays=64, range_m=1.5)
+    groups = [[(5, 5), (20, 25), (5, 5)], [(30, 40)], [], [(20, 25), (35, 10)]]
+    counts = union_visible_unknown(mean, observed, groups, cfg, 0.1)
+    for group, count in zip(groups, counts):
+        seen = np.zeros(mean.shape, bool)
+        for cell in group:
+            seen |= predicted_visibility(mean, cell, cfg, 0.1)
+        assert count == np.count_nonzero(seen & (observed == UNKNOWN))
+    assert counts[2] == 0
+    with pytest.raises(ValueError, match="outside the map"):
+        union_visible_unknown(mean, observed, [[(40, 0)]], cfg, 0.1)

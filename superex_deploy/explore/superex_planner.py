@@ -31,7 +31,7 @@ import numpy as np
 from superex_deploy.explore.frontiers import find_frontiers
 from superex_deploy.explore.motion import dijkstra
 from superex_deploy.explore.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
-                                               visible_gains)
+                                               union_visible_unknown, visible_gains)
 from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
@@ -319,20 +319,13 @@ class SuperexPlanner(Planner):
         if self.cfg.gain == "goal":
             cells = np.array([f.cell_rc for f in frontiers], np.int64)
             return visible_gains(prediction, ctx.observed, cells, visibility, ctx.resolution_m)[0].astype(float)
-        unknown = ctx.observed == UNKNOWN
         every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
-        gains = np.zeros(len(frontiers))
-        seen_from: dict = {}  # paths share their first cells: cast once per viewpoint
-        for i, frontier in enumerate(frontiers):
+        viewpoints = []
+        for frontier in frontiers:
             path = descend(ctx.travel_cost, frontier.cell_rc)
-            seen = np.zeros(ctx.observed.shape, bool)
-            for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]:
-                cell = path[k]
-                if cell not in seen_from:
-                    seen_from[cell] = predicted_visibility(prediction.mean, cell, visibility, ctx.resolution_m)
-                seen |= seen_from[cell]
-            gains[i] = np.count_nonzero(seen & unknown)
-        return gains
+            viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
+        return union_visible_unknown(prediction.mean, ctx.observed, viewpoints, visibility,
+                                     ctx.resolution_m).astype(float)
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         self._resolution_m = float(ctx.resolution_m)

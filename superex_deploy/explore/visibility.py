@@ -22,8 +22,12 @@ from scipy import ndimage
 from superex_deploy.explore.types import UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.geometry import _dda_start
 
-__all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "connected_unknown_gains",
+__all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
+           "connected_unknown_gains",
            "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
+
+
+_NO_STAMP = np.zeros((1, 1), np.int32)  # the stamp of calls that count every visible unknown cell
 
 
 @dataclass(frozen=True)
@@ -96,14 +100,16 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, 
 
 
 @numba.njit(cache=True)
-def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask):
+def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
     """Cells whose centre lies inside the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 +
     ranges[k] cos a_k)``, ``a_k = 2 pi k / n``, by scanline fill: each row's centre line crosses the polygon's
     edges (half-open in y, so a vertex on the line counts once) and the cells whose centres lie between
     crossings ``2j`` and ``2j + 1`` are inside. The work is the edges' row spans plus the visible cells.
 
     Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
-    is UNKNOWN (-1) and the sum of their ``variance``. Nothing is visible when every range is zero."""
+    is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
+    ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
+    one label count the union of their views. Nothing is visible when every range is zero."""
     n_rays = ranges.shape[0]
     n_rows, n_cols = observed.shape
     if ranges.max() <= 0.0:
@@ -158,6 +164,10 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
                 if write_mask:
                     visible_out[r, c] = True
                 if observed[r, c] == -1:
+                    if label >= 0:
+                        if stamp[r, c] == label:
+                            continue
+                        stamp[r, c] = label
                     count += 1
                     var_sum += variance[r, c]
     return count, var_sum
@@ -218,7 +228,7 @@ def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resol
     r, c = int(cell_rc[0]), int(cell_rc[1])
     visible = np.zeros(mean.shape, bool)
     _fill_visibility(ranges, r + 0.5, c + 0.5, np.zeros(mean.shape, np.int8), np.zeros(mean.shape, np.float32),
-                     visible, True)
+                     visible, True, _NO_STAMP, -1)
     return visible
 
 
@@ -246,8 +256,44 @@ def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: V
     max_t = _max_range_cells(cfg, resolution_m)
     for i, (r, c) in enumerate(cells):
         _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate, ranges)
-        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False)
+        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False,
+                                                  _NO_STAMP, -1)
     return counts, var_sums
+
+
+def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: list, cfg: VisibilityConfig,
+                          resolution_m: float) -> np.ndarray:
+    """For each group of viewpoints, the unknown cells predicted visible from at least one of them.
+
+    Args:
+        mean: float32 ``[H, W]`` predicted wall probability.
+        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
+        viewpoints: ``N`` lists of viewpoint cells (row, col); a cell shared by several groups is cast once.
+        cfg, resolution_m: as in :func:`visible_ranges`.
+
+    Returns:
+        int64 ``[N]``: the size of the union of each group's visible unknown cells (0 for an empty group).
+    """
+    mean = check_map("mean", mean, np.float32)
+    observed = check_map("observed", observed, np.int8, mean.shape)
+    max_t = _max_range_cells(cfg, resolution_m)
+    stamp = np.full(mean.shape, -1, np.int32)
+    no_variance = np.zeros(mean.shape, np.float32)
+    no_mask = np.zeros((1, 1), bool)
+    cast: dict = {}
+    out = np.zeros(len(viewpoints), np.int64)
+    for label, group in enumerate(viewpoints):
+        for (r, c) in check_cells(group, mean.shape) if len(group) else ():
+            key = (int(r), int(c))
+            if key not in cast:
+                ranges = np.empty(cfg.n_rays, np.float64)
+                _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
+                                    ranges)
+                cast[key] = ranges
+            count, _ = _fill_visibility(cast[key], r + 0.5, c + 0.5, observed, no_variance,
+                                        no_mask, False, stamp, label)
+            out[label] += count
+    return out
 
 
 def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,
