@@ -27,13 +27,14 @@ from superex_deploy.parallel import process_pool
 
 IDEAS = {
     "mapex": ("mapex", {}),
-    "superex (pathwise gain, greedy)": ("superex", {}),
-    "superex, MapEx's gain (goal view only)": ("superex", {"gain": "goal"}),
-    "superex, pathwise + rollouts": ("superex", {"choice": "rollout"}),
-    "superex, pathwise + drop resolved goals": ("superex", {"drop_resolved_m": 0.3}),
-    "superex, pathwise + tour (fast-tsp)": ("superex", {"choice": "tour"}),
+    "superex": ("superex", {}),
+    "superex_goal_gain": ("superex", {"gain": "goal"}),
+    "superex_rollout": ("superex", {"choice": "rollout"}),
+    "superex_drop_resolved": ("superex", {"drop_resolved_m": 0.3}),
+    "superex_tour": ("superex", {"choice": "tour"}),
 }
-"""Name -> (planner, config overrides)."""
+"""Name -> (planner, config overrides): MapEx; the superex planner as it ships (pathwise gain, greedy); with
+MapEx's gain (the goal's view only); with rollouts; re-choosing once the goal's frontier is resolved; with tours."""
 
 BASELINE = ("mapex", "observed")
 

@@ -191,12 +191,8 @@ def save_suite_plots(out_dir: Path, rows: dict, steps: int) -> None:
         line, = ax.plot(x, 100 * curves.mean(axis=0), label=f"{name} ({len(episodes)})", lw=1.2)
         ax.fill_between(x, 100 * np.quantile(means, 0.025, axis=0), 100 * np.quantile(means, 0.975, axis=0),
                         color=line.get_color(), alpha=0.15, lw=0)
-    ax.set_xlabel("step (0.3 m each)")
-    ax.set_ylabel("coverage of the valid area, % (carving included)")
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(Path(out_dir) / "coverage.png", dpi=100)
-    plt.close(fig)
+    _finish(plt, fig, ax, "step (0.3 m each)", "coverage of the valid area, % (carving included)",
+            Path(out_dir) / "coverage.png")
     fig, ax = plt.subplots(figsize=(8, 5.5))
     edges = np.arange(0.0, 0.65, 0.05)
     centres = 0.5 * (edges[:-1] + edges[1:])
@@ -216,9 +212,14 @@ def save_suite_plots(out_dir: Path, rows: dict, steps: int) -> None:
         line, = ax.plot(100 * centres[keep], mean, marker="o", ms=3, lw=1.2, label=name)
         ax.fill_between(100 * centres[keep], interval[:, 0], interval[:, 1], color=line.get_color(), alpha=0.15,
                         lw=0)
-    ax.set_xlabel("coverage, % (carving included)")
-    ax.set_ylabel("wall IoU of the predicted map")
+    _finish(plt, fig, ax, "coverage, % (carving included)", "wall IoU of the predicted map",
+            Path(out_dir) / "iou_vs_coverage.png")
+
+
+def _finish(plt, fig, ax, xlabel: str, ylabel: str, path: Path) -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(Path(out_dir) / "iou_vs_coverage.png", dpi=100)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
