@@ -246,3 +246,22 @@ def test_goal_tiers_skip_visited_goals_and_fall_back_on_close_ones():
     offered.clear()
     assert _choose(offer, observed, frontiers, 3, not_free, pose, 10.0, {(9, 36), (10, 2)}) == (None, 0.0)
     assert _near_visited((3, 3), {(4, 4)}) and not _near_visited((3, 3), {(5, 4)})
+
+
+def test_iou_is_evaluated_densely_only_below_the_coverage_threshold():
+    grid = load_map("50052750")
+    start = start_poses("50052750")[0]
+    dense = run_episode(grid, start, _Closest(), _CountingPredictor(), steps=45, seed=0,
+                        cfg=ExplorationConfig(iou_every=2))
+    assert dense.steps == 45 and dense.iou_steps == list(range(0, 45, 2))  # 44: the last step, too
+    # Above the threshold (here from the first step on) only every 10 * iou_every steps, and at the last step.
+    sparse = run_episode(grid, start, _Closest(), _CountingPredictor(), steps=45, seed=0,
+                         cfg=ExplorationConfig(iou_every=2, iou_dense_until=0.0))
+    assert sparse.iou_steps == [0, 20, 40, 44]
+    # Below a threshold the coverage passes at step k, densely up to k and sparsely after.
+    threshold = float(dense.coverage_with_carving[10])
+    mixed = run_episode(grid, start, _Closest(), _CountingPredictor(), steps=45, seed=0,
+                        cfg=ExplorationConfig(iou_every=2, iou_dense_until=threshold))
+    passed = int(np.argmax(dense.coverage_with_carving > threshold))
+    assert [s for s in mixed.iou_steps if s < passed] == list(range(0, passed, 2))
+    assert all(s % 20 == 0 for s in mixed.iou_steps[:-1] if s >= passed)
