@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy.explore.suite import bootstrap_interval
-from superex_deploy.maps import list_maps, load_map, random_start
+from superex_deploy.maps import list_maps, load_map, map_building, random_start
 from superex_deploy.parallel import process_pool
 
 IDEAS = {
@@ -32,16 +32,24 @@ IDEAS = {
     "superex_rollout": ("superex", {"choice": "rollout"}),
     "superex_drop_resolved": ("superex", {"drop_resolved_m": 0.3}),
     "superex_tour": ("superex", {"choice": "tour"}),
+    "superex_wall_0.5": ("superex", {"wall_threshold": 0.5}),
+    "superex_wall_0.8": ("superex", {"wall_threshold": 0.8}),
 }
 """Name -> (planner, config overrides): MapEx; the superex planner as it ships (pathwise gain, greedy); with
 MapEx's gain (the goal's view only); with rollouts; re-choosing once the goal's frontier is resolved; with tours."""
 
 BASELINE = ("mapex", "observed")
+HELDOUT_BUILDINGS = (10, 20, 21, 28, 30)
+"""``superex_train.generate.heldout_buildings()`` (asserted in the tests; the deploy side does not import
+superex_train)."""
 
 
-def scenarios(n_maps: int, starts: int, min_area: int) -> list[tuple[str, tuple[int, int]]]:
-    """(map, start cell) pairs on the train floors (see the module docstring)."""
+def scenarios(n_maps: int, starts: int, min_area: int, heldout: bool = False) -> list[tuple[str, tuple[int, int]]]:
+    """(map, start cell) pairs on the train floors (see the module docstring); ``heldout``: only the floors of
+    the buildings the learned models never trained on (``superex_train.generate.heldout_buildings``)."""
     names = [n for n in list_maps("train") if int(load_map(n).valid.sum()) >= min_area]
+    if heldout:
+        names = [n for n in names if map_building(n) in HELDOUT_BUILDINGS]
     names = names[::max(1, len(names) // n_maps)][:n_maps]
     out = []
     for name in names:
@@ -78,22 +86,30 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--ideas", default="all", help="comma-separated names of IDEAS, or 'all'")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--predictors", default="oracle,observed",
+                        help="predictors each idea runs with (lama_los / lama_bp: use --heldout)")
+    parser.add_argument("--baseline", default="mapex:observed", help="IDEA:PREDICTOR every run is paired with")
+    parser.add_argument("--heldout", action="store_true",
+                        help="only the floors of the buildings held out of the models' training")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     ideas = list(IDEAS) if args.ideas == "all" else [i.strip() for i in args.ideas.split(",")]
     if any(i not in IDEAS for i in ideas):
         raise SystemExit(f"unknown idea(s); choose from {list(IDEAS)}")
-    places = scenarios(args.maps, args.starts, args.min_area)
-    runs = [("mapex", "observed")] + [(i, p) for i in ideas for p in ("oracle", "observed") if (i, p) != BASELINE]
+    places = scenarios(args.maps, args.starts, args.min_area, args.heldout)
+    baseline = tuple(args.baseline.split(":"))
+    predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
+    runs = [baseline] + [(i, p) for i in ideas for p in predictors if (i, p) != baseline]
     tasks = [(name, start, idea, *IDEAS[idea], predictor, args.steps) for idea, predictor in runs
              for name, start in places]
     print(f"{len(places)} scenarios on {len({n for n, _ in places})} train floors, {args.steps} steps, "
           f"{len(tasks)} episodes", flush=True)
     with process_pool(args.jobs) as pool:
         results = list(pool.map(_episode, tasks))
-    base = {(r["map"], tuple(r["start"])): r for r in results if (r["idea"], r["predictor"]) == BASELINE}
+    base = {(r["map"], tuple(r["start"])): r for r in results if (r["idea"], r["predictor"]) == baseline}
     rows = []
-    print("\n| idea | predictor | first-half AUC | vs MapEx observed | paired mean [95 % interval] | better / "
+    print(f"\n| idea | predictor | first-half AUC | vs {baseline[0]} {baseline[1]} | paired mean [95 % interval] "
+          "| better / "
           "worse | AUC whole | scoring ms / goal | goals |\n|---|---|---:|---:|---:|---|---:|---:|---:|")
     for idea, predictor in runs:
         mine = [r for r in results if (r["idea"], r["predictor"]) == (idea, predictor)]

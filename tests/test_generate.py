@@ -114,3 +114,16 @@ def test_lama_generation_checks_the_filter_model(tmp_path):
     with pytest.raises(ValueError, match="missing"):
         generate_lama(tmp_path / "bp", tmp_path / "los", tmp_path / "nope.onnx",
                       GenerationConfig(maps=(SMALL_MAP,), steps=5))
+
+
+def test_the_ceiling_study_uses_the_held_out_buildings_of_the_training_split():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "ceiling_study.py"
+    spec = importlib.util.spec_from_file_location("ceiling_study", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.HELDOUT_BUILDINGS == heldout_buildings()
+    places = module.scenarios(2, 1, 40000, heldout=True)
+    assert len(places) == 2 and all(map_building(name) in heldout_buildings() for name, _ in places)
