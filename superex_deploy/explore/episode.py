@@ -7,15 +7,17 @@ Step ``t`` of an episode, with the robot at cell ``p_t``:
    rebuilt;
 3. **frontiers**: frontier regions of the observed map (regions below ``frontier_min_cells`` are offered
    only when the larger ones give no goal);
-4. **path / scoring / prediction**: a locked goal is kept until it is within ``goal_reached_m`` or its path
-   is blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
-   chooses a new goal from the Dijkstra cost-to-go, calling the predictor lazily (once per step at most);
+4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and*
+   in line of sight on the observed map, see :func:`_reached`), the planner lets it go (``Planner.keep_goal``),
+   or its path is blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise
+   the planner chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers
+   (:func:`_choose`), calling the predictor lazily (once per step at most);
 5. the robot advances ``step_cells`` cells along the path; ``p_{t+1}`` is where it stops.
 
 The log at index ``t`` describes the scan taken at ``p_t``: the pose, the coverage after that scan, and the
 metres driven before it. The episode stops when the step budget is spent or when the planner finds no goal
-(no reachable frontier farther than ``goal_reached_m``); the last logged step is then the one that found
-nothing. Everything is deterministic for a seed; the seed feeds only the planner's random generator.
+in any tier (no reachable frontier left that was not reached before); the last logged step is then the one that
+found nothing. Everything is deterministic for a seed; the seed feeds only the planner's random generator.
 """
 
 from __future__ import annotations
