@@ -37,7 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --suite paper: comma-separated row names, or 'all'")
 
 
-def _episode(task: tuple) -> dict:
+def run_scenario(task: tuple) -> dict:
+    """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings).
+
+    ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
+    config overrides])``; the overrides default to an IoU evaluation every 50 steps."""
     from superex_deploy.commands.explore import make_predictor, make_sensing
     from superex_deploy.explore.episode import ExplorationConfig, run_episode
     from superex_deploy.explore.planners import make_planner
@@ -86,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     args.out.mkdir(parents=True, exist_ok=True)
     with process_pool(args.jobs) as pool:
-        results = list(tqdm(pool.map(_episode, tasks), total=len(tasks), desc="episodes", unit="episode"))
+        results = list(tqdm(pool.map(run_scenario, tasks), total=len(tasks), desc="episodes", unit="episode"))
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)
     (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table,

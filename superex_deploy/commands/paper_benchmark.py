@@ -33,7 +33,7 @@ def _rows(spec: str) -> list[str]:
 def _run_row(name: str, args: argparse.Namespace, maps: list[str]) -> list[dict]:
     from tqdm import tqdm
 
-    from superex_deploy.commands.benchmark import _episode
+    from superex_deploy.commands.benchmark import run_scenario
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import process_pool
 
@@ -41,7 +41,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str]) -> list[dict]
     tasks = [(m, k, pose, row.planner, {}, row.predictor, row.spad, args.steps, args.seed, IOU_SCHEDULE)
              for m in maps for k, pose in enumerate(start_poses(m))]
     with process_pool(args.jobs) as pool:
-        episodes = list(tqdm(pool.map(_episode, tasks), total=len(tasks), desc=name, unit="episode"))
+        episodes = list(tqdm(pool.map(run_scenario, tasks), total=len(tasks), desc=name, unit="episode"))
     for episode in episodes:
         episode["row"] = name
     return episodes
