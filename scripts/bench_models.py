@@ -66,7 +66,7 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
-from superex_deploy.explore.episode import ExplorationConfig, run_episode  # noqa: E402
+from superex_deploy.sim.episode import ExplorationConfig, run_episode  # noqa: E402
 from superex_deploy.explore.planners import make_planner  # noqa: E402
 from superex_deploy.explore.prediction import ObservedAsPrediction  # noqa: E402
 from superex_deploy.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,  # noqa: E402

@@ -34,7 +34,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from superex_deploy.explore.episode import run_episode
+from superex_deploy.sim.episode import run_episode
 from superex_deploy.explore.planners import make_planner
 from superex_deploy.explore.prediction import ObservedAsPrediction
 from superex_deploy.explore.types import UNKNOWN

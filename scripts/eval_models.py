@@ -35,11 +35,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from superex_deploy.explore.episode import EpisodeState, run_episode  # noqa: E402
+from superex_deploy.sim.episode import EpisodeState, run_episode  # noqa: E402
 from superex_deploy.explore.metrics import evaluation_area, map_iou  # noqa: E402
 from superex_deploy.explore.planners import make_planner  # noqa: E402
 from superex_deploy.explore.prediction import ObservedAsPrediction  # noqa: E402
-from superex_deploy.explore.sensing import SpadSensing  # noqa: E402
+from superex_deploy.sim.sensing import SpadSensing  # noqa: E402
 from superex_deploy.explore.types import OCCUPIED, UNKNOWN  # noqa: E402
 from superex_deploy.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
                                       SessionConfig)

@@ -18,6 +18,7 @@ COMMANDS = {
     "scan": "Simulate one SPAD scan on a map and write a figure of it",
     "explore": "Run one exploration episode and write metrics, a final plot and a GIF",
     "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
+    "replay": "Rerun the onboard explorer on a recorded episode (MCAP) and compare its goals",
 }
 
 

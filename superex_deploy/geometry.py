@@ -21,9 +21,14 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "line_of_sight", "cell_centre"]
+__all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
+           "RETURN_TOLERANCE_CELLS"]
 
 NO_HIT = -1
+RETURN_TOLERANCE_CELLS = 1e-6
+"""A measured return marks the cell that holds the point this far (cells) beyond the measured range: a return on a
+cell boundary is the face of the cell behind it (the wall), and a range rounded to float32 (``sensor_msgs/LaserScan``)
+just short of that face still marks the wall (see :func:`mark_ranges`)."""
 
 
 @dataclass(frozen=True)
@@ -231,6 +236,73 @@ def mark_rays(occupied: np.ndarray, origin_yx, angles, max_range_cells: float,
         if not out.flags.c_contiguous or not out.flags.writeable:
             raise ValueError(f"{name} must be C-contiguous and writeable (it is updated in place)")
     _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out)
+
+
+@numba.njit(cache=True)
+def _mark_ranges(y0, x0, angles, ranges, max_t, tolerance, free_out, hit_out):
+    """Mark the cells each ray crosses before its measured return as free and the return's cell as hit.
+
+    ``ranges[i] < 0``: no return, cells entered up to ``max_t`` are free."""
+    n_rows, n_cols = free_out.shape
+    for i in range(angles.shape[0]):
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+            y0, x0, np.sin(angles[i]), np.cos(angles[i]))
+        hit_at = ranges[i] + tolerance if ranges[i] >= 0.0 else -1.0
+        while True:
+            t_exit = min(t_next_c, t_next_r)
+            if hit_at >= 0.0 and t_exit > hit_at:
+                hit_out[r, c] = True
+                break
+            free_out[r, c] = True
+            if t_next_c <= t_next_r:
+                t = t_next_c
+                c += step_c
+                t_next_c += t_delta_c
+            else:
+                t = t_next_r
+                r += step_r
+                t_next_r += t_delta_r
+            if t > max_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
+                break
+
+
+def mark_ranges(origin_yx, angles, ranges_cells, max_range_cells: float, free_out: np.ndarray,
+                hit_out: np.ndarray) -> None:
+    """Line-of-sight update from *measured* ranges: what :func:`mark_rays` does, without the ground truth.
+
+    Along each ray, walked by the same DDA as :func:`mark_rays`, every cell the ray leaves before its return is
+    marked free, and the cell holding the point ``range + RETURN_TOLERANCE_CELLS`` is marked hit. A ray without a
+    return marks every cell it enters up to ``max_range_cells`` free. Given the distances :func:`cast_rays`
+    returns, the result equals :func:`mark_rays` on the grid the rays were cast in, except where a ray crosses
+    its hit cell for less than the tolerance plus the range's rounding (a corner clipped by micrometres).
+
+    Args:
+        origin_yx: sensor position ``(y, x)`` in cells, inside the grid.
+        angles: float ``[N]`` ray angles (radians, grid convention).
+        ranges_cells: float ``[N]`` measured range of each ray (cells, >= 0), ``inf`` for no return.
+        max_range_cells: the sensor's maximum range (cells, > 0).
+        free_out, hit_out: bool ``[H, W]`` C-contiguous, updated in place (set, never cleared).
+
+    Raises:
+        ValueError: an origin outside the grid, non-finite angles, NaN or negative ranges, lengths that differ,
+            bad output arrays.
+    """
+    for name, out in (("free_out", free_out), ("hit_out", hit_out)):
+        if not isinstance(out, np.ndarray) or out.dtype != np.bool_ or out.ndim != 2 or min(out.shape) < 1:
+            raise ValueError(f"{name} must be a non-empty bool [H, W] array")
+        if not out.flags.c_contiguous or not out.flags.writeable:
+            raise ValueError(f"{name} must be C-contiguous and writeable (it is updated in place)")
+    if hit_out.shape != free_out.shape:
+        raise ValueError(f"free_out has shape {free_out.shape} but hit_out has {hit_out.shape}")
+    _, y0, x0 = _check_grid_and_origin(free_out, origin_yx)
+    angles, max_t = _check_angles_and_range(angles, max_range_cells)
+    ranges = np.asarray(ranges_cells, dtype=np.float64)
+    if ranges.shape != angles.shape:
+        raise ValueError(f"ranges_cells has shape {ranges.shape}, the angles {angles.shape}")
+    if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
+        raise ValueError("ranges_cells must be >= 0 (inf for no return), got NaN or a negative range")
+    ranges = np.ascontiguousarray(np.where(np.isfinite(ranges), ranges, -1.0))
+    _mark_ranges(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, free_out, hit_out)
 
 
 def line_of_sight(blocked: np.ndarray, a_rc, b_rc) -> bool:

@@ -1010,6 +1010,8 @@ def nlos_ground_truth(scan: SpadScan) -> np.ndarray:
     """Label image aligned with the BP map: bool ``[H, W]``, True at every cell a three-bounce path with
     non-zero photons reflected from (the ``h2`` cells). Reads the simulator's ground truth."""
     _check_scan(scan)
+    if scan.truth is None:
+        raise ValueError("nlos_ground_truth needs a simulated scan: this scan carries no ground truth")
     truth = np.zeros(scan.grid_shape, bool)
     cells = scan.truth.h2_rc[scan.truth.h2_counts > 0]
     truth[cells[:, 0], cells[:, 1]] = True

@@ -123,7 +123,7 @@ class GifRecorder:
         self._trail: list[tuple[int, int]] = []
 
     def __call__(self, state) -> None:
-        """Record one step (an :class:`~superex_deploy.explore.episode.EpisodeState`; the episode's ``on_step``)."""
+        """Record one step (an :class:`~superex_deploy.sim.episode.EpisodeState`; the episode's ``on_step``)."""
         self._trail.append(state.pose)
         if state.step % self.every:
             return

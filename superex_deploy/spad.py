@@ -343,8 +343,9 @@ class SpadScan:
         resolution_m: grid resolution (metres per cell).
         grid_shape: ``(rows, cols)`` of the map the scan was taken in.
         config: the sensor configuration.
-        truth: simulation-only ground truth.
         stored: the counts as made: :class:`SparseHistograms`, or float32 ``[n_rays, n_bins]``.
+        truth: simulation-only ground truth; None for a measured scan (the onboard explorer builds its scans
+            from :class:`~superex_deploy.messages.SpadFrame` messages, which carry none).
     """
 
     angles: np.ndarray
@@ -354,8 +355,8 @@ class SpadScan:
     resolution_m: float
     grid_shape: tuple[int, int]
     config: SpadConfig
-    truth: SpadTruth
     stored: Union[SparseHistograms, np.ndarray]
+    truth: Optional[SpadTruth] = None
 
     @property
     def n_bins(self) -> int:

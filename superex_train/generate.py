@@ -4,7 +4,7 @@ Partial observations must look like the ones the models see when deployed, so sa
 exploration episodes (random free start cells, planners cycled over ``planners``), never from random masks.
 
 * **Pix2Pix** (:func:`generate_pix2pix`): every ``sample_every`` steps a SPAD scan is simulated at the robot's
-  cell and back-projected with the cells known at that step skipped (as :class:`~superex_deploy.explore.sensing.
+  cell and back-projected with the cells known at that step skipped (as :class:`~superex_deploy.sim.sensing.
   SpadSensing` does). Input: the raw back-projection window (``window_cells`` square, robot at its centre cell).
   Target: the scan's ``h2`` cells (simulator truth, :func:`~superex_deploy.nlos.nlos_ground_truth`) that are
   still unknown. Loss mask: unknown cells of the map's area or walls (``valid | occupied``: ``valid`` excludes wall cells;
@@ -29,10 +29,10 @@ from typing import Callable, Iterator, Optional, Sequence, Union
 
 import numpy as np
 
-from superex_deploy.explore.episode import EpisodeState, ExplorationConfig, run_episode
+from superex_deploy.sim.episode import EpisodeState, ExplorationConfig, run_episode
 from superex_deploy.explore.planners import make_planner
 from superex_deploy.explore.prediction import ObservedAsPrediction
-from superex_deploy.explore.sensing import SpadSensing
+from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.explore.types import UNKNOWN
 from superex_deploy.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
                                       sha256_file)

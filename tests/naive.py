@@ -57,6 +57,26 @@ def naive_mark_rays(occupied, y0, x0, angles, max_t):
             hit[r, c] = True
     return free, hit
 
+def naive_mark_ranges(shape, y0, x0, angles, ranges_cells, max_t, tolerance=1e-6):
+    """Free and hit masks of a measured scan, from a sorted list of every grid-line crossing (no DDA stepping):
+    cells left before ``range + tolerance`` are free, the cell holding that point is hit; ``inf``: no return."""
+    n_rows, n_cols = shape
+    free = np.zeros(shape, bool)
+    hit = np.zeros(shape, bool)
+    for angle, distance in zip(angles, ranges_cells):
+        cells = [(0.0, int(np.floor(y0)), int(np.floor(x0)))] + _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle)
+        hit_at = distance + tolerance if np.isfinite(distance) else None
+        for k, (t_in, r, c) in enumerate(cells):
+            if t_in > max_t or not (0 <= r < n_rows and 0 <= c < n_cols):
+                break
+            t_out = cells[k + 1][0] if k + 1 < len(cells) else np.inf
+            if hit_at is not None and t_out > hit_at:
+                hit[r, c] = True
+                break
+            free[r, c] = True
+    return free, hit
+
+
 # --- spad ---
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.episode import run_episode
+from superex_deploy.sim.episode import run_episode
 from superex_deploy.explore.frontiers import find_frontiers, frontier_cells
 from superex_deploy.explore.mapper import LidarConfig, Mapper
 from superex_deploy.explore.metrics import map_iou, paired_differences, summarise

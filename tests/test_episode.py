@@ -3,10 +3,17 @@ import json
 import numpy as np
 import pytest
 
-from superex_deploy.explore.episode import STAGES, ExplorationConfig, _choose, _near_visited, _reached, run_episode
+from superex_deploy.onboard.explorer import _choose, _near_visited, _reached
+from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
 from superex_deploy.explore.frontiers import find_frontiers
 from superex_deploy.explore.types import FREE, OCCUPIED, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
+from superex_deploy.messages import SpadFrame
+from superex_deploy.onboard import SpadProcessing
+from superex_deploy.sim.sensing import SpadSensing
+from superex_deploy.spad import SpadConfig
+
+_SMALL_SPAD = SpadConfig(n_rays=100, range_m=3.0)
 
 
 class _Closest(Planner):
@@ -54,19 +61,33 @@ def _two_rooms():
     return OccupancyGrid(walls, ~walls, 0.1, "two rooms")
 
 
-class _CarveRightRoom:
-    """A stand-in NLOS hook: reveals a 5 x 5 block of the hidden room from the first step on."""
+class _CarveRightRoom(SpadProcessing):
+    """A stand-in for the onboard SPAD processing: reveals a 5 x 5 block of the hidden room from the first step on."""
 
     def __init__(self, shape):
+        super().__init__(sensor=_SMALL_SPAD)
         self.carved = np.zeros(shape, bool)
         self.carved[5:10, 30:35] = True
-        self.evidence = np.full(shape, 0.25, np.float32)
+        self.fixed_evidence = np.full(shape, 0.25, np.float32)
         self.calls = 0
 
-    def __call__(self, grid, pose_rc, observed):
+    def __call__(self, frame, map_frame, pose, known):
         self.calls += 1
-        assert observed.dtype == np.int8 and observed.shape == grid.shape
-        return self.carved, self.evidence
+        assert isinstance(frame, SpadFrame) and known.dtype == np.bool_ and known.shape == map_frame.shape
+        self._evidence = self.fixed_evidence
+        return self.carved, self._evidence
+
+
+class _SensingWith(SpadSensing):
+    """SPAD sensing whose onboard processing is the given stand-in (the world still simulates real frames)."""
+
+    def __init__(self, processing):
+        super().__init__(spad=_SMALL_SPAD)
+        self.stand_in = processing
+
+    def processing(self):
+        self._processing = self.stand_in
+        return self.stand_in
 
 
 def test_two_rooms_are_explored_completely():
@@ -114,11 +135,11 @@ def test_a_door_seen_edge_on_is_followed_though_its_frontier_is_small():
     assert same.poses[:, 0].max() > 30
 
 
-def test_the_nlos_hook_feeds_carving_and_evidence():
+def test_the_onboard_nlos_processing_feeds_carving_and_evidence():
     grid = _two_rooms()
     hook = _CarveRightRoom(grid.shape)
     predictor = _CountingPredictor()
-    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, nlos=hook,
+    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, nlos=_SensingWith(hook),
                          cfg=ExplorationConfig(iou_every=0))
     assert hook.calls == result.steps
     assert np.all(result.coverage_with_carving >= result.coverage)
@@ -183,12 +204,10 @@ def test_bad_inputs_raise_value_error():
         run_episode(grid, (5, 5), planner, object())
     with pytest.raises(ValueError, match="steps"):
         run_episode(grid, (5, 5), planner, predictor, steps=2.5)
-    with pytest.raises(ValueError, match="nlos"):
+    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
         run_episode(grid, (5, 5), planner, predictor, nlos="spad")
-    with pytest.raises(ValueError, match="carved"):
+    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
         run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: (np.zeros((3, 3), bool), None))
-    with pytest.raises(ValueError, match="pair"):
-        run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: None)
     with pytest.raises(ValueError, match="frontier_min_cells"):
         ExplorationConfig(frontier_min_cells=0)
 

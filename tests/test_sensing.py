@@ -1,9 +1,9 @@
 import numpy as np
 
-from superex_deploy.explore.episode import run_episode
+from superex_deploy.sim.episode import run_episode
 from superex_deploy.explore.planners import NearestFrontier
 from superex_deploy.explore.prediction import ObservedAsPrediction
-from superex_deploy.explore.sensing import SpadSensing
+from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.maps import load_map, start_poses
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.episode import run_episode
+from superex_deploy.sim.episode import run_episode
 from superex_deploy.explore.frontiers import find_frontiers
 from superex_deploy.explore.motion import planning_map
 from superex_deploy.explore.planners import MapexPlanner, make_planner

@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also scan with the SPAD LiDAR every step and merge its carved free space "
                              "(coverage is reported with and without carving)")
     parser.add_argument("--gif-every", type=int, default=5, help="record a GIF frame every N steps")
+    parser.add_argument("--record", type=Path, default=None, metavar="FILE",
+                        help="also write every observation and command to this MCAP file (ROS 2 messages; "
+                             "`superex replay FILE` reruns the explorer on it)")
     parser.add_argument("--out", required=True, type=Path)
 
 
@@ -59,7 +62,7 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None):
         raise ValueError(f"--predictor {predictor} reads the SPAD evidence: add --spad")
     if not spad:
         return None
-    from superex_deploy.explore.sensing import SpadSensing
+    from superex_deploy.sim.sensing import SpadSensing
 
     bp_filter = None
     if predictor in EVIDENCE_PREDICTORS:
@@ -67,6 +70,16 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None):
 
         bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
     return SpadSensing(seed=seed, bp_filter=bp_filter)
+
+
+def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
+    """What a replay needs to rebuild the explorer of this run (JSON values)."""
+    from dataclasses import asdict
+
+    return {"map": grid.name, "planner": args.planner, "planner_options": options, "predictor": args.predictor,
+            "seed": args.seed, "spad": nlos is not None, "models": None if args.models is None else str(args.models),
+            "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
+            "explorer": asdict(explorer_cfg)}
 
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:
@@ -110,16 +123,33 @@ def resolve_start(grid, start_index: int, pose):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from superex_deploy.explore.episode import run_episode
     from superex_deploy.explore.planners import make_planner
     from superex_deploy.maps import load_map
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.onboard import ExplorerConfig
+    from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder, save_episode_figure
+    from superex_deploy.sim.episode import ExplorationConfig, run_episode
 
+    if args.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out} exists and is not a folder")
     grid = load_map(args.map)
     start = resolve_start(grid, args.start, args.pose)
-    planner = make_planner(args.planner, **planner_options(args.planner_option))
+    options = planner_options(args.planner_option)
+    planner = make_planner(args.planner, **options)
     nlos = make_sensing(args.predictor, args.spad, args.seed, args.models)
     predictor = make_predictor(args.predictor, grid, args.models)
+    cfg = ExplorationConfig()
+    record = None
+    if args.record is not None:
+        if args.predictor == "oracle":
+            raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
+                             "record with another predictor")
+        explorer_cfg = ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells)
+        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
+                                 recording_metadata(grid, args, options, nlos, explorer_cfg))
     args.out.mkdir(parents=True, exist_ok=True)
     recorder = GifRecorder(every=args.gif_every)
     with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
@@ -127,8 +157,19 @@ def run(args: argparse.Namespace) -> int:
             recorder(state)
             bar.update(1)
 
-        result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, on_step=on_step,
-                             nlos=nlos)
+        def on_observation(observation, command, explorer):
+            record.write(observation, command, explorer.observed)
+
+        try:
+            result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
+                                 on_step=on_step, nlos=nlos, on_observation=None if record is None else on_observation)
+        except BaseException:
+            if record is not None:
+                record.abort()
+            raise
+    if record is not None:
+        record.write_map(result.final_observed)
+        record.close()
     metrics = result.to_json()
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
@@ -137,5 +178,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{grid.name} start {start} {args.planner}: {len(result.coverage)} steps, coverage {coverage:.1%}, "
           f"path {metrics['path_length_m'][-1] if metrics['path_length_m'] else 0:.1f} m"
           f"{' (explored: no frontier left)' if result.finished else ''}")
-    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}")
+    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}"
+          f"{', ' + str(args.record) if record is not None else ''}")
     return 0

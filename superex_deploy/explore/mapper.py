@@ -14,7 +14,7 @@ import numpy as np
 
 from superex_deploy.explore import metrics
 from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN
-from superex_deploy.geometry import cell_centre, mark_rays, ray_angles
+from superex_deploy.geometry import cell_centre, mark_ranges, mark_rays, ray_angles
 
 __all__ = ["LidarConfig", "Mapper"]
 
@@ -82,6 +82,17 @@ class Mapper:
             raise ValueError(f"pose (row, col) = {(r, c)} lies outside the map of shape {self.shape}")
         mark_rays(ground_truth, cell_centre((r, c)), self._angles, self.lidar.range_m / float(resolution_m),
                   self.seen_free, self.seen_wall)
+
+    def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float) -> None:
+        """Mark what a measured scan saw (no ground truth): see :func:`superex_deploy.geometry.mark_ranges`.
+
+        Args:
+            origin_yx: sensor position ``(y, x)`` in cells, inside the map.
+            angles: float64 ``[N]`` ray angles (radians, grid convention: ``(dy, dx) = (sin, cos)``).
+            ranges_cells: float64 ``[N]`` measured ranges (cells), ``inf`` for no return.
+            max_range_cells: the sensor's maximum range (cells).
+        """
+        mark_ranges(origin_yx, angles, ranges_cells, max_range_cells, self.seen_free, self.seen_wall)
 
     def merge_carved(self, carved: np.ndarray) -> None:
         """Add cells proven free by NLOS space carving.

@@ -81,7 +81,7 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
 
 
 def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000)) -> list[dict]:
-    """Per-planner results table from :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts.
+    """Per-planner results table from :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts.
 
     Each row holds ``planner``, ``episodes`` and ``(mean, std)`` pairs over episodes of: line-of-sight coverage
     ``coverage@N`` and carving-inclusive ``coverage_carved@N`` at each checkpoint, the area under the coverage
@@ -184,7 +184,7 @@ def results_markdown(rows: list[dict]) -> str:
 def iou_by_coverage(results: list[dict], bin_edges: Sequence[float] = tuple(np.linspace(0.0, 1.0, 11))
                     ) -> dict[str, list[float]]:
     """Mean map IoU per coverage bin for each planner (``nan`` for empty bins), from the IoU log of
-    :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts (coverage with carving)."""
+    :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts (coverage with carving)."""
     edges = np.asarray(bin_edges, float)
     out: dict[str, list[float]] = {}
     for planner in sorted({r["planner"] for r in results}):

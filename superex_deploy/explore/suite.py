@@ -1,7 +1,7 @@
 """The paper's exploration benchmark: named rows (planner x predictor x sensing), per-scenario metrics, and
 comparisons paired by scenario against a reference row with bootstrap intervals.
 
-A row's episodes are :meth:`~superex_deploy.explore.episode.EpisodeResult.to_json` dicts (plus ``start_index``),
+A row's episodes are :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts (plus ``start_index``),
 as ``superex benchmark`` writes them. Coverage is the known share of the valid area **with NLOS carving**
 (``coverage_with_carving``; equal to the line-of-sight coverage for rows without SPAD sensing); the line-of-sight
 share is reported beside it. An episode that ends early (nothing left to explore) keeps its final coverage.

@@ -1,0 +1,127 @@
+"""``superex replay FILE --out DIR``: rerun a fresh explorer on a recorded episode's observations alone.
+
+The explorer is rebuilt from the recording's metadata (planner and options, predictor, seed, sensor model, NLOS and
+explorer configuration) and given no map: it sees exactly the recorded observations. Its goals are compared with the
+recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything
+that stopped the reading) and ``DIR/map.npz`` (the explorer's final map and evidence).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", type=Path, help="an .mcap file written by `superex explore --record`")
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--models", type=Path, default=None,
+                        help="folder of exported models (default: the recording's, else the repository's exported/)")
+
+
+def _atomic_write(path: Path, write) -> None:
+    part = path.with_name(path.name + ".part")
+    write(part)
+    os.replace(part, path)
+
+
+def build_explorer(metadata: dict, frame, models=None):
+    """The explorer a recording's metadata describes.
+
+    Raises:
+        ValueError: metadata that names no planner or predictor, the oracle predictor (it reads the truth), or
+            configurations this package cannot build.
+    """
+    from dataclasses import fields
+
+    from superex_deploy.commands.explore import EVIDENCE_PREDICTORS, make_predictor
+    from superex_deploy.explore.motion import MotionConfig
+    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.nlos import NlosConfig
+    from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
+    from superex_deploy.spad import SpadConfig, SpadNoise
+
+    try:
+        planner_name, predictor_name = metadata["planner"], metadata["predictor"]
+        options, seed = metadata.get("planner_options") or {}, int(metadata["seed"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"the recording's metadata lacks the planner, predictor or seed ({error})") from None
+    if predictor_name == "oracle":
+        raise ValueError("the recording used the oracle predictor, which reads the ground truth: it cannot be replayed")
+    models = models or metadata.get("models")
+    planner = make_planner(planner_name, **options)
+    predictor = make_predictor(predictor_name, None, models)
+    try:
+        explorer_fields = dict(metadata["explorer"])
+        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), **explorer_fields)
+        nlos = None
+        if metadata.get("spad"):
+            sensor = dict(metadata["sensor"])
+            sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
+            nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
+                                     if f.name in metadata["nlos"]})
+            bp_filter = None
+            if predictor_name in EVIDENCE_PREDICTORS:
+                from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+
+                bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
+            nlos = SpadProcessing(sensor=sensor, nlos=nlos_cfg, bp_filter=bp_filter)
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
+    return Explorer(frame, planner, predictor, nlos=nlos, cfg=cfg, seed=seed)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from superex_deploy.onboard import STAGES
+    from superex_deploy.recording import read_recording
+
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out} exists and is not a folder")
+    recording = read_recording(args.recording)
+    if recording.error is not None:
+        print(f"superex replay: warning: {recording.error}")
+    explorer = build_explorer(recording.metadata, recording.frame, args.models)
+    goals, goal_steps, mismatches = [], [], []
+    timings = {stage: [] for stage in STAGES}
+    finished = False
+    for recorded in tqdm(recording.steps, desc=f"replay {args.recording.name}", unit="step"):
+        command = explorer.step(recorded.observation)
+        for stage in STAGES:
+            timings[stage].append(command.timings_s[stage])
+        if command.new_goal:
+            goals.append(list(command.goal_rc))
+            goal_steps.append(command.step)
+        if (command.goal_rc, command.new_goal, command.finished) != (recorded.goal_rc, recorded.new_goal,
+                                                                      recorded.finished):
+            mismatches.append({"step": recorded.step, "recorded": recorded.goal_rc, "replayed": command.goal_rc})
+        finished = command.finished
+    per_stage = {stage: {"mean": float(np.mean(v)) if v else 0.0, "p50": float(np.median(v)) if v else 0.0,
+                         "p99": float(np.percentile(v, 99)) if v else 0.0} for stage, v in timings.items()}
+    step_total = np.sum([timings[stage] for stage in STAGES], axis=0) if recording.steps else np.zeros(0)
+    metrics = {"recording": str(args.recording), "metadata": recording.metadata, "steps": len(recording.steps),
+               "finished": finished, "goals": {"steps": goal_steps, "cells": goals},
+               "goals_match": not mismatches, "mismatches": mismatches[:20], "read_error": recording.error,
+               "known_cells": int(explorer.mapper.known().sum()),
+               "step_s": {"mean": float(step_total.mean()) if step_total.size else 0.0,
+                          "p50": float(np.median(step_total)) if step_total.size else 0.0,
+                          "p99": float(np.percentile(step_total, 99)) if step_total.size else 0.0},
+               "stage_s": per_stage}
+    args.out.mkdir(parents=True, exist_ok=True)
+    _atomic_write(args.out / "metrics.json", lambda p: p.write_text(json.dumps(metrics)))
+    evidence = explorer.evidence if explorer.evidence is not None else np.zeros(0, np.float32)
+
+    def save_map(part: Path) -> None:
+        with open(part, "wb") as file:
+            np.savez_compressed(file, observed=explorer.observed, carved=explorer.mapper.carved, evidence=evidence)
+
+    _atomic_write(args.out / "map.npz", save_map)
+    verdict = "goals match the recording" if not mismatches else f"{len(mismatches)} steps differ from the recording"
+    print(f"replayed {len(recording.steps)} steps of {args.recording}: {len(goals)} goals, {verdict}")
+    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'map.npz'}")
+    return 0 if not mismatches and recording.error is None else 1

@@ -1,0 +1,9 @@
+"""The robot's side: an explorer that runs on measured data alone (never imports the simulator).
+
+>>> from superex_deploy.onboard import Explorer, ExplorerConfig
+"""
+
+from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
+from superex_deploy.onboard.spad_processing import SpadProcessing, scan_from_frame
+
+__all__ = ["STAGES", "Explorer", "ExplorerConfig", "SpadProcessing", "scan_from_frame"]

@@ -1,0 +1,388 @@
+"""Record an exploration episode to an MCAP file and read it back: every observation, every command, the map.
+
+The file uses the ``ros2`` MCAP profile (CDR messages with ``ros2msg`` schemas), so Foxglove, the ``mcap`` CLI and
+ROS 2 tools read it. Topics (one message of each per step unless noted; ``sequence`` = the explorer's step):
+
+============  ==================================  =====================================================================
+topic         type                                content
+============  ==================================  =====================================================================
+``/pose``     ``geometry_msgs/msg/PoseStamped``   the robot's pose (frame ``map``; yaw as a quaternion about ``z``)
+``/scan``     ``sensor_msgs/msg/LaserScan``       the line-of-sight scan (frame ``base_scan``, aligned with the robot)
+``/spad``     ``superex_msgs/msg/SpadFrame``      the SPAD frame, when the step has one (schema :data:`SPAD_FRAME_MSG`)
+``/command``  ``superex_msgs/msg/ExplorerCommand``  the explorer's answer: goal cell and position, flags (schema below)
+``/plan``     ``nav_msgs/msg/Path``               the commanded path (frame ``map``)
+``/map``      ``nav_msgs/msg/OccupancyGrid``      the explorer's map (-1 unknown, 0 free, 100 occupied) every
+                                                  ``map_every`` steps and at the last one
+============  ==================================  =====================================================================
+
+A metadata record ``superex.episode`` holds what a replay needs to rebuild the explorer (map frame, planner and its
+options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string. The SPAD
+frame's arrays are little-endian byte blobs (``uint8[]``): the CDR encoders write numeric arrays element by element,
+and a frame holds ~160,000 non-zero bins.
+
+The file is written to ``PATH.part`` and renamed to ``PATH`` when the episode ends; an episode that fails leaves no
+file behind. :func:`read_recording` reads the messages in order and stops at the first broken one (a truncated
+file), saying which, and keeps every complete step before it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
+
+__all__ = ["FORMAT_VERSION", "SPAD_FRAME_MSG", "EXPLORER_COMMAND_MSG", "EpisodeRecorder", "RecordedStep",
+           "Recording", "read_recording"]
+
+FORMAT_VERSION = "1"
+METADATA_NAME = "superex.episode"
+
+_SEPARATOR = "=" * 80 + "\n"
+_HEADER = """MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+""" + _SEPARATOR + """MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+_POSE = """MSG: geometry_msgs/Pose
+geometry_msgs/Point position
+geometry_msgs/Quaternion orientation
+""" + _SEPARATOR + """MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+""" + _SEPARATOR + """MSG: geometry_msgs/Quaternion
+float64 x 0
+float64 y 0
+float64 z 0
+float64 w 1
+"""
+POSE_STAMPED_MSG = "std_msgs/Header header\ngeometry_msgs/Pose pose\n" + _SEPARATOR + _HEADER + _SEPARATOR + _POSE
+LASER_SCAN_MSG = """std_msgs/Header header
+float32 angle_min
+float32 angle_max
+float32 angle_increment
+float32 time_increment
+float32 scan_time
+float32 range_min
+float32 range_max
+float32[] ranges
+float32[] intensities
+""" + _SEPARATOR + _HEADER
+PATH_MSG = ("std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses\n" + _SEPARATOR + _HEADER + _SEPARATOR
+            + "MSG: geometry_msgs/PoseStamped\nstd_msgs/Header header\ngeometry_msgs/Pose pose\n" + _SEPARATOR + _POSE)
+OCCUPANCY_GRID_MSG = """std_msgs/Header header
+nav_msgs/MapMetaData info
+int8[] data
+""" + _SEPARATOR + _HEADER + _SEPARATOR + """MSG: nav_msgs/MapMetaData
+builtin_interfaces/Time map_load_time
+float32 resolution
+uint32 width
+uint32 height
+geometry_msgs/Pose origin
+""" + _SEPARATOR + _POSE
+SPAD_FRAME_MSG = """# One SPAD LiDAR frame: a time-of-flight histogram per ray, stored by its non-zero bins (compressed sparse rows).
+# Bin b of a ray counts photons whose round-trip path lies in [b, b + 1) * bin_width_s * c.
+std_msgs/Header header
+float64 bin_width_s      # seconds per bin
+uint32 n_rays
+uint32 n_bins
+uint32 nnz               # non-zero bins over all rays
+uint8[] angles_f64le     # n_rays float64, little-endian: ray angles (rad, counter-clockwise from the robot's heading)
+uint8[] row_start_i64le  # n_rays + 1 int64, little-endian: ray i's entries are row_start[i]:row_start[i + 1]
+uint8[] bins_i32le       # nnz int32, little-endian: bin indices, increasing within a ray
+uint8[] counts_f32le     # nnz float32, little-endian: photon counts
+""" + _SEPARATOR + _HEADER
+EXPLORER_COMMAND_MSG = """# The SuperEx explorer's answer to one observation.
+std_msgs/Header header
+uint32 step              # the explorer's step counter
+bool has_goal
+int32 goal_row           # goal cell (row 0 at the top of the map image); -1 without a goal
+int32 goal_col
+float64 goal_x           # goal in the map frame (metres); NaN without a goal
+float64 goal_y
+bool new_goal            # the goal was chosen at this step
+bool finished            # no reachable frontier is left
+int32 prediction_step    # step of the newest prediction, -1 for none
+""" + _SEPARATOR + _HEADER
+
+_SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
+            "/scan": ("sensor_msgs/msg/LaserScan", LASER_SCAN_MSG),
+            "/spad": ("superex_msgs/msg/SpadFrame", SPAD_FRAME_MSG),
+            "/command": ("superex_msgs/msg/ExplorerCommand", EXPLORER_COMMAND_MSG),
+            "/plan": ("nav_msgs/msg/Path", PATH_MSG),
+            "/map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG)}
+_REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/command")
+
+
+def _stamp(seconds: float) -> dict:
+    nanoseconds = int(round(seconds * 1e9))
+    return {"sec": nanoseconds // 1_000_000_000, "nanosec": nanoseconds % 1_000_000_000}
+
+
+def _seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _header(seconds: float, frame_id: str) -> dict:
+    return {"stamp": _stamp(seconds), "frame_id": frame_id}
+
+
+def _pose(x: float, y: float, yaw: float) -> dict:
+    return {"position": {"x": x, "y": y, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}}
+
+
+@dataclass
+class RecordedStep:
+    """One step of a recording.
+
+    Attributes:
+        step: the explorer's step counter.
+        observation: what the explorer received.
+        goal_rc: the recorded command's goal cell, or None.
+        new_goal, finished: the recorded command's flags.
+    """
+
+    step: int
+    observation: Observation
+    goal_rc: Optional[tuple[int, int]]
+    new_goal: bool
+    finished: bool
+
+
+@dataclass
+class Recording:
+    """What :func:`read_recording` read.
+
+    Attributes:
+        metadata: the ``superex.episode`` record, JSON values decoded.
+        frame: the explorer's map frame.
+        steps: the complete steps, in order.
+        error: None, or what stopped the reading (the broken message and why).
+    """
+
+    metadata: dict
+    frame: MapFrame
+    steps: list = field(default_factory=list)
+    error: Optional[str] = None
+
+
+class EpisodeRecorder:
+    """Writes an episode to ``path`` (see the module docstring); use as a context manager.
+
+    Args:
+        path: the ``.mcap`` file to write (its folder must exist; an existing file is replaced at the end).
+        frame: the explorer's map frame.
+        metadata: what a replay needs (JSON-serialisable values; see :func:`superex_deploy.commands.replay`).
+        map_every: write the explorer's map every this many steps (and at the last step).
+        chunk_bytes: messages are compressed in chunks of about this size; a file cut short (a crash, a full
+            disk) loses at most its last chunk.
+
+    Raises:
+        ValueError: a path whose folder does not exist or that names a folder, a bad ``map_every``.
+    """
+
+    def __init__(self, path: Union[str, Path], frame: MapFrame, metadata: dict, map_every: int = 25,
+                 chunk_bytes: int = 256 * 1024):
+        from mcap_ros2.writer import Writer
+
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise ValueError(f"--record {self.path} is a folder, not a file")
+        if not self.path.parent.is_dir():
+            raise ValueError(f"--record {self.path}: the folder {self.path.parent} does not exist")
+        if int(map_every) < 1:
+            raise ValueError(f"map_every must be >= 1, got {map_every}")
+        self.frame, self.map_every = frame, int(map_every)
+        self._part = self.path.with_name(self.path.name + ".part")
+        self._file = open(self._part, "wb")
+        self._writer = Writer(self._file, chunk_size=int(chunk_bytes))
+        self._schemas = {topic: self._writer.register_msgdef(name, text) for topic, (name, text) in _SCHEMAS.items()}
+        values = {"format_version": FORMAT_VERSION,
+                  "frame": {"shape": list(frame.shape), "resolution_m": frame.resolution_m,
+                            "origin_xy": list(frame.origin_xy)}, **metadata}
+        self._writer.add_metadata(METADATA_NAME, {key: json.dumps(value) for key, value in values.items()})
+        self._last_map_step = -1
+        self._last = (0.0, 0)
+        self._closed = False
+
+    def _write(self, topic: str, message: dict, stamp_s: float, step: int) -> None:
+        nanoseconds = int(round(stamp_s * 1e9))
+        self._writer.write_message(topic, self._schemas[topic], message, log_time=nanoseconds,
+                                   publish_time=nanoseconds, sequence=step)
+
+    def write(self, observation: Observation, command: Command, observed: Optional[np.ndarray] = None) -> None:
+        """Record one step: the observation, the command and, every ``map_every`` steps, ``observed`` (int8
+        ``[H, W]``, the explorer's map after the step)."""
+        stamp, step = observation.stamp_s, command.step
+        self._last = (stamp, step)
+        pose = observation.pose
+        self._write("/pose", {"header": _header(stamp, "map"), "pose": _pose(pose.x, pose.y, pose.yaw)}, stamp, step)
+        scan = observation.scan
+        self._write("/scan", {"header": _header(stamp, "base_scan"), "angle_min": scan.angle_min,
+                              "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
+                              "time_increment": 0.0, "scan_time": 0.0, "range_min": scan.range_min,
+                              "range_max": scan.range_max, "ranges": scan.ranges.tolist(), "intensities": []},
+                    stamp, step)
+        spad = observation.spad
+        if spad is not None:
+            self._write("/spad", {"header": _header(stamp, "base_scan"), "bin_width_s": spad.bin_width_s,
+                                  "n_rays": spad.n_rays, "n_bins": spad.n_bins, "nnz": int(spad.bins.size),
+                                  "angles_f64le": spad.angles.astype("<f8").tobytes(),
+                                  "row_start_i64le": spad.row_start.astype("<i8").tobytes(),
+                                  "bins_i32le": spad.bins.astype("<i4").tobytes(),
+                                  "counts_f32le": spad.counts.astype("<f4").tobytes()}, stamp, step)
+        goal = command.goal_rc
+        self._write("/command", {"header": _header(stamp, "map"), "step": step, "has_goal": goal is not None,
+                                 "goal_row": -1 if goal is None else goal[0],
+                                 "goal_col": -1 if goal is None else goal[1],
+                                 "goal_x": math.nan if goal is None else command.goal_xy[0],
+                                 "goal_y": math.nan if goal is None else command.goal_xy[1],
+                                 "new_goal": bool(command.new_goal), "finished": bool(command.finished),
+                                 "prediction_step": int(command.prediction_step)}, stamp, step)
+        self._write("/plan", {"header": _header(stamp, "map"),
+                              "poses": [{"header": _header(stamp, "map"), "pose": _pose(float(x), float(y), 0.0)}
+                                        for x, y in command.path_xy]}, stamp, step)
+        if observed is not None and (step % self.map_every == 0 or command.finished):
+            self.write_map(observed, stamp, step)
+
+    def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None) -> None:
+        """Record the explorer's int8 ``[H, W]`` map (rows flipped: ROS grids start at the bottom row), stamped
+        with the last recorded step unless told otherwise (once per step at most)."""
+        if stamp_s is None or step is None:
+            stamp_s, step = self._last
+        if step == self._last_map_step:
+            return
+        observed = np.asarray(observed)
+        data = np.where(observed > 0, 100, observed).astype(np.int8)[::-1]
+        height, width = self.frame.shape
+        self._write("/map", {"header": _header(stamp_s, "map"),
+                             "info": {"map_load_time": _stamp(0.0), "resolution": self.frame.resolution_m,
+                                      "width": width, "height": height,
+                                      "origin": _pose(self.frame.origin_xy[0], self.frame.origin_xy[1], 0.0)},
+                             "data": data.ravel().tolist()}, stamp_s, step)
+        self._last_map_step = step
+
+    def close(self) -> None:
+        """Finish the file and move it into place."""
+        if self._closed:
+            return
+        self._writer.finish()
+        self._file.close()
+        os.replace(self._part, self.path)
+        self._closed = True
+
+    def abort(self) -> None:
+        """Drop the partial file (nothing is left at ``path``)."""
+        if self._closed:
+            return
+        self._file.close()
+        self._part.unlink(missing_ok=True)
+        self._closed = True
+
+    def __enter__(self) -> "EpisodeRecorder":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _spad_frame(message) -> SpadFrame:
+    return SpadFrame(angles=np.frombuffer(bytes(message.angles_f64le), "<f8"), bin_width_s=message.bin_width_s,
+                     n_bins=int(message.n_bins), row_start=np.frombuffer(bytes(message.row_start_i64le), "<i8"),
+                     bins=np.frombuffer(bytes(message.bins_i32le), "<i4"),
+                     counts=np.frombuffer(bytes(message.counts_f32le), "<f4"))
+
+
+def _observation(parts: dict) -> Observation:
+    pose_message, scan_message = parts["/pose"], parts["/scan"]
+    orientation = pose_message.pose.orientation
+    yaw = 2.0 * math.atan2(orientation.z, orientation.w)
+    pose = Pose2D(pose_message.pose.position.x, pose_message.pose.position.y, yaw)
+    scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
+                     range_min=scan_message.range_min, range_max=scan_message.range_max,
+                     ranges=np.asarray(scan_message.ranges, np.float32), angle_max=scan_message.angle_max)
+    spad = _spad_frame(parts["/spad"]) if "/spad" in parts else None
+    return Observation(stamp_s=_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad)
+
+
+def _metadata(data: bytes, path: Path) -> dict:
+    from mcap.reader import NonSeekingReader
+
+    reader = NonSeekingReader(io.BytesIO(data))
+    try:
+        for record in reader.iter_metadata():
+            if record.name == METADATA_NAME:
+                return {key: json.loads(value) for key, value in record.metadata.items()}
+    except Exception:  # the metadata comes first: a file broken before it holds nothing usable
+        pass
+    raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
+
+
+def read_recording(path: Union[str, Path]) -> Recording:
+    """Read a recording written by :class:`EpisodeRecorder`.
+
+    Reading stops at the first message that cannot be decoded or is inconsistent (a truncated file, a corrupt
+    record); :attr:`Recording.error` then names it, and :attr:`Recording.steps` holds every complete step before it.
+
+    Raises:
+        ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, another format
+            version.
+    """
+    from mcap.reader import NonSeekingReader
+    from mcap_ros2.decoder import DecoderFactory
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"recording {path} does not exist or is not a file")
+    data = path.read_bytes()
+    metadata = _metadata(data, path)
+    if metadata.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path} has recording format {metadata.get('format_version')!r}, this package reads "
+                         f"{FORMAT_VERSION!r}")
+    try:
+        frame_fields = metadata["frame"]
+        frame = MapFrame(tuple(frame_fields["shape"]), frame_fields["resolution_m"], tuple(frame_fields["origin_xy"]))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: the map frame in the metadata is unusable ({error})") from None
+    recording = Recording(metadata=metadata, frame=frame)
+    reader = NonSeekingReader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+    parts: dict = {}
+    current = -1
+    done = 0  # messages fully read
+    topic, sequence = "?", -1
+    try:
+        # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
+        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            topic, sequence = channel.topic, message.sequence
+            if topic in _REPLAYED_TOPICS:
+                if sequence != current:
+                    parts, current = {}, sequence
+                parts[topic] = decoded
+                if topic == "/command":
+                    if "/pose" not in parts or "/scan" not in parts:
+                        raise ValueError("a command without the pose and scan of its step")
+                    goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
+                    recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
+                                                        goal_rc=goal, new_goal=bool(decoded.new_goal),
+                                                        finished=bool(decoded.finished)))
+            done += 1
+            topic, sequence = "?", -1
+    except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
+        where = f"topic {topic}, step {sequence}" if topic != "?" else f"after step {current}"
+        recording.error = (f"message {done + 1} ({where}) is broken: {type(error).__name__}: {error}; kept the "
+                           f"{len(recording.steps)} complete steps before it")
+    return recording

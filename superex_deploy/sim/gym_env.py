@@ -1,0 +1,162 @@
+"""A Gymnasium environment for learning where to explore: ``SuperEx/Explore-v0`` (needs the ``gym`` extra).
+
+The agent picks a goal among the current frontier regions; the simulated robot drives there with the onboard
+explorer (one simulator step per ``step_cells`` of path) until the goal is reached, the explorer asks for a new goal
+or ``steps_per_action`` steps have passed. The reward is the area newly known (square metres, carved cells
+included). The observation is the explorer's map cropped around the robot, one-hot per cell state, plus the predicted
+wall probability when a predictor is given; the agent sees only what the robot knows.
+
+>>> import gymnasium, superex_deploy.sim  # registers SuperEx/Explore-v0
+>>> env = gymnasium.make("SuperEx/Explore-v0", map="50052750")
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from superex_deploy.explore.frontiers import find_frontiers
+from superex_deploy.explore.motion import planning_map
+from superex_deploy.explore.planners import NearestFrontier
+from superex_deploy.explore.prediction import ObservedAsPrediction
+from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext
+from superex_deploy.maps import load_map, random_start
+from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
+
+__all__ = ["ExplorationEnv"]
+
+
+class _AgentGoal(Planner):
+    """The agent's choice as a planner: the target cell when it is reachable, else the nearest frontier."""
+
+    name = "agent"
+
+    def __init__(self) -> None:
+        self.target: Optional[tuple[int, int]] = None
+        self._fallback = NearestFrontier()
+
+    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+        target, self.target = self.target, None
+        if target is not None and np.isfinite(ctx.travel_cost[target]):
+            return target
+        return self._fallback.choose_goal(ctx)
+
+
+def _crop(array: np.ndarray, centre: tuple[int, int], size: int, fill) -> np.ndarray:
+    out = np.full((size, size), fill, array.dtype)
+    top, left = centre[0] - size // 2, centre[1] - size // 2
+    r0, c0 = max(top, 0), max(left, 0)
+    r1, c1 = min(top + size, array.shape[0]), min(left + size, array.shape[1])
+    if r1 > r0 and c1 > c0:
+        out[r0 - top:r1 - top, c0 - left:c1 - left] = array[r0:r1, c0:c1]
+    return out
+
+
+class ExplorationEnv(gym.Env):
+    """Frontier-choice exploration on a bundled KTH map.
+
+    Args:
+        map: bundled map name (or an image / ROS YAML path).
+        predictor: None, or a predictor name of :func:`superex_deploy.commands.explore.make_predictor` (adds a
+            channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
+        crop_cells: side of the square observation around the robot (cells).
+        max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
+        steps_per_action: simulator steps per action at most.
+        max_steps: simulator steps per episode (truncation).
+
+    Spaces:
+        observation: float32 ``[C, crop, crop]`` in [0, 1]: free, occupied, unknown (+ predicted wall probability).
+        action: ``Discrete(max_frontiers)``; ``info["action_mask"]`` (int8 ``[max_frontiers]``) marks the frontier
+            regions the robot can reach, nearest first.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
+                 max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
+        from superex_deploy.commands.explore import make_predictor
+
+        if predictor == "oracle":
+            raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
+        for name, value in (("crop_cells", crop_cells), ("max_frontiers", max_frontiers),
+                            ("steps_per_action", steps_per_action), ("max_steps", max_steps)):
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        self.grid = load_map(map)
+        self._predictor = make_predictor(predictor, self.grid) if predictor is not None else None
+        self.crop_cells, self.max_frontiers = int(crop_cells), int(max_frontiers)
+        self.steps_per_action, self.max_steps = int(steps_per_action), int(max_steps)
+        channels = 3 + (self._predictor is not None)
+        self.observation_space = spaces.Box(0.0, 1.0, (channels, self.crop_cells, self.crop_cells), np.float32)
+        self.action_space = spaces.Discrete(self.max_frontiers)
+        self._cfg = ExplorationConfig()
+        self._world = self._explorer = None
+        self._goals: list[tuple[int, int]] = []
+
+    def _observation(self) -> np.ndarray:
+        observed = self._explorer.observed
+        pose = self._world.pose_rc
+        crop = _crop(observed, pose, self.crop_cells, UNKNOWN)
+        planes = [crop == FREE, crop == OCCUPIED, crop == UNKNOWN]
+        if self._predictor is not None:
+            planes.append(_crop(self._explorer.predict().mean, pose, self.crop_cells, np.float32(0.5)))
+        return np.stack(planes).astype(np.float32)
+
+    def _action_mask(self) -> np.ndarray:
+        observed = self._explorer.observed
+        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
+        regions = find_frontiers(observed, 1)
+        reachable = [(plan.travel_cost[f.cell_rc], f.cell_rc) for f in regions if np.isfinite(plan.travel_cost[f.cell_rc])]
+        reachable.sort()
+        self._goals = [cell for _, cell in reachable[:self.max_frontiers]]
+        mask = np.zeros(self.max_frontiers, np.int8)
+        mask[:len(self._goals)] = 1
+        return mask
+
+    def _known_m2(self) -> float:
+        return float(self._explorer.mapper.known().sum()) * self.grid.resolution_m ** 2
+
+    def _info(self) -> dict:
+        return {"action_mask": self._action_mask(), "steps": self._world.steps,
+                "coverage": self._world.coverage(self._explorer.mapper.known()), "known_m2": self._known_m2()}
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        start = random_start(self.grid, self.np_random, 0.4)
+        self._agent = _AgentGoal()
+        self._world, self._explorer = make_world_and_explorer(self.grid, start, self._agent,
+                                                              self._predictor or ObservedAsPrediction(),
+                                                              seed=int(self.np_random.integers(2 ** 31)), cfg=self._cfg)
+        self._command = self._explorer.step(self._world.observe())
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if self._world is None:
+            raise RuntimeError("call reset() before step()")
+        if not self.action_space.contains(action):
+            raise ValueError(f"action must be an integer in [0, {self.max_frontiers}), got {action!r}")
+        before = self._known_m2()
+        if int(action) < len(self._goals):
+            self._agent.target = self._goals[int(action)]
+        self._explorer.goal, self._explorer.path = None, []  # choose again, now
+        command = self._command
+        for inner in range(self.steps_per_action):
+            if self._world.steps >= self.max_steps:
+                break
+            if inner > 0:  # the first inner step re-scans where the robot stands and takes the new target
+                self._world.apply(command)
+            command = self._explorer.step(self._world.observe())
+            if command.finished or (inner > 0 and command.new_goal):
+                break
+        self._command = command
+        reward = self._known_m2() - before
+        terminated = bool(command.finished)
+        truncated = not terminated and self._world.steps >= self.max_steps
+        info = self._info()
+        if not terminated and not info["action_mask"].any():
+            terminated = True  # nothing reachable is left to choose
+        return self._observation(), float(reward), terminated, truncated, info
+

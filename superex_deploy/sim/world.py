@@ -1,0 +1,182 @@
+"""The simulated world: the ground-truth grid, the robot in it, its sensors, and the metrics only the truth allows.
+
+The world owns the truth; the explorer (:mod:`superex_deploy.onboard`) sees only the
+:class:`~superex_deploy.messages.Observation` that :meth:`World.observe` produces. The simulated robot is holonomic
+and moves on grid cells; its pose is the centre of its cell with yaw 0 (the scanners are aligned with the map
+frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.explore.mapper import LidarConfig
+from superex_deploy.explore.metrics import coverage as coverage_of
+from superex_deploy.explore.motion import advance
+from superex_deploy.geometry import cast_rays
+from superex_deploy.maps import OccupancyGrid
+from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
+from superex_deploy.spad import SpadConfig, SpadScan, simulate_scan
+
+__all__ = ["World", "WorldConfig", "laser_scan_from_distances"]
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """The simulated robot's sensors and motion.
+
+    Attributes:
+        lidar: the line-of-sight LiDAR (rays over a full turn, maximum range).
+        spad: the SPAD LiDAR, or None (no SPAD frames).
+        step_cells: path cells the robot drives per :meth:`World.apply` (MapEx: 3 cells = 0.3 m).
+        seed: seed of the SPAD noise generator (used only when ``spad.noise.enabled``).
+        step_s: simulated time per step (seconds; the observations' time stamps).
+    """
+
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    spad: Optional[SpadConfig] = None
+    step_cells: int = 3
+    seed: int = 0
+    step_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.lidar, LidarConfig):
+            raise ValueError(f"lidar must be a LidarConfig, got {type(self.lidar).__name__}")
+        if self.spad is not None and not isinstance(self.spad, SpadConfig):
+            raise ValueError(f"spad must be a SpadConfig or None, got {type(self.spad).__name__}")
+        if isinstance(self.step_cells, bool) or int(self.step_cells) != self.step_cells or self.step_cells < 1:
+            raise ValueError(f"step_cells must be a positive integer, got {self.step_cells!r}")
+        if not (float(self.step_s) > 0.0 and np.isfinite(self.step_s)):
+            raise ValueError(f"step_s must be positive and finite, got {self.step_s}")
+
+
+def _float32_at_least(values_m: np.ndarray) -> np.ndarray:
+    """float32 of each value, rounded up where rounding to nearest went below (a range never shrinks)."""
+    rounded = values_m.astype(np.float32)
+    low = rounded.astype(np.float64) < values_m
+    rounded[low] = np.nextafter(rounded[low], np.float32(np.inf))
+    return rounded
+
+
+def laser_scan_from_distances(distances_cells: np.ndarray, hit: np.ndarray, resolution_m: float,
+                              angle_min: float, angle_increment: float, range_max_m: float) -> LaserScan:
+    """The :class:`LaserScan` of simulated first hits: a ray that hit a wall returns the distance to the wall's
+    face, the others (range or grid border reached) return ``inf``.
+
+    Args:
+        distances_cells: float64 ``[N]`` distance to each hit (cells).
+        hit: bool ``[N]`` rays that hit a wall.
+        resolution_m: metres per cell.
+        angle_min, angle_increment, range_max_m: the scan's fields (float32 precision).
+    """
+    ranges = np.full(distances_cells.shape, np.inf, np.float32)
+    ranges[hit] = _float32_at_least(distances_cells[hit] * resolution_m)
+    return LaserScan(angle_min=angle_min, angle_increment=angle_increment, range_min=0.0, range_max=range_max_m,
+                     ranges=ranges)
+
+
+class World:
+    """The ground truth and the robot.
+
+    Args:
+        grid: the ground-truth map.
+        start_rc: the robot's start cell (row, col): inside the map, in its valid area, not a wall.
+        cfg: sensors and motion.
+
+    Attributes:
+        grid, cfg: as given.
+        frame: the map frame the observations use (the grid's shape and resolution, origin at (0, 0)).
+        pose_rc: the robot's cell.
+        driven_m: metres driven so far.
+        steps: observations produced so far.
+        collisions: commanded moves refused because the next cell was a wall.
+    """
+
+    def __init__(self, grid: OccupancyGrid, start_rc, cfg: WorldConfig = WorldConfig()):
+        if not isinstance(grid, OccupancyGrid):
+            raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+        if not isinstance(cfg, WorldConfig):
+            raise ValueError(f"cfg must be a WorldConfig, got {type(cfg).__name__}")
+        start = grid.check_pose(start_rc)
+        if not grid.valid[start]:
+            raise ValueError(f"start cell {start} lies outside the valid (inside-the-building) area of map "
+                             f"{grid.name!r}: nothing there could be explored")
+        self.grid, self.cfg = grid, cfg
+        self.frame = MapFrame(grid.shape, grid.resolution_m)
+        self.pose_rc = start
+        self.driven_m = 0.0
+        self.steps = 0
+        self.collisions = 0
+        n = cfg.lidar.n_rays
+        # Stored at float32 precision, as LaserScan holds them; the rays are cast along exactly these angles.
+        self._angle_increment = float(np.float32(2.0 * np.pi / n))
+        template = LaserScan(0.0, self._angle_increment, 0.0, cfg.lidar.range_m, np.zeros(n, np.float32))
+        self._scan_angles = template.angles()
+        self._range_max = template.range_max
+        self._spad_rng: Optional[np.random.Generator] = None
+        self.last_spad_scan: Optional[SpadScan] = None
+
+    @property
+    def pose(self) -> Pose2D:
+        """The robot's pose in the map frame: the centre of its cell, yaw 0."""
+        x, y = self.frame.centre_xy(self.pose_rc)
+        return Pose2D(x, y, 0.0)
+
+    def observe(self) -> Observation:
+        """Scan from the robot's cell: the line-of-sight ranges and, with a SPAD sensor, its frame."""
+        pose = self.pose
+        origin = self.frame.grid_yx(pose.x, pose.y)
+        resolution = self.grid.resolution_m
+        # Map-frame angles (counter-clockwise) to grid angles (towards +row).
+        hits = cast_rays(self.grid.occupied, origin, -(pose.yaw + self._scan_angles), self._range_max / resolution)
+        scan = laser_scan_from_distances(hits.distance_cells, hits.hit_mask, resolution, 0.0, self._angle_increment,
+                                         self._range_max)
+        spad = None
+        if self.cfg.spad is not None:
+            if self._spad_rng is None:
+                self._spad_rng = np.random.default_rng(self.cfg.seed)
+            simulated = simulate_scan(self.grid, self.pose_rc, self.cfg.spad,
+                                      rng=self._spad_rng if self.cfg.spad.noise.enabled else None)
+            self.last_spad_scan = simulated  # the truth stays here: labels and tests only
+            sparse = simulated.sparse
+            # Grid angles back to robot-frame angles (yaw 0): an exact negation.
+            spad = SpadFrame(angles=-simulated.angles, bin_width_s=self.cfg.spad.bin_width_s, n_bins=sparse.n_bins,
+                             row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
+        observation = Observation(stamp_s=self.steps * self.cfg.step_s, pose=pose, scan=scan, spad=spad)
+        self.steps += 1
+        return observation
+
+    def apply(self, command: Command) -> float:
+        """Drive up to ``step_cells`` cells along the commanded path; returns the metres driven.
+
+        The path must start at the robot's cell; a move into a wall is refused (the robot stops before it and
+        :attr:`collisions` counts it). A command without a path leaves the robot where it is.
+
+        Raises:
+            ValueError: not a Command, or a path that does not start at the robot's cell.
+        """
+        if not isinstance(command, Command):
+            raise ValueError(f"apply() takes a Command, got {type(command).__name__}")
+        path_xy = np.asarray(command.path_xy, np.float64).reshape(-1, 2)
+        if len(path_xy) == 0:
+            return 0.0
+        path = [self.frame.cell_of(x, y) for x, y in path_xy]
+        if path[0] != self.pose_rc:
+            raise ValueError(f"the commanded path starts at cell {path[0]}, the robot is at {self.pose_rc}")
+        free = 1
+        while free < len(path) and free <= self.cfg.step_cells and self.grid.is_free(path[free]) \
+                and max(abs(path[free][0] - path[free - 1][0]), abs(path[free][1] - path[free - 1][1])) == 1:
+            free += 1
+        if free <= min(self.cfg.step_cells, len(path) - 1):
+            self.collisions += 1
+        pose, _, metres = advance(path[:free], self.cfg.step_cells, self.grid.resolution_m)
+        self.pose_rc = (int(pose[0]), int(pose[1]))
+        self.driven_m += metres
+        return metres
+
+    def coverage(self, known: np.ndarray) -> float:
+        """Known share of the valid area for a bool ``[H, W]`` map of known cells (the explorer's)."""
+        return coverage_of(np.asarray(known, bool), self.grid.valid)

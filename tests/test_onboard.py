@@ -1,0 +1,374 @@
+"""The onboard explorer, the simulated world and the loop joining them: equality with the ground-truth loop they
+replaced, the measured-range kernel, the no-truth guarantee and bad inputs."""
+
+import ast
+import gc
+import json
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from superex_deploy.commands.explore import make_predictor, make_sensing
+from superex_deploy.explore.planners import make_planner
+from superex_deploy.explore.prediction import ObservedAsPrediction
+from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
+from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start, start_poses
+from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
+from superex_deploy.onboard import Explorer, SpadProcessing
+from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.sim.world import World, WorldConfig
+from superex_deploy.spad import SpadConfig
+from tests.naive import naive_mark_ranges
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN_FLOOR = list_maps("train")[0]
+LEGACY = json.loads((ROOT / "tests" / "data" / "legacy_episodes.json").read_text())
+
+
+@pytest.mark.parametrize("case", LEGACY["episodes"], ids=lambda e: f"{e['planner']}-{e['predictor']}"
+                                                              f"{'-spad' if e['spad'] else ''}")
+def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(case):
+    # tests/data/legacy_episodes.json was written by the ground-truth loop at commit 4253e2c (mapper casting rays
+    # on grid.occupied, the SPAD hook called with the grid): every pose, goal, coverage and IoU must be identical.
+    grid = load_map(case["map"])
+    start = start_poses(case["map"])[case["start_index"]]
+    result = run_episode(grid, start, make_planner(case["planner"]), make_predictor(case["predictor"], grid),
+                         steps=case["steps"], seed=case["seed"], cfg=ExplorationConfig(iou_every=case["iou_every"]),
+                         nlos=make_sensing(case["predictor"], case["spad"], case["seed"]))
+    assert result.poses.tolist() == case["poses"]
+    assert result.goal_steps == case["goal_steps"] and [list(g) for g in result.goals] == case["goals"]
+    assert result.coverage.tolist() == case["coverage"]
+    assert result.coverage_with_carving.tolist() == case["coverage_with_carving"]
+    assert result.iou == case["iou"] and result.finished == case["finished"]
+    assert int(result.final_carved.sum()) == case["final_carved_count"]
+
+
+def test_mark_ranges_matches_its_naive_twin_on_random_scenes():
+    rng = np.random.default_rng(7)
+    for _ in range(25):
+        shape = tuple(rng.integers(5, 30, 2))
+        occupied = rng.random(shape) < 0.2
+        y0, x0 = rng.uniform(0, shape[0]), rng.uniform(0, shape[1])
+        occupied[int(y0), int(x0)] = False
+        angles = rng.uniform(-np.pi, np.pi, 40)
+        max_t = float(rng.uniform(2, 40))
+        hits = cast_rays(occupied, (y0, x0), angles, max_t)
+        ranges = np.where(hits.hit_mask, hits.distance_cells, np.inf)
+        ranges[rng.random(40) < 0.2] = np.inf  # some rays lose their return: free up to the range
+        free, hit = np.zeros(shape, bool), np.zeros(shape, bool)
+        mark_ranges((y0, x0), angles, ranges, max_t, free, hit)
+        naive_free, naive_hit = naive_mark_ranges(shape, y0, x0, angles, ranges, max_t)
+        np.testing.assert_array_equal(free, naive_free)
+        np.testing.assert_array_equal(hit, naive_hit)
+
+
+def test_float32_ranges_rebuild_the_ground_truth_scan_on_real_floors():
+    # What the world sends (float32 metres, rounded up) marks exactly what rays cast on the truth mark.
+    rng = np.random.default_rng(3)
+    for name in ("50052750", TRAIN_FLOOR):
+        grid = load_map(name)
+        world = World(grid, random_start(grid, rng, 0.4))
+        cells = np.argwhere(grid.valid & ~grid.occupied)
+        for r, c in cells[rng.choice(len(cells), 6, replace=False)]:
+            world.pose_rc = (int(r), int(c))
+            scan = world.observe().scan
+            angles = -scan.angles()
+            truth_free, truth_hit = np.zeros(grid.shape, bool), np.zeros(grid.shape, bool)
+            mark_rays(grid.occupied, (r + 0.5, c + 0.5), angles, 200.0, truth_free, truth_hit)
+            free, hit = np.zeros(grid.shape, bool), np.zeros(grid.shape, bool)
+            mark_ranges((r + 0.5, c + 0.5), angles, scan.ranges.astype(np.float64) / 0.1, 200.0, free, hit)
+            np.testing.assert_array_equal(free, truth_free)
+            np.testing.assert_array_equal(hit, truth_hit)
+
+
+def test_mark_ranges_refuses_bad_input():
+    free, hit = np.zeros((5, 5), bool), np.zeros((5, 5), bool)
+    with pytest.raises(ValueError, match="NaN or a negative range"):
+        mark_ranges((2.5, 2.5), [0.0], [np.nan], 10.0, free, hit)
+    with pytest.raises(ValueError, match="ranges_cells has shape"):
+        mark_ranges((2.5, 2.5), [0.0, 1.0], [1.0], 10.0, free, hit)
+    with pytest.raises(ValueError, match="outside the grid"):
+        mark_ranges((7.5, 2.5), [0.0], [1.0], 10.0, free, hit)
+
+
+def _box(rows=9, cols=12) -> OccupancyGrid:
+    occupied = np.zeros((rows, cols), bool)
+    occupied[0, :] = occupied[-1, :] = occupied[:, 0] = occupied[:, -1] = True
+    return OccupancyGrid(occupied, ~occupied, 0.1, "box")
+
+
+def test_the_world_reports_wall_faces_as_ranges_in_metres():
+    world = World(_box(), (4, 5), WorldConfig())
+    observation = world.observe()
+    pose, scan = observation.pose, observation.scan
+    assert (pose.x, pose.y, pose.yaw) == pytest.approx((0.55, 0.45, 0.0))
+    angles = scan.angles()
+    # East: from x = 5.5 cells to the face of column 11 (x = 11): 5.5 cells; north (up, row 0's face y = 1): 3.5.
+    east, north = np.argmin(np.abs(angles)), np.argmin(np.abs(angles - np.pi / 2))
+    assert scan.ranges[east] == pytest.approx(0.55, abs=1e-6) and scan.ranges[east] >= np.float32(0.55) - 1e-7
+    assert scan.ranges[north] == pytest.approx(0.35, abs=1e-6)
+    assert np.all(np.isfinite(scan.ranges)) and scan.ranges.dtype == np.float32
+
+
+def test_the_world_drives_the_commanded_path_and_refuses_walls():
+    world = World(_box(), (4, 5), WorldConfig(step_cells=3))
+    frame = world.frame
+    path = np.array([(4, 5), (4, 6), (4, 7), (4, 8), (4, 9)])
+    command = Command(0.0, None, None, frame.centres_xy(path), path, False, False)
+    assert world.apply(command) == pytest.approx(0.3) and world.pose_rc == (4, 8)
+    into_wall = np.array([(4, 8), (4, 9), (4, 10), (4, 11)])
+    world.apply(Command(0.0, None, None, frame.centres_xy(into_wall), into_wall, False, False))
+    assert world.pose_rc == (4, 10) and world.collisions == 1
+    elsewhere = np.array([(2, 2), (2, 3)])
+    with pytest.raises(ValueError, match="starts at cell"):
+        world.apply(Command(0.0, None, None, frame.centres_xy(elsewhere), elsewhere, False, False))
+
+
+def test_a_start_outside_the_valid_area_is_refused():
+    grid = load_map("50052750")
+    outside = tuple(int(v) for v in np.argwhere(~grid.valid & ~grid.occupied)[0])
+    with pytest.raises(ValueError, match="outside the valid"):
+        World(grid, outside)
+
+
+def _explorer(frame: MapFrame, **kwargs) -> Explorer:
+    return Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), **kwargs)
+
+
+def test_explorer_refuses_bad_observations():
+    frame = MapFrame((9, 12), 0.1)
+    explorer = _explorer(frame)
+    ranges = np.full(8, np.inf, np.float32)
+    scan = LaserScan(0.0, np.pi / 4, 0.0, 2.0, ranges)
+    with pytest.raises(ValueError, match=r"lies outside the map"):
+        explorer.step(Observation(0.0, Pose2D(5.0, 0.5), scan))
+    with pytest.raises(ValueError, match="pose.x must be finite"):
+        Pose2D(float("nan"), 0.5)
+    with pytest.raises(ValueError, match="angles must increase"):
+        LaserScan(0.0, -0.1, 0.0, 2.0, ranges)
+    with pytest.raises(ValueError, match="scan has 8 ranges, but its angles"):
+        LaserScan(0.0, np.pi / 4, 0.0, 2.0, ranges, angle_max=np.pi)
+    with pytest.raises(ValueError, match="range_min < range_max"):
+        LaserScan(0.0, 0.1, 3.0, 2.0, ranges)
+    with pytest.raises(ValueError, match="takes an Observation"):
+        explorer.step("scan")
+    assert explorer.steps == 0  # nothing was integrated by the refused calls
+
+
+def test_a_spad_frame_that_does_not_match_the_sensor_model_is_refused():
+    grid = _box(40, 40)
+    world = World(grid, (20, 20), WorldConfig(spad=SpadConfig(n_rays=100, range_m=2.0)))
+    observation = world.observe()
+    explorer = _explorer(world.frame, nlos=SpadProcessing(sensor=SpadConfig(n_rays=100, range_m=3.0)))
+    with pytest.raises(ValueError, match=r"bins per ray, the sensor model"):
+        explorer.step(observation)
+    frame = observation.spad
+    with pytest.raises(ValueError, match="bins must lie in"):
+        SpadFrame(frame.angles, frame.bin_width_s, 3, frame.row_start, frame.bins, frame.counts)
+
+
+def test_the_explorer_turns_a_rotated_scan_into_the_same_map():
+    # A robot with another heading measures the same walls at other scan angles.
+    grid = load_map("50052750")
+    world = World(grid, start_poses("50052750")[1])
+    observation = world.observe()
+    yaw = 0.7
+    rotated = Observation(0.0, Pose2D(observation.pose.x, observation.pose.y, yaw),
+                          LaserScan(observation.scan.angle_min - yaw, observation.scan.angle_increment,
+                                    observation.scan.range_min, observation.scan.range_max, observation.scan.ranges))
+    a, b = _explorer(world.frame), _explorer(world.frame)
+    a.step(observation)
+    b.step(rotated)
+    differ = np.count_nonzero(a.observed != b.observed)
+    # angle_min - yaw is stored at float32 precision: the rays turn by ~3e-8 rad and a few cells grazed at their
+    # corners change (7 of 2,519 known cells here); a wrong sign or frame would change most of them.
+    assert differ <= 0.01 * np.count_nonzero(a.observed != -1)
+    mirrored = _explorer(world.frame)
+    mirrored.step(Observation(0.0, Pose2D(observation.pose.x, observation.pose.y, -yaw), rotated.scan))
+    assert np.count_nonzero(mirrored.observed != a.observed) > 0.2 * np.count_nonzero(a.observed != -1)
+
+
+def _reachable(root, limit=500_000):
+    """Every object reachable from ``root`` through data: instance attributes, containers, bound methods' objects.
+    Code is not followed (a function's globals reach every module, e.g. the map loader's cache)."""
+    module_dicts = {id(vars(m)) for m in list(sys.modules.values()) if m is not None}
+    seen, todo, found = set(), [root], []
+    while todo and len(seen) < limit:
+        item = todo.pop()
+        if id(item) in seen or id(item) in module_dicts:
+            continue
+        seen.add(id(item))
+        if isinstance(item, (type, types.ModuleType, types.FunctionType, types.BuiltinFunctionType,
+                             types.CodeType)) or type(item).__module__.startswith("numba"):
+            continue
+        found.append(item)
+        if isinstance(item, types.MethodType):
+            todo.append(item.__self__)
+            continue
+        todo.extend(gc.get_referents(item))
+    return found
+
+
+def test_the_explorer_holds_no_ground_truth_after_an_episode():
+    grid = load_map("50052750")
+    captured = {}
+
+    def keep(observation, command, explorer):
+        captured["explorer"] = explorer
+
+    run_episode(grid, start_poses("50052750")[0], make_planner("superex"), make_predictor("evidence", grid),
+                steps=8, nlos=make_sensing("evidence", True, 0), on_observation=keep)
+    for item in _reachable(captured["explorer"]):
+        assert not isinstance(item, OccupancyGrid), "the explorer can reach the ground-truth grid"
+        if isinstance(item, np.ndarray) and item.size > 1:
+            assert not np.shares_memory(item, grid.occupied) and not np.shares_memory(item, grid.valid)
+            if item.shape == grid.shape:  # nor a copy of the truth (the oracle predictor holds one)
+                assert not np.array_equal(item >= 0.5, grid.occupied) and not np.array_equal(item > 0, grid.valid)
+
+
+def _imports(path: Path) -> set:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def test_onboard_never_imports_the_simulator():
+    package = ROOT / "superex_deploy"
+    todo, seen = ["superex_deploy.onboard"], set()
+    while todo:
+        module = todo.pop()
+        if module in seen or not module.startswith("superex_deploy"):
+            continue
+        seen.add(module)
+        relative = Path(*module.split(".")[1:])
+        path = package / relative / "__init__.py" if (package / relative).is_dir() else package / f"{relative}.py"
+        if path.exists():
+            todo.extend(_imports(path))
+    assert not [m for m in seen if m.startswith("superex_deploy.sim")], sorted(seen)
+    # And at run time: importing the explorer loads no simulator module.
+    code = ("import sys, superex_deploy.onboard; "
+            "print([m for m in sys.modules if m.startswith('superex_deploy.sim')])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_command_holds_the_path_in_metres_and_cells():
+    grid = load_map("50052750")
+    world = World(grid, start_poses("50052750")[0])
+    explorer = _explorer(world.frame)
+    command = explorer.step(world.observe())
+    assert command.new_goal and command.goal_rc == explorer.goal and command.step == 0
+    assert tuple(command.path_rc[0]) == world.pose_rc and tuple(command.path_rc[-1]) == command.goal_rc
+    np.testing.assert_allclose(command.path_xy, world.frame.centres_xy(command.path_rc))
+    assert [world.frame.cell_of(x, y) for x, y in command.path_xy] == [tuple(c) for c in command.path_rc]
+    assert set(command.timings_s) == {"scan", "map_update", "frontiers", "prediction", "scoring", "path"}
+
+
+@pytest.mark.parametrize("planner,predictor,spad", [("nearest", "observed", False), ("upen", "lama_los", False),
+                                                     ("mapex", "observed", True), ("superex", "evidence", True)])
+def test_a_replay_of_a_recording_chooses_the_recorded_goals(tmp_path, planner, predictor, spad):
+    from superex_deploy.cli import main
+
+    record = tmp_path / "episode.mcap"
+    argv = ["explore", "--map", "50052750", "--start", "2", "--planner", planner, "--predictor", predictor,
+            "--steps", "25", "--seed", "5", "--gif-every", "50", "--out", str(tmp_path / "run"), "--record", str(record)]
+    assert main(argv + (["--spad"] if spad else [])) == 0
+    assert record.exists() and not (tmp_path / "episode.mcap.part").exists()
+    assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
+    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
+    run = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert replay["goals_match"] and replay["read_error"] is None and replay["steps"] == run["steps"]
+    assert replay["goals"] == run["goals"] and len(run["goals"]["cells"]) >= 1
+    final = np.load(tmp_path / "replay" / "map.npz")["observed"]
+    # The replayed explorer's map is the recorded run's (it knows as many cells as the run covered).
+    assert int((final != -1).sum()) == replay["known_cells"]
+
+
+def test_a_recording_is_readable_by_standard_mcap_tools(tmp_path):
+    from mcap.reader import make_reader
+
+    from superex_deploy.cli import main
+
+    record = tmp_path / "episode.mcap"
+    assert main(["explore", "--map", "50052750", "--planner", "nearest", "--steps", "30", "--gif-every", "50",
+                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    with open(record, "rb") as file:
+        summary = make_reader(file).get_summary()
+    topics = {channel.topic: summary.schemas[channel.schema_id].name for channel in summary.channels.values()}
+    assert topics == {"/pose": "geometry_msgs/msg/PoseStamped", "/scan": "sensor_msgs/msg/LaserScan",
+                      "/command": "superex_msgs/msg/ExplorerCommand", "/plan": "nav_msgs/msg/Path",
+                      "/map": "nav_msgs/msg/OccupancyGrid", "/spad": "superex_msgs/msg/SpadFrame"} or \
+        topics == {"/pose": "geometry_msgs/msg/PoseStamped", "/scan": "sensor_msgs/msg/LaserScan",
+                   "/command": "superex_msgs/msg/ExplorerCommand", "/plan": "nav_msgs/msg/Path",
+                   "/map": "nav_msgs/msg/OccupancyGrid"}
+    counts = {summary.channels[k].topic: v for k, v in summary.statistics.channel_message_counts.items()}
+    assert counts["/scan"] == counts["/pose"] == counts["/command"] == 30
+    assert counts["/map"] == 3  # steps 0, 25 and the last
+
+
+def test_a_truncated_recording_replays_what_it_holds_and_says_where_it_broke(tmp_path, capsys):
+    from superex_deploy.cli import main
+    from superex_deploy.recording import read_recording
+
+    record = tmp_path / "episode.mcap"
+    assert main(["explore", "--map", "50052750", "--planner", "mapex", "--steps", "80", "--gif-every", "50",
+                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    data = record.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:int(len(data) * 0.7)])
+    recording = read_recording(cut)
+    assert recording.error is not None and "is broken" in recording.error
+    assert 0 < len(recording.steps) < 80 and [s.step for s in recording.steps] == list(range(len(recording.steps)))
+    assert main(["replay", str(cut), "--out", str(tmp_path / "replay")]) == 1
+    out = capsys.readouterr().out
+    assert "warning: message" in out and "goals match the recording" in out
+    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
+    assert replay["goals_match"] and replay["steps"] == len(recording.steps)
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
+    assert main(["replay", str(tmp_path / "junk.mcap"), "--out", str(tmp_path / "r2")]) == 2
+    assert "is not a SuperEx recording" in capsys.readouterr().err
+    assert not (tmp_path / "r2").exists()
+
+
+def test_recording_refuses_bad_destinations_and_the_oracle(tmp_path, capsys):
+    from superex_deploy.cli import main
+
+    base = ["explore", "--map", "50052750", "--steps", "5", "--out", str(tmp_path / "run")]
+    assert main(base + ["--record", str(tmp_path / "missing" / "x.mcap")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(base + ["--predictor", "oracle", "--record", str(tmp_path / "x.mcap")]) == 2
+    assert "oracle" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.mcap*"))
+
+
+def test_the_gymnasium_environment_passes_the_checker_and_runs_a_random_agent():
+    gymnasium = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env
+
+    import superex_deploy.sim  # noqa: F401 - registers the environment
+
+    env = gymnasium.make("SuperEx/Explore-v0", map="50052750", max_steps=120)
+    check_env(env.unwrapped)
+    observation, info = env.reset(seed=3)
+    assert observation.shape == (3, 64, 64) and info["action_mask"].any()
+    total, done = 0.0, False
+    while not done:
+        action = env.action_space.sample(mask=info["action_mask"])
+        observation, reward, terminated, truncated, info = env.step(action)
+        assert reward >= 0.0 and env.observation_space.contains(observation)
+        total += reward
+        done = terminated or truncated
+    assert total > 10.0 and info["steps"] <= 120  # square metres newly known
+    again, _ = env.reset(seed=3)
+    first, _ = gymnasium.make("SuperEx/Explore-v0", map="50052750").reset(seed=3)
+    np.testing.assert_array_equal(again, first)
+    with pytest.raises(ValueError, match="oracle"):
+        gymnasium.make("SuperEx/Explore-v0", map="50052750", predictor="oracle")
