@@ -39,7 +39,7 @@ def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
     except ImportError:  # the legacy layout
         from superex_deploy.explore.episode import ExplorationConfig, run_episode
     from superex_deploy.commands.explore import make_predictor, make_sensing
-    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map, start_poses
 
     planner, predictor, spad = SETTINGS[setting]

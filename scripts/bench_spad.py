@@ -35,13 +35,15 @@ import numba
 import numpy as np
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.explore.planners import make_planner
-from superex_deploy.explore.prediction import ObservedAsPrediction
-from superex_deploy.explore.types import UNKNOWN
+from superex_deploy.onboard.planners import make_planner
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
 from superex_deploy.maps import list_maps, load_map, start_poses
-from superex_deploy.nlos import NlosConfig, nlos_ground_truth, process_scan, wall_iou
-from superex_deploy.spad import SPEED_OF_LIGHT, SpadConfig, prepare_scene, simulate_scan
+from superex_deploy.onboard.nlos import NlosConfig, process_scan, wall_iou
+from superex_deploy.sim.spad import nlos_ground_truth
+from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig
+from superex_deploy.sim.spad import prepare_scene, simulate_scan
 
 REBIN_M = 0.2
 DEFAULT = SpadConfig()

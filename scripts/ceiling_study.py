@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.explore.suite import bootstrap_interval
+from superex_deploy.sim.suite import bootstrap_interval
 from superex_deploy.maps import list_maps, load_map, map_building, random_start
 from superex_deploy.parallel import process_pool
 
@@ -62,7 +62,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, heldout: bool = False) ->
 def _episode(task: tuple) -> dict:
     from superex_deploy.commands.explore import make_predictor
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.onboard.planners import make_planner
 
     name, start, idea, planner, options, predictor, steps = task
     grid = load_map(name)

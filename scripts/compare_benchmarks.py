@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from superex_deploy.explore.metrics import paired_differences
+from superex_deploy.sim.metrics import paired_differences
 
 
 def _load(path: Path) -> list[dict]:

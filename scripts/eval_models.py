@@ -13,7 +13,7 @@ evidence every step; planner cycled over nearest / hector / mapex with the obser
 trajectory does not depend on the models scored). The first time the line-of-sight coverage enters each
 coverage bin (0-10, 10-20, 20-30 %), both ensembles predict the whole map: LAMA_BP from the observation with
 carving plus evidence, LAMA_LOS from the line-of-sight observation, and the observed map itself (unknown =
-free) as the floor. Scores: wall IoU over the evaluation area (``superex_deploy.explore.metrics.map_iou``,
+free) as the floor. Scores: wall IoU over the evaluation area (``superex_deploy.sim.metrics.map_iou``,
 threshold 0.5) and wall IoU on the cells unknown at that step (what prediction adds). A calibration table
 pools all predictions: IoU on unknown cells at thresholds 0.1-0.9, the share of unknown cells predicted as walls
 at 0.5 and the mean wall probability there, against the true share of walls.
@@ -36,15 +36,15 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from superex_deploy.sim.episode import EpisodeState, run_episode  # noqa: E402
-from superex_deploy.explore.metrics import evaluation_area, map_iou  # noqa: E402
-from superex_deploy.explore.planners import make_planner  # noqa: E402
-from superex_deploy.explore.prediction import ObservedAsPrediction  # noqa: E402
+from superex_deploy.sim.metrics import evaluation_area, map_iou  # noqa: E402
+from superex_deploy.onboard.planners import make_planner  # noqa: E402
+from superex_deploy.onboard.prediction import ObservedAsPrediction  # noqa: E402
 from superex_deploy.sim.sensing import SpadSensing  # noqa: E402
-from superex_deploy.explore.types import OCCUPIED, UNKNOWN  # noqa: E402
-from superex_deploy.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN  # noqa: E402
+from superex_deploy.onboard.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
                                       SessionConfig)
 from superex_deploy.maps import list_maps, load_map, map_building  # noqa: E402
-from superex_deploy.nlos import laplacian_filter  # noqa: E402
+from superex_deploy.onboard.nlos import laplacian_filter  # noqa: E402
 from superex_deploy.parallel import process_pool  # noqa: E402
 from superex_train.datasets import ShardDataset  # noqa: E402
 from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start  # noqa: E402

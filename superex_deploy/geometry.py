@@ -11,7 +11,10 @@ Conventions used throughout SuperEx
 * Ray distances returned here are in cells along the ray.
 
 The kernels are private ``_name`` functions compiled with ``numba.njit(cache=True)``; the public wrappers
-check dtypes, shapes and bounds and raise ``ValueError``. Slow references live in ``tests/naive.py``.
+check dtypes, shapes and bounds and raise ``ValueError``. Two kernels are shared with other modules' kernels (the
+SPAD simulator, the NLOS processing, the planners' visibility) and so are public, unchecked, callable only from
+compiled code or with already-checked arguments: :func:`dda_start` and :func:`group_by_cell`. Slow references live
+in ``tests/naive.py``.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numba
 import numpy as np
 
 __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
+           "dda_start", "group_by_cell",
            "RETURN_TOLERANCE_CELLS"]
 
 NO_HIT = -1
@@ -76,7 +80,7 @@ def cell_centre(rc) -> tuple[float, float]:
 
 
 @numba.njit(cache=True, inline="always")
-def _dda_start(y0, x0, dy, dx):
+def dda_start(y0, x0, dy, dx):
     """Amanatides-Woo set-up for a ray from (y0, x0) along (dy, dx): per axis the step (-1, 0, 1), the ray
     parameter of the first cell boundary and the parameter between boundaries."""
     r = int(np.floor(y0))
@@ -105,7 +109,7 @@ def _trace_first_hit(occupied, y0, x0, dy, dx, max_t):
     two walls that touch only at a corner.
     """
     n_rows, n_cols = occupied.shape
-    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(y0, x0, dy, dx)
+    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(y0, x0, dy, dx)
     if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
         return -1, -1, 0.0, -1
     if occupied[r, c]:
@@ -144,7 +148,7 @@ def _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out):
     """Mark every cell a ray crosses before its first hit in ``free_out`` and the hit cell in ``hit_out``."""
     n_rows, n_cols = occupied.shape
     for i in range(angles.shape[0]):
-        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
             y0, x0, np.sin(angles[i]), np.cos(angles[i]))
         if occupied[r, c]:
             hit_out[r, c] = True
@@ -245,7 +249,7 @@ def _mark_ranges(y0, x0, angles, ranges, max_t, tolerance, free_out, hit_out):
     ``ranges[i] < 0``: no return, cells entered up to ``max_t`` are free."""
     n_rows, n_cols = free_out.shape
     for i in range(angles.shape[0]):
-        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
             y0, x0, np.sin(angles[i]), np.cos(angles[i]))
         hit_at = ranges[i] + tolerance if ranges[i] >= 0.0 else -1.0
         while True:
@@ -334,7 +338,7 @@ def line_of_sight(blocked: np.ndarray, a_rc, b_rc) -> bool:
 
 
 @numba.njit(cache=True)
-def _group_by_cell(hit_rc, n_cols):
+def group_by_cell(hit_rc, n_cols):
     """Group rays by the cell they hit, the groups ordered by linear cell index ``row * n_cols + col``.
 
     Args:

@@ -307,7 +307,7 @@ class Command:
         path_rc: int64 ``[N, 2]`` the same waypoints as cells.
         finished: True when no reachable frontier is left.
         new_goal: True when the goal was chosen at this step.
-        prediction: the newest predicted map (see :class:`superex_deploy.explore.types.Prediction`), or None when
+        prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
             the planner has not needed one yet.
         prediction_step: the step the prediction was made at (its age is ``step - prediction_step``), or -1.
         step: the explorer's step counter (0 for the first observation).

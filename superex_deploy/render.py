@@ -78,7 +78,7 @@ def _observed_image(observed: np.ndarray) -> np.ndarray:
 def save_episode_figure(path: Path, grid, result) -> Path:
     """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
     frontier regions left (orange, dots at their goal cells); the final prediction."""
-    from superex_deploy.explore.frontiers import find_frontiers
+    from superex_deploy.onboard.frontiers import find_frontiers
 
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(18, 6))
@@ -179,7 +179,7 @@ def save_suite_plots(out_dir: Path, rows: dict, steps: int) -> None:
     """The paper's two figures for ``superex benchmark --suite paper``: coverage.png (mean coverage with carving
     against step, per row, its bootstrap 95 % interval shaded) and iou_vs_coverage.png (mean map IoU per 5 %
     coverage bin, the interval over episodes shaded)."""
-    from superex_deploy.explore.suite import bootstrap_interval, coverage_curves
+    from superex_deploy.sim.suite import bootstrap_interval, coverage_curves
 
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 5.5))

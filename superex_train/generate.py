@@ -6,7 +6,7 @@ exploration episodes (random free start cells, planners cycled over ``planners``
 * **Pix2Pix** (:func:`generate_pix2pix`): every ``sample_every`` steps a SPAD scan is simulated at the robot's
   cell and back-projected with the cells known at that step skipped (as :class:`~superex_deploy.sim.sensing.
   SpadSensing` does). Input: the raw back-projection window (``window_cells`` square, robot at its centre cell).
-  Target: the scan's ``h2`` cells (simulator truth, :func:`~superex_deploy.nlos.nlos_ground_truth`) that are
+  Target: the scan's ``h2`` cells (simulator truth, :func:`~superex_deploy.sim.spad.nlos_ground_truth`) that are
   still unknown. Loss mask: unknown cells of the map's area or walls (``valid | occupied``: ``valid`` excludes wall cells;
   known cells receive no votes, and are known anyway).
 * **LaMa** (:func:`generate_lama`): the episodes run the SuperEx sensing (SPAD scan, carving and evidence at
@@ -30,16 +30,18 @@ from typing import Callable, Iterator, Optional, Sequence, Union
 import numpy as np
 
 from superex_deploy.sim.episode import EpisodeState, ExplorationConfig, run_episode
-from superex_deploy.explore.planners import make_planner
-from superex_deploy.explore.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planners import make_planner
+from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing
-from superex_deploy.explore.types import UNKNOWN
-from superex_deploy.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
+from superex_deploy.onboard.types import UNKNOWN
+from superex_deploy.onboard.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
                                       sha256_file)
 from superex_deploy.maps import list_maps, load_map, map_building, random_start
-from superex_deploy.nlos import NlosConfig, back_project, estimate_los, nlos_ground_truth
+from superex_deploy.onboard.nlos import NlosConfig, back_project, estimate_los
+from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.parallel import process_pool
-from superex_deploy.spad import SpadConfig, simulate_scan
+from superex_deploy.spad_types import SpadConfig
+from superex_deploy.sim.spad import simulate_scan
 from superex_train.datasets import DatasetInfo, ShardWriter
 
 __all__ = ["GenerationConfig", "HELDOUT_FRACTION", "heldout_buildings", "random_start", "generate_pix2pix",
@@ -79,7 +81,7 @@ class GenerationConfig:
         maps: bundled map names (default: every ``train`` map; ``eval`` maps are refused).
         episodes_per_map: episodes per map (start cell and planner differ).
         steps: steps per episode (episodes end earlier when no frontier is left).
-        planners: planner names cycled over the episodes (``superex_deploy.explore.planners.PLANNERS``).
+        planners: planner names cycled over the episodes (``superex_deploy.onboard.planners.PLANNERS``).
         sample_every: steps between samples (the first sample is at a random step below this).
         window_cells: Pix2Pix window side (cells).
         tile_cells: LaMa tile side (cells).
@@ -188,7 +190,7 @@ _WORKER_FILTER: dict[str, Optional[Pix2PixFilter]] = {}
 def _lama_episode(episode: _Episode, cfg: GenerationConfig, pix2pix_path: Optional[str]
                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Tiles ``(bp_inputs [3, t, t], los_inputs [2, t, t], walls, mask)``."""
-    from superex_deploy.inference import SessionConfig
+    from superex_deploy.onboard.inference import SessionConfig
 
     if pix2pix_path not in _WORKER_FILTER:  # one ONNX Runtime session per worker process
         _WORKER_FILTER[pix2pix_path] = (None if pix2pix_path is None else

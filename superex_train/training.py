@@ -34,7 +34,7 @@ from typing import Optional
 import numpy as np
 import torch
 
-from superex_deploy.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
+from superex_deploy.onboard.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
 from superex_train.datasets import ShardDataset, split_by_group
 from superex_train.losses import gan_loss, soft_dice_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,
@@ -110,7 +110,7 @@ class Pix2PixTrainConfig(RunSettings):
         dice_weight: weight of a soft Dice term over each batch (0: none); Dice is ``2 IoU / (1 + IoU)``, so
             this term aims at the pooled wall IoU the filter is scored by, which the per-cell terms reach only
             through the choice of ``wall_weight``.
-        input_encoding: :class:`~superex_deploy.inference.BpEncoding` value the generator reads; datasets
+        input_encoding: :class:`~superex_deploy.onboard.inference.BpEncoding` value the generator reads; datasets
             store ``linear`` windows, re-encoded per batch, and the export declares this encoding.
     """
 
@@ -154,7 +154,7 @@ class LamaTrainConfig(RunSettings):
         init_from: a LaMa checkpoint (file or run folder) whose generator weights start the run instead of a
             random initialisation; ``{member}`` in it is replaced by the member index. Its architecture must
             equal ``model`` except for the input channels, which are matched by name
-            (:data:`~superex_deploy.inference.MODEL_CHANNELS`): a channel the source lacks gets zero stem weights,
+            (:data:`~superex_deploy.onboard.inference.MODEL_CHANNELS`): a channel the source lacks gets zero stem weights,
             so a LaMa-BP member started from a LaMa-LOS one first predicts exactly what the LOS member does and
             learns to read the evidence channel from there. Empty: random initialisation.
     """

@@ -106,7 +106,7 @@ def _naive_facing_normal(scene, r, c, entry_axis, dy, dx, towards):
 
 
 def naive_group_by_cell(hit_rc, n_cols):
-    """geometry._group_by_cell with a dict: distinct hit cells sorted by row * n_cols + col, the first ray (in
+    """geometry.group_by_cell with a dict: distinct hit cells sorted by row * n_cols + col, the first ray (in
     ray order) that hit each, and the group of every ray (-1 for no hit)."""
     first_ray = {}
     for i, (r, c) in enumerate(hit_rc.tolist()):
@@ -130,7 +130,7 @@ def naive_simulate_histograms(scene, pose_rc, cfg):
     Follows simulate_scan's documented model (fan from X1 on the normal through the cell centre, offset start,
     clamped cosines, the fan of a cell built with the entry face of the first ray that hit it).
     """
-    from superex_deploy.spad import FAN_OFFSET_CELLS, MIN_DISTANCE_CELLS
+    from superex_deploy.sim.spad import FAN_OFFSET_CELLS, MIN_DISTANCE_CELLS
 
     grid = scene.grid
     res = grid.resolution_m
@@ -389,7 +389,7 @@ def _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle):
 
 
 def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate):
-    """Per-ray visible range of the probabilistic raycast (planners._ray_visible_ranges): a cell blocks when its
+    """Per-ray visible range of the probabilistic raycast (visibility._ray_visible_ranges): a cell blocks when its
     probability (or, accumulating, 1 - prod(1 - p) from the start cell on) reaches the threshold; the range
     ends at the blocking cell's entry + 0.5, at max_t or at the border; all zero from a blocking start cell."""
     n_rows, n_cols = mean.shape
@@ -417,7 +417,7 @@ def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate)
 
 
 def naive_fill_visibility(ranges, y0, x0, observed, variance):
-    """Visible mask, visible-unknown count and variance sum (planners._fill_visibility), testing every cell
+    """Visible mask, visible-unknown count and variance sum (visibility._fill_visibility), testing every cell
     centre against the triangle (viewpoint, end point k, end point k + 1) of its angular sector by barycentric
     coordinates."""
     n_rays = len(ranges)
@@ -443,7 +443,7 @@ def naive_fill_visibility(ranges, y0, x0, observed, variance):
 
 
 def naive_grow_rrt(passable, reachable, start_y, start_x, samples, expand_cells, variance):
-    """Pure-Python RRT with planners._grow_rrt's steering and collision rule; for every node the whole
+    """Pure-Python RRT with planners.upen._grow_rrt's steering and collision rule; for every node the whole
     root-to-node path is walked again to sum its variance and find its exit (last cell before the first one
     outside ``reachable``)."""
 

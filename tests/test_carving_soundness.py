@@ -5,8 +5,9 @@ import pytest
 
 from superex_deploy.geometry import cell_centre, mark_rays, ray_angles
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map
-from superex_deploy.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los
-from superex_deploy.spad import SpadConfig, simulate_scan
+from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los
+from superex_deploy.spad_types import SpadConfig
+from superex_deploy.sim.spad import simulate_scan
 
 N_POSES = 2000
 # Fewer primaries than the default keep 2,000 scans fast; the fan (the part soundness depends on) is default.

@@ -2,13 +2,16 @@ import numpy as np
 import pytest
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.explore.frontiers import find_frontiers, frontier_cells
-from superex_deploy.explore.mapper import LidarConfig, Mapper
-from superex_deploy.explore.metrics import map_iou, paired_differences, summarise
-from superex_deploy.explore.motion import MotionConfig, planning_map
-from superex_deploy.explore.planners import MapexPlanner, NearestFrontier, make_planner
-from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.onboard.frontiers import find_frontiers, frontier_cells
+from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.sim.metrics import coverage
+from superex_deploy.sim.world import LidarConfig, World, WorldConfig
+from superex_deploy.sim.metrics import map_iou, paired_differences, summarise
+from superex_deploy.onboard.motion import MotionConfig, planning_map
+from superex_deploy.onboard.planners import MapexPlanner, NearestFrontier, make_planner
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.sim.oracle import OraclePredictor
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 
 
@@ -82,18 +85,20 @@ def test_mapper_scans_and_carving_are_separate():
     walls[[0, -1], :] = walls[:, [0, -1]] = True
     walls[1:19, 10] = True
     grid = OccupancyGrid(walls, ~walls, 0.1, "rooms")
-    mapper = Mapper(grid.shape, LidarConfig(n_rays=360, range_m=5.0))
-    mapper.integrate_scan(grid.occupied, (10, 5), 0.1)
+    mapper = Mapper(grid.shape)
+    world = World(grid, (10, 5), WorldConfig(lidar=LidarConfig(n_rays=360, range_m=5.0)))
+    observation = world.observe()
+    mapper.integrate_scan(world.frame, observation.pose, observation.scan)
     observed = mapper.observed()
     assert np.all(observed[1:19, 1:10] == FREE) and np.all(observed[1:19, 11:19] == UNKNOWN)
     assert np.all(observed[5:15, 10] == OCCUPIED)
-    before = mapper.coverage(grid.valid)
+    before = coverage(mapper.known(), grid.valid)
     carved = np.zeros(grid.shape, bool)
     carved[5:8, 12:15] = True
     carved[6, 10] = True  # never overrides an observed wall
     mapper.merge_carved(carved)
-    assert mapper.coverage(grid.valid, include_carved=False) == before
-    assert mapper.coverage(grid.valid) > before
+    assert coverage(mapper.known(include_carved=False), grid.valid) == before
+    assert coverage(mapper.known(), grid.valid) > before
     assert mapper.observed()[6, 10] == OCCUPIED and mapper.observed()[6, 13] == FREE
     assert mapper.observed(include_carved=False)[6, 13] == UNKNOWN
 

@@ -5,13 +5,13 @@ import pytest
 
 from superex_deploy.onboard.explorer import _choose, _near_visited, _reached
 from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
-from superex_deploy.explore.frontiers import find_frontiers
-from superex_deploy.explore.types import FREE, OCCUPIED, Planner, Prediction
+from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import SpadFrame
 from superex_deploy.onboard import SpadProcessing
 from superex_deploy.sim.sensing import SpadSensing
-from superex_deploy.spad import SpadConfig
+from superex_deploy.spad_types import SpadConfig
 
 _SMALL_SPAD = SpadConfig(n_rays=100, range_m=3.0)
 

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.frontiers import find_frontiers, frontier_cells
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.onboard.frontiers import find_frontiers, frontier_cells
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from tests.naive import naive_frontier_regions
 
 

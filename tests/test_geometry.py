@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.geometry import _group_by_cell, cast_rays, cell_centre, line_of_sight, mark_rays, ray_angles
+from superex_deploy.geometry import group_by_cell, cast_rays, cell_centre, line_of_sight, mark_rays, ray_angles
 from tests.naive import naive_first_hit, naive_group_by_cell, naive_mark_rays
 
 
@@ -18,12 +18,12 @@ def test_group_by_cell_matches_naive(seed, dtype):
     # Runs of repeated cells, cells that come back after other cells, and misses.
     cells = rng.integers(0, 6, size=(n_rays // 5, 2)).repeat(5, axis=0)
     cells[rng.random(n_rays) < 0.2] = -1
-    ray_group, group_cells, first_ray = _group_by_cell(cells.astype(dtype), n_cols)
+    ray_group, group_cells, first_ray = group_by_cell(cells.astype(dtype), n_cols)
     expected = naive_group_by_cell(cells, n_cols)
     np.testing.assert_array_equal(ray_group, expected[0])
     np.testing.assert_array_equal(group_cells, expected[1])
     np.testing.assert_array_equal(first_ray, expected[2])
-    none = _group_by_cell(np.full((4, 2), -1, dtype), n_cols)
+    none = group_by_cell(np.full((4, 2), -1, dtype), n_cols)
     assert (none[0] == -1).all() and none[1].shape == (0, 2) and none[2].shape == (0,)
 
 

@@ -1,9 +1,19 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.mapper import LidarConfig, Mapper
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
+from superex_deploy.messages import LaserScan, MapFrame, Pose2D
+from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.sim.metrics import coverage
+from superex_deploy.sim.world import LidarConfig, World, WorldConfig
+
+
+def _scan(mapper, grid, pose, lidar=LidarConfig()):
+    """Integrate the scan the simulated world measures at cell ``pose``."""
+    world = World(grid, pose, WorldConfig(lidar=lidar))
+    observation = world.observe()
+    mapper.integrate_scan(world.frame, observation.pose, observation.scan)
 
 
 def _box(shape=(20, 20)):
@@ -14,8 +24,8 @@ def _box(shape=(20, 20)):
 
 def test_an_empty_room_is_fully_seen_from_anywhere():
     grid = _box()
-    mapper = Mapper(grid.shape, LidarConfig(n_rays=720, range_m=5.0))
-    mapper.integrate_scan(grid.occupied, (4, 13), grid.resolution_m)
+    mapper = Mapper(grid.shape)
+    _scan(mapper, grid, (4, 13), LidarConfig(n_rays=720, range_m=5.0))
     observed = mapper.observed()
     # Every wall cell is hit except the four corners: a ray reaches one only through its shared corner point,
     # and the DDA steps into a side wall first.
@@ -23,19 +33,19 @@ def test_an_empty_room_is_fully_seen_from_anywhere():
     corners[[0, 0, -1, -1], [0, -1, 0, -1]] = True
     np.testing.assert_array_equal(observed == OCCUPIED, grid.occupied & ~corners)
     np.testing.assert_array_equal(observed == UNKNOWN, corners)
-    assert mapper.coverage(grid.valid) == 1.0
+    assert coverage(mapper.known(), grid.valid) == 1.0
 
 
 def test_cells_beyond_the_range_stay_unknown():
     grid = _box((41, 41))
-    mapper = Mapper(grid.shape, LidarConfig(n_rays=2000, range_m=1.0))  # 10 cells
-    mapper.integrate_scan(grid.occupied, (20, 20), grid.resolution_m)
+    mapper = Mapper(grid.shape)
+    _scan(mapper, grid, (20, 20), LidarConfig(n_rays=2000, range_m=1.0))  # 10 cells
     rows, cols = np.indices(grid.shape)
     distance = np.hypot(rows + 0.5 - 20.5, cols + 0.5 - 20.5)  # centre to cell centre, in cells
     observed = mapper.observed()
     assert np.all(observed[distance > 10 + np.sqrt(0.5)] == UNKNOWN)  # no cell is entered beyond 10 cells
     assert np.all(observed[distance < 9] == FREE)
-    assert 0 < mapper.coverage(grid.valid) < 0.3
+    assert 0 < coverage(mapper.known(), grid.valid) < 0.3
 
 
 def test_scans_accumulate_and_never_contradict_the_ground_truth():
@@ -47,13 +57,13 @@ def test_scans_accumulate_and_never_contradict_the_ground_truth():
     previous_known = mapper.known()
     coverages = []
     for pose in poses:
-        mapper.integrate_scan(grid.occupied, pose, grid.resolution_m)
+        _scan(mapper, grid, pose)
         known = mapper.known()
         assert np.all(known[previous_known])  # nothing is forgotten
         previous_known = known
         assert not np.any(mapper.seen_free & grid.occupied)
         assert np.all(grid.occupied[mapper.seen_wall])
-        coverages.append(mapper.coverage(grid.valid))
+        coverages.append(coverage(mapper.known(), grid.valid))
     assert coverages == sorted(coverages) and coverages[-1] > coverages[0]
 
 
@@ -62,9 +72,9 @@ def test_carving_is_kept_apart_and_never_overrides_a_seen_wall():
     walls[[0, -1], :] = walls[:, [0, -1]] = True
     walls[1:19, 10] = True
     grid = OccupancyGrid(walls, ~walls, 0.1, "two rooms")
-    mapper = Mapper(grid.shape, LidarConfig(n_rays=360, range_m=5.0))
-    mapper.integrate_scan(grid.occupied, (10, 5), 0.1)
-    line_of_sight = mapper.coverage(grid.valid)
+    mapper = Mapper(grid.shape)
+    _scan(mapper, grid, (10, 5), LidarConfig(n_rays=360, range_m=5.0))
+    line_of_sight = coverage(mapper.known(), grid.valid)
     # The left room (8 x 18 free cells plus the bounding walls is known) is 9/18 of the valid area.
     assert line_of_sight == pytest.approx(9 * 18 / (18 * 18 - 18))
     carved = np.zeros(grid.shape, bool)
@@ -72,8 +82,8 @@ def test_carving_is_kept_apart_and_never_overrides_a_seen_wall():
     carved[6, 10] = True  # a wall already seen: stays a wall
     mapper.merge_carved(carved)
     mapper.merge_carved(np.zeros(grid.shape, bool))  # merging is cumulative
-    assert mapper.coverage(grid.valid, include_carved=False) == line_of_sight
-    assert mapper.coverage(grid.valid) == pytest.approx(line_of_sight + 9 / (18 * 18 - 18))
+    assert coverage(mapper.known(include_carved=False), grid.valid) == line_of_sight
+    assert coverage(mapper.known(), grid.valid) == pytest.approx(line_of_sight + 9 / (18 * 18 - 18))
     assert mapper.observed()[6, 10] == OCCUPIED and mapper.observed()[6, 13] == FREE
     assert mapper.observed(include_carved=False)[6, 13] == UNKNOWN
     assert mapper.carved[6, 13] and not mapper.seen_free[6, 13]
@@ -82,12 +92,13 @@ def test_carving_is_kept_apart_and_never_overrides_a_seen_wall():
 def test_bad_inputs_raise_value_error():
     grid = _box()
     mapper = Mapper(grid.shape)
-    with pytest.raises(ValueError, match="outside"):
-        mapper.integrate_scan(grid.occupied, (20, 3), 0.1)
-    with pytest.raises(ValueError, match="shape"):
-        mapper.integrate_scan(grid.occupied[:5], (2, 3), 0.1)
-    with pytest.raises(ValueError, match="resolution_m"):
-        mapper.integrate_scan(grid.occupied, (2, 3), 0.0)
+    scan = LaserScan(0.0, 0.1, 0.0, 2.0, np.full(10, np.inf, np.float32))
+    with pytest.raises(ValueError, match="outside the map"):
+        mapper.integrate_scan(MapFrame(grid.shape, 0.1), Pose2D(0.5, 2.5), scan)
+    with pytest.raises(ValueError, match="the map frame has shape"):
+        mapper.integrate_scan(MapFrame((5, 20), 0.1), Pose2D(0.5, 0.2), scan)
+    with pytest.raises(ValueError, match="resolution_m must be positive"):
+        MapFrame(grid.shape, 0.0)
     with pytest.raises(ValueError, match="carved"):
         mapper.merge_carved(np.zeros(grid.shape, np.uint8))
     with pytest.raises(ValueError, match="LidarConfig"):

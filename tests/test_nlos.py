@@ -6,11 +6,13 @@ import pytest
 from scipy import ndimage, stats
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.nlos import (
+from superex_deploy.onboard.nlos import (
     RING_PAD, NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
     _los_and_first_late_bins, _window, back_project, carve, carve_radius_cap_m, estimate_los,
-    laplacian_filter, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant)
-from superex_deploy.spad import SpadConfig, SpadNoise, SparseHistograms, simulate_scan
+    laplacian_filter, process_scan, wall_iou, wall_iou_tolerant)
+from superex_deploy.sim.spad import nlos_ground_truth
+from superex_deploy.spad_types import SpadConfig, SpadNoise, SparseHistograms
+from superex_deploy.sim.spad import simulate_scan
 from tests.naive import (
     naive_back_projection, naive_draw_rings, naive_carve_sectors, naive_hit_normals,
     naive_los_and_first_late_bins)

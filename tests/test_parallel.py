@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import load_map, start_poses
-from superex_deploy.nlos import NlosConfig, process_scan
+from superex_deploy.onboard.nlos import NlosConfig, process_scan
 from superex_deploy.parallel import process_pool
-from superex_deploy.spad import SpadConfig, simulate_scan
+from superex_deploy.spad_types import SpadConfig
+from superex_deploy.sim.spad import simulate_scan
 
 MAP = "50052750"
 SPAD = SpadConfig(n_rays=400, n_secondary=16)

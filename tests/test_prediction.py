@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from superex_deploy.explore.prediction import ObservedAsPrediction, OraclePredictor
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.sim.oracle import OraclePredictor
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid
 
 

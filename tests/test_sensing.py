@@ -1,8 +1,8 @@
 import numpy as np
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.explore.planners import NearestFrontier
-from superex_deploy.explore.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planners import NearestFrontier
+from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.maps import load_map, start_poses
 
@@ -31,8 +31,8 @@ def test_spad_sensing_adds_sound_carved_coverage_to_an_episode():
 
 
 def test_a_bp_filter_replaces_the_laplacian_and_evidence_is_its_running_maximum():
-    from superex_deploy.explore.types import UNKNOWN
-    from superex_deploy.nlos import laplacian_filter
+    from superex_deploy.onboard.types import UNKNOWN
+    from superex_deploy.onboard.nlos import laplacian_filter
 
     grid = load_map("50052750")
     poses = [start_poses("50052750")[2], (start_poses("50052750")[2][0], start_poses("50052750")[2][1] + 30)]

@@ -3,10 +3,9 @@ import pytest
 
 from superex_deploy.geometry import cast_rays, ray_angles
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy import spad
-from superex_deploy.spad import (
-    BLOCK_CELLS, FAN_OFFSET_CELLS, SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms, _cast_primaries,
-    _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan)
+from superex_deploy.sim import spad
+from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms
+from superex_deploy.sim.spad import BLOCK_CELLS, FAN_OFFSET_CELLS, _cast_primaries, _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan
 from tests.naive import naive_first_hit, naive_simulate_histograms, naive_sort_paths, naive_thin_wall_normals
 
 RES = 0.1

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from superex_deploy.cli import main
-from superex_deploy.explore.prediction import EvidenceAsPrediction
-from superex_deploy.explore.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
+from superex_deploy.onboard.prediction import EvidenceAsPrediction
+from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
 
 
 def _episode(coverage, carved=None, iou=((0, 0.0, 0.0),), start=0, name="m"):

@@ -1,6 +1,6 @@
 """``superex benchmark``: every start pose of a set of maps x planners, in parallel processes.
 
-``--suite paper`` runs the paper's table instead: the named rows of :data:`~superex_deploy.explore.suite.PAPER_ROWS`
+``--suite paper`` runs the paper's table instead: the named rows of :data:`~superex_deploy.sim.suite.PAPER_ROWS`
 (planner x predictor x sensing) on the 40 eval scenarios, each row written to ``OUT/rows/ROW.json`` as soon as it
 is done (a rerun skips the rows already there), then the summary paired by scenario against MapEx on LaMa-LOS:
 ``results.md``, ``results.json``, ``coverage.png``, ``iou_vs_coverage.png``.
@@ -44,7 +44,7 @@ def run_scenario(task: tuple) -> dict:
     config overrides])``; the overrides default to an IoU evaluation every 50 steps."""
     from superex_deploy.commands.explore import make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
 
     map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
@@ -68,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
         return run_paper(args)
     from tqdm import tqdm
 
-    from superex_deploy.explore.metrics import results_markdown, summarise
-    from superex_deploy.explore.planners import PLANNERS, make_planner
+    from superex_deploy.sim.metrics import results_markdown, summarise
+    from superex_deploy.onboard.planners import PLANNERS, make_planner
     from superex_deploy.maps import list_maps, start_poses
     from superex_deploy.parallel import process_pool
     from superex_deploy.render import save_benchmark_plots

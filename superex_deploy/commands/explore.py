@@ -36,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def make_predictor(name: str, grid, models=None):
-    from superex_deploy.explore.prediction import EvidenceAsPrediction, ObservedAsPrediction, OraclePredictor
+    from superex_deploy.onboard.prediction import EvidenceAsPrediction, ObservedAsPrediction
+    from superex_deploy.sim.oracle import OraclePredictor
 
     if name == "observed":
         return ObservedAsPrediction()
@@ -45,7 +46,7 @@ def make_predictor(name: str, grid, models=None):
     if name == "oracle":
         return OraclePredictor(grid)
     if name in ("lama_los", "lama_bp"):
-        from superex_deploy.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
+        from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
 
         return LamaEnsemble.from_manifest(ModelKind(name), models or DEFAULT_MODEL_DIR)
     raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
@@ -66,7 +67,7 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None):
 
     bp_filter = None
     if predictor in EVIDENCE_PREDICTORS:
-        from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+        from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
 
         bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
     return SpadSensing(seed=seed, bp_filter=bp_filter)
@@ -123,7 +124,7 @@ def resolve_start(grid, start_index: int, pose):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from superex_deploy.explore.planners import make_planner
+    from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.messages import MapFrame
     from superex_deploy.onboard import ExplorerConfig

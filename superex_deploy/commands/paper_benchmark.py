@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.explore.suite import (CHECKPOINTS, IOU_BINS, IOU_LEVELS, PAPER_ROWS, REFERENCE_ROW,
+from superex_deploy.sim.suite import (CHECKPOINTS, IOU_BINS, IOU_LEVELS, PAPER_ROWS, REFERENCE_ROW,
                                           paired_summary, row_summary)
 
 IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}

@@ -39,11 +39,11 @@ def build_explorer(metadata: dict, frame, models=None):
     from dataclasses import fields
 
     from superex_deploy.commands.explore import EVIDENCE_PREDICTORS, make_predictor
-    from superex_deploy.explore.motion import MotionConfig
-    from superex_deploy.explore.planners import make_planner
-    from superex_deploy.nlos import NlosConfig
+    from superex_deploy.onboard.motion import MotionConfig
+    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
-    from superex_deploy.spad import SpadConfig, SpadNoise
+    from superex_deploy.spad_types import SpadConfig, SpadNoise
 
     try:
         planner_name, predictor_name = metadata["planner"], metadata["predictor"]
@@ -66,7 +66,7 @@ def build_explorer(metadata: dict, frame, models=None):
                                      if f.name in metadata["nlos"]})
             bp_filter = None
             if predictor_name in EVIDENCE_PREDICTORS:
-                from superex_deploy.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+                from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
 
                 bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
             nlos = SpadProcessing(sensor=sensor, nlos=nlos_cfg, bp_filter=bp_filter)

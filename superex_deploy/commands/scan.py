@@ -22,9 +22,11 @@ def run(args: argparse.Namespace) -> int:
 
     from superex_deploy.geometry import cell_centre, mark_rays
     from superex_deploy.maps import load_map, start_poses
-    from superex_deploy.nlos import NlosConfig, nlos_ground_truth, process_scan, wall_iou, wall_iou_tolerant
+    from superex_deploy.onboard.nlos import NlosConfig, process_scan, wall_iou, wall_iou_tolerant
+    from superex_deploy.sim.spad import nlos_ground_truth
     from superex_deploy.render import save_scan_figure
-    from superex_deploy.spad import SpadConfig, SpadNoise, simulate_scan
+    from superex_deploy.spad_types import SpadConfig, SpadNoise
+    from superex_deploy.sim.spad import simulate_scan
 
     grid = load_map(args.map)
     if args.pose is not None:

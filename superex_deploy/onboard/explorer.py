@@ -27,10 +27,10 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.explore.frontiers import find_frontiers
-from superex_deploy.explore.mapper import Mapper
-from superex_deploy.explore.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
-from superex_deploy.explore.types import FREE, Frontier, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
+from superex_deploy.onboard.types import FREE, Frontier, MapPredictor, Planner, PlanningContext, Prediction
 from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing
@@ -144,15 +144,15 @@ class Explorer:
 
     Args:
         frame: the grid the explorer keeps its map in (shape, resolution, origin).
-        planner: a :class:`~superex_deploy.explore.types.Planner` (``planners.make_planner(name)``); reset here.
-        predictor: a :class:`~superex_deploy.explore.types.MapPredictor` (observed, lama_los, lama_bp, ...).
+        planner: a :class:`~superex_deploy.onboard.types.Planner` (``planners.make_planner(name)``); reset here.
+        predictor: a :class:`~superex_deploy.onboard.types.MapPredictor` (observed, lama_los, lama_bp, ...).
         nlos: SPAD processing for observations that carry a SPAD frame; None: SPAD frames are ignored.
         cfg: onboard parameters.
         seed: seed of the generator handed to the planner.
 
     Attributes:
         frame, planner, predictor, nlos, cfg: as given.
-        mapper: the explorer's map (:class:`~superex_deploy.explore.mapper.Mapper`; read it, do not modify it).
+        mapper: the explorer's map (:class:`~superex_deploy.onboard.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
         frontiers: the latest step's frontier regions.
         goal: the locked goal cell, or None.
@@ -216,23 +216,12 @@ class Explorer:
         """The latest step's prediction if anything has computed it, else None (never computes)."""
         return None if self._prediction is None else self._prediction.value
 
-    def _pose_cell(self, obs: Observation) -> tuple[tuple[float, float], tuple[int, int]]:
-        origin = self.frame.grid_yx(obs.pose.x, obs.pose.y)
-        cell = (int(np.floor(origin[0])), int(np.floor(origin[1])))
+    def _pose_cell(self, obs: Observation) -> tuple[int, int]:
+        cell = self.frame.cell_of(obs.pose.x, obs.pose.y)
         if not self.frame.contains(cell):
             raise ValueError(f"pose ({obs.pose.x}, {obs.pose.y}) m lies outside the map (cell {cell}, grid "
                              f"{self.frame.shape}, origin {self.frame.origin_xy} m)")
-        return origin, cell
-
-    def _integrate_scan(self, obs: Observation, origin: tuple[float, float]) -> None:
-        scan = obs.scan
-        resolution = self.frame.resolution_m
-        ranges = scan.ranges.astype(np.float64)
-        returned = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
-        ranges_cells = np.where(returned, ranges / resolution, np.inf)
-        # Robot-frame angles, counter-clockwise, to grid angles (towards +row): negate after adding the heading.
-        angles = -(obs.pose.yaw + scan.angles())
-        self.mapper.integrate_ranges(origin, angles, ranges_cells, scan.range_max / resolution)
+        return cell
 
     def step(self, obs: Observation) -> Command:
         """Integrate one observation and return where to go.
@@ -244,12 +233,12 @@ class Explorer:
         """
         if not isinstance(obs, Observation):
             raise ValueError(f"step() takes an Observation, got {type(obs).__name__}")
-        origin, pose = self._pose_cell(obs)
+        pose = self._pose_cell(obs)
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
 
         clock = time.perf_counter()
-        self._integrate_scan(obs, origin)
+        self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
         timings["scan"] = time.perf_counter() - clock
 
         clock = time.perf_counter()

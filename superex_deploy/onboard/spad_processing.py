@@ -1,7 +1,7 @@
 """NLOS processing of measured SPAD frames on the robot: space carving and (filtered) back-projection evidence.
 
 Reads only the :class:`~superex_deploy.messages.SpadFrame`, the pose and the explorer's own map; the sensor model
-(:class:`~superex_deploy.spad.SpadConfig`: bin width, range, noise model, secondary-ray count for the carving cap) is
+(:class:`~superex_deploy.spad_types.SpadConfig`: bin width, range, noise model, secondary-ray count for the carving cap) is
 the robot's calibration of its sensor, not the simulator's truth.
 """
 
@@ -13,14 +13,14 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.messages import MapFrame, Pose2D, SpadFrame
-from superex_deploy.nlos import NlosConfig, back_project, carve, estimate_los, process_scan
-from superex_deploy.spad import SpadConfig, SpadScan, SparseHistograms
+from superex_deploy.onboard.nlos import NlosConfig, back_project, carve, estimate_los, process_scan
+from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
 __all__ = ["SpadProcessing", "scan_from_frame"]
 
 
 def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor: SpadConfig) -> SpadScan:
-    """The :class:`~superex_deploy.spad.SpadScan` (no ground truth) of a measured frame taken at ``pose``.
+    """The :class:`~superex_deploy.spad_types.SpadScan` (no ground truth) of a measured frame taken at ``pose``.
 
     Raises:
         ValueError: a frame whose bin count or bin width differs from the sensor model's, or a pose outside the
@@ -60,7 +60,7 @@ class SpadProcessing:
         nlos: processing parameters.
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
-            :meth:`superex_deploy.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+            :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
     """
 
     sensor: SpadConfig = field(default_factory=SpadConfig)

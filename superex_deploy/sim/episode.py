@@ -21,14 +21,14 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.explore.mapper import LidarConfig, Mapper
-from superex_deploy.explore.metrics import evaluation_area, map_iou
-from superex_deploy.explore.motion import MotionConfig
-from superex_deploy.explore.types import Frontier, MapPredictor, Planner, Prediction
+from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.sim.metrics import evaluation_area, map_iou
+from superex_deploy.onboard.motion import MotionConfig
+from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
 from superex_deploy.sim.sensing import SpadSensing
-from superex_deploy.sim.world import World, WorldConfig
+from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 
 __all__ = ["STAGES", "ExplorationConfig", "EpisodeState", "EpisodeResult", "run_episode"]
 
@@ -198,8 +198,8 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
     Args:
         grid: the ground-truth map (the world's; the explorer never sees it).
         start_rc: start cell (row, col): inside the map and its valid area, not a wall.
-        planner: a :class:`~superex_deploy.explore.types.Planner` instance (``planners.make_planner(name)``).
-        predictor: a :class:`~superex_deploy.explore.types.MapPredictor`.
+        planner: a :class:`~superex_deploy.onboard.types.Planner` instance (``planners.make_planner(name)``).
+        predictor: a :class:`~superex_deploy.onboard.types.MapPredictor`.
         steps: step budget (>= 1).
         seed: seed of the generator handed to the planner.
         cfg: episode parameters.

@@ -18,11 +18,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from superex_deploy.explore.frontiers import find_frontiers
-from superex_deploy.explore.motion import planning_map
-from superex_deploy.explore.planners import NearestFrontier
-from superex_deploy.explore.prediction import ObservedAsPrediction
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext
+from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.motion import planning_map
+from superex_deploy.onboard.planners import NearestFrontier
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext
 from superex_deploy.maps import load_map, random_start
 from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
 

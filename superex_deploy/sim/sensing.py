@@ -9,11 +9,12 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.explore.types import UNKNOWN
+from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.nlos import NlosConfig
+from superex_deploy.onboard.nlos import NlosConfig
 from superex_deploy.onboard.spad_processing import SpadProcessing
-from superex_deploy.spad import SpadConfig, simulate_scan
+from superex_deploy.spad_types import SpadConfig
+from superex_deploy.sim.spad import simulate_scan
 
 __all__ = ["SpadSensing"]
 
@@ -29,7 +30,7 @@ class SpadSensing:
         seed: seed of the noise generator (used only when ``spad.noise.enabled``).
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
-            :meth:`superex_deploy.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+            :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
     """
 
     spad: SpadConfig = field(default_factory=SpadConfig)

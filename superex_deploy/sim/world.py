@@ -13,15 +13,33 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.explore.mapper import LidarConfig
-from superex_deploy.explore.metrics import coverage as coverage_of
-from superex_deploy.explore.motion import advance
+from superex_deploy.sim.metrics import coverage as coverage_of
+from superex_deploy.onboard.motion import advance
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
-from superex_deploy.spad import SpadConfig, SpadScan, simulate_scan
+from superex_deploy.spad_types import SpadConfig, SpadScan
+from superex_deploy.sim.spad import simulate_scan
 
-__all__ = ["World", "WorldConfig", "laser_scan_from_distances"]
+__all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances"]
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """The simulated robot's line-of-sight 2-D LiDAR (MapEx ``lidar_sim_configs``: 2500 rays over a full turn, 20 m).
+
+    Attributes:
+        n_rays: rays per scan, evenly spaced over 360 degrees starting along the robot's heading.
+        range_m: maximum range (metres); walls beyond it give no return.
+    """
+
+    n_rays: int = 2500
+    range_m: float = 20.0
+
+    def __post_init__(self) -> None:
+        if int(self.n_rays) < 1 or not (float(self.range_m) > 0.0 and np.isfinite(self.range_m)):
+            raise ValueError(f"LidarConfig needs n_rays >= 1 and a positive finite range_m, got n_rays="
+                             f"{self.n_rays}, range_m={self.range_m}")
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Pix2Pix (Isola et al., CVPR 2017) for filtering back-projection: U-Net generator and PatchGAN discriminator.
 
-The generator reads one robot-centred window of the raw back-projection (``superex_deploy.nlos.back_project``,
+The generator reads one robot-centred window of the raw back-projection (``superex_deploy.onboard.nlos.back_project``,
 in [0, 1], mapped to [-1, 1] by ``2 x - 1``) as float32 ``[B, 1, S, S]`` and returns wall logits
 ``[B, 1, S, S]`` (``sigmoid`` gives the probability that a hidden wall reflected late photons from the cell).
 The default window is ``S = 160`` cells = 16.0 m at 0.1 m/cell: the back-projection is computed within

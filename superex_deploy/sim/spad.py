@@ -1,4 +1,5 @@
-"""SPAD LiDAR simulator: time-of-flight histograms with the direct and the three-bounce (NLOS) returns.
+"""SPAD LiDAR simulator (the simulator's side; the sensor model and histogram types are in
+:mod:`superex_deploy.spad_types`): time-of-flight histograms with the direct and the three-bounce (NLOS) returns.
 
 The model is the seed paper's, in 2D and confocal (laser and detector at the robot cell centre):
 
@@ -51,14 +52,11 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.geometry import _dda_start, _group_by_cell, cell_centre, ray_angles
+from superex_deploy.geometry import dda_start, group_by_cell, cell_centre, ray_angles
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
-__all__ = ["SpadNoise", "SpadConfig", "SpadTruth", "SparseHistograms", "SpadScan", "SpadScene", "FanCache",
-           "prepare_scene", "simulate_scan", "SPEED_OF_LIGHT", "PLANCK"]
-
-SPEED_OF_LIGHT = 299_792_458.0  # m/s
-PLANCK = 6.626_070_15e-34  # J s
+__all__ = ["SpadTruth", "SpadScene", "FanCache", "prepare_scene", "simulate_scan", "nlos_ground_truth"]
 FAN_OFFSET_CELLS = 0.75
 MIN_DISTANCE_CELLS = 0.5
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -71,115 +69,6 @@ CELL_OPEN_BLOCK = 2
 # numpy's Poisson sampler refuses means above ~1e19; beyond this the normal approximation is exact to 1e-3.
 _POISSON_NORMAL_ABOVE = 1e7
 
-
-def _real(name: str, value) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    return float(value)
-
-
-@dataclass(frozen=True)
-class SpadNoise:
-    """Detector noise. Disabled by default (the paper simulates noise-free histograms).
-
-    Attributes:
-        enabled: draw Poisson counts and add the background below.
-        ambient_per_bin: mean ambient-light photon counts per bin.
-        dark_per_bin: mean dark counts per bin.
-        jitter_s: standard deviation of the Gaussian timing jitter (seconds), applied before Poisson sampling.
-    """
-
-    enabled: bool = False
-    ambient_per_bin: float = 1.0
-    dark_per_bin: float = 0.01
-    jitter_s: float = 50e-12
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.enabled, (bool, np.bool_)):
-            raise ValueError(f"SpadNoise.enabled must be a bool, got {self.enabled!r}")
-        for name in ("ambient_per_bin", "dark_per_bin", "jitter_s"):
-            value = _real(f"SpadNoise.{name}", getattr(self, name))
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"SpadNoise.{name} must be finite and >= 0, got {value}")
-
-    @property
-    def background_per_bin(self) -> float:
-        """Mean background counts per bin (ambient + dark)."""
-        return self.ambient_per_bin + self.dark_per_bin if self.enabled else 0.0
-
-
-@dataclass(frozen=True)
-class SpadConfig:
-    """SPAD LiDAR parameters.
-
-    Attributes:
-        n_rays: primary rays over 360 degrees.
-        range_m: maximum range of primary and secondary rays (metres).
-        bin_width_s: histogram bin width (seconds); see :attr:`bin_path_m`.
-        n_secondary: secondary rays per wall hit, spread over [-90, 90] degrees about the normal.
-        reflectance: Lambertian surface reflectance rho in (0, 1].
-        detector_efficiency: photon detection efficiency alpha in (0, 1].
-        pulse_energy_j: laser pulse energy E (joules).
-        wavelength_m: laser wavelength lambda (metres; 905 nm, a common LiDAR diode).
-        noise: detector noise model.
-    """
-
-    n_rays: int = 2500
-    range_m: float = 20.0
-    bin_width_s: float = 0.1 / SPEED_OF_LIGHT
-    n_secondary: int = 64
-    reflectance: float = 0.5
-    detector_efficiency: float = 0.3
-    pulse_energy_j: float = 1e-9
-    wavelength_m: float = 905e-9
-    noise: SpadNoise = field(default_factory=SpadNoise)
-
-    def __post_init__(self) -> None:
-        for name in ("n_rays", "n_secondary"):
-            value = getattr(self, name)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"SpadConfig.{name} must be a positive integer, got {value!r}")
-        for name in ("range_m", "bin_width_s", "pulse_energy_j", "wavelength_m"):
-            value = _real(f"SpadConfig.{name}", getattr(self, name))
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"SpadConfig.{name} must be positive and finite, got {value}")
-        for name in ("reflectance", "detector_efficiency"):
-            value = _real(f"SpadConfig.{name}", getattr(self, name))
-            if not (np.isfinite(value) and 0.0 < value <= 1.0):
-                raise ValueError(f"SpadConfig.{name} must lie in (0, 1], got {value}")
-        if not isinstance(self.noise, SpadNoise):
-            raise ValueError(f"SpadConfig.noise must be a SpadNoise, got {type(self.noise).__name__}")
-        if not np.isfinite(self.direct_counts):
-            raise ValueError(f"SpadConfig.pulse_energy_j = {self.pulse_energy_j} J gives an infinite photon count")
-        if self.n_bins > 200_000:
-            raise ValueError(f"SpadConfig gives {self.n_bins} bins (4 * range_m / bin_path_m); widen the bins")
-
-    @property
-    def bin_path_m(self) -> float:
-        """Round-trip path length covered by one bin (metres): ``c * bin_width_s``."""
-        return SPEED_OF_LIGHT * self.bin_width_s
-
-    @property
-    def n_bins(self) -> int:
-        """Bins covering the longest three-bounce path, ``4 * range_m``."""
-        return int(np.ceil(4.0 * self.range_m / self.bin_path_m)) + 1
-
-    @property
-    def photons_per_joule(self) -> float:
-        """``lambda / (h c)``."""
-        return self.wavelength_m / (PLANCK * SPEED_OF_LIGHT)
-
-    @property
-    def direct_counts(self) -> float:
-        """Eq. (1): photons of the direct return, ``alpha E rho / pi * lambda / (h c)``."""
-        return (self.detector_efficiency * self.pulse_energy_j * self.reflectance / np.pi
-                * self.photons_per_joule)
-
-    def three_bounce_scale(self, resolution_m: float) -> float:
-        """Eq. (2) without its geometric factor: ``E rho^3 s^2 alpha / pi^3 * lambda / (h c)``; multiply by
-        ``cos(theta1) cos(theta2) / (d1 d2^2)`` (metres) for one secondary ray."""
-        return (self.pulse_energy_j * self.reflectance ** 3 * resolution_m ** 2 * self.detector_efficiency
-                / np.pi ** 3 * self.photons_per_joule)
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,125 +146,6 @@ class SpadTruth:
         return (self.three_bounce_scale * self.cos1[rays] * self.fan_cos2[fan, slot]
                 / (self.d1_m[rays] * self.fan_d2_m[fan, slot] ** 2))
 
-
-@numba.njit(cache=True)
-def _sparse_to_dense(row_start, bins, counts, out):
-    for i in range(row_start.shape[0] - 1):
-        for j in range(row_start[i], row_start[i + 1]):
-            out[i, bins[j]] = counts[j]
-
-
-@numba.njit(cache=True)
-def _dense_to_sparse(histograms, threshold):
-    n_rays, n_bins = histograms.shape
-    row_start = np.zeros(n_rays + 1, np.int64)
-    for i in range(n_rays):
-        n = 0
-        for b in range(n_bins):
-            if histograms[i, b] > threshold:
-                n += 1
-        row_start[i + 1] = row_start[i] + n
-    bins = np.empty(row_start[n_rays], np.int32)
-    counts = np.empty(row_start[n_rays], np.float32)
-    for i in range(n_rays):
-        j = row_start[i]
-        for b in range(n_bins):
-            if histograms[i, b] > threshold:
-                bins[j] = b
-                counts[j] = histograms[i, b]
-                j += 1
-    return row_start, bins, counts
-
-
-@dataclass(frozen=True, eq=False)
-class SparseHistograms:
-    """Histograms stored by their non-zero bins, ray by ray (compressed sparse rows).
-
-    A noise-free SPAD histogram has at most ``1 + n_secondary`` non-zero bins of ``n_bins`` (65 of 801 at the
-    defaults): the simulator writes this form and the NLOS processing reads it, neither touches the zeros.
-
-    Attributes:
-        row_start: int64 ``[n_rays + 1]``; ray ``i``'s entries are ``row_start[i]:row_start[i + 1]``.
-        bins: int32 ``[nnz]`` bin indices, strictly increasing within a ray, in ``[0, n_bins)``.
-        counts: float32 ``[nnz]`` photon counts of those bins.
-        n_bins: bins per ray.
-    """
-
-    row_start: np.ndarray
-    bins: np.ndarray
-    counts: np.ndarray
-    n_bins: int
-
-    @property
-    def n_rays(self) -> int:
-        return self.row_start.shape[0] - 1
-
-    def to_dense(self) -> np.ndarray:
-        """float32 ``[n_rays, n_bins]``."""
-        out = np.zeros((self.n_rays, self.n_bins), np.float32)
-        _sparse_to_dense(self.row_start, self.bins, self.counts, out)
-        return out
-
-    @classmethod
-    def from_dense(cls, histograms: np.ndarray, threshold: float = 0.0) -> "SparseHistograms":
-        """The bins of float32 ``[n_rays, n_bins]`` ``histograms`` whose count exceeds ``threshold``."""
-        histograms = np.asarray(histograms)
-        if histograms.dtype != np.float32 or histograms.ndim != 2:
-            raise ValueError(f"histograms must be float32 [n_rays, n_bins], got {histograms.dtype} "
-                             f"{histograms.shape}")
-        row_start, bins, counts = _dense_to_sparse(np.ascontiguousarray(histograms), float(threshold))
-        return cls(row_start, bins, counts, histograms.shape[1])
-
-
-@dataclass(frozen=True, eq=False)
-class SpadScan:
-    """One SPAD scan.
-
-    The counts are held in the form they were made in: sparse for the noise-free model (what
-    :func:`simulate_scan` writes), dense for noisy scans, whose background fills every bin. :attr:`histograms`
-    and :attr:`sparse` give either form, converting once on first access.
-
-    Attributes:
-        angles: float64 ``[n_rays]`` ray angles (radians; ``superex_deploy.geometry`` convention).
-        origin_yx: sensor position (cells): the centre of ``pose_rc``.
-        pose_rc: robot cell (row, col).
-        bin_path_m: round-trip path per bin (metres).
-        resolution_m: grid resolution (metres per cell).
-        grid_shape: ``(rows, cols)`` of the map the scan was taken in.
-        config: the sensor configuration.
-        stored: the counts as made: :class:`SparseHistograms`, or float32 ``[n_rays, n_bins]``.
-        truth: simulation-only ground truth; None for a measured scan (the onboard explorer builds its scans
-            from :class:`~superex_deploy.messages.SpadFrame` messages, which carry none).
-    """
-
-    angles: np.ndarray
-    origin_yx: tuple[float, float]
-    pose_rc: tuple[int, int]
-    bin_path_m: float
-    resolution_m: float
-    grid_shape: tuple[int, int]
-    config: SpadConfig
-    stored: Union[SparseHistograms, np.ndarray]
-    truth: Optional[SpadTruth] = None
-
-    @property
-    def n_bins(self) -> int:
-        return self.stored.n_bins if self.is_sparse else self.stored.shape[1]
-
-    @property
-    def is_sparse(self) -> bool:
-        """True when the counts are held sparse (reading :attr:`sparse` costs nothing)."""
-        return isinstance(self.stored, SparseHistograms)
-
-    @cached_property
-    def histograms(self) -> np.ndarray:
-        """float32 ``[n_rays, n_bins]`` photon counts per ray and time bin."""
-        return self.stored.to_dense() if self.is_sparse else self.stored
-
-    @cached_property
-    def sparse(self) -> SparseHistograms:
-        """The non-zero bins (:class:`SparseHistograms`)."""
-        return self.stored if self.is_sparse else SparseHistograms.from_dense(self.stored, 0.0)
 
 
 @numba.njit(cache=True)
@@ -605,7 +375,7 @@ def _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
     if kind == CELL_WALL:
         return r, c, 0.0, -1
     mask = BLOCK_CELLS - 1
-    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(y0, x0, dy, dx)
+    r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(y0, x0, dy, dx)
     t = 0.0
     while True:
         if kind == CELL_FREE:
@@ -1045,7 +815,7 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     n_parts = _thread_parts()
     _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
                     entry_axis, direction, n_parts)
-    hit_fan, fan_cells, first_ray = _group_by_cell(hit_rc, grid.shape[1])
+    hit_fan, fan_cells, first_ray = group_by_cell(hit_rc, grid.shape[1])
     fan_entry_axis = entry_axis[first_ray]  # the lowest-index ray that hit the cell
 
     n_fans = fan_cells.shape[0]
@@ -1087,3 +857,20 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
                       fan_store=(cache.d2_m, cache.cos2, cache.h2_rc), three_bounce_scale=three_bounce_scale)
     return SpadScan(angles=angles, origin_yx=origin, pose_rc=pose_rc, bin_path_m=cfg.bin_path_m,
                     resolution_m=resolution, grid_shape=grid.shape, config=cfg, truth=truth, stored=stored)
+
+
+def nlos_ground_truth(scan: SpadScan) -> np.ndarray:
+    """Label image aligned with the BP map: bool ``[H, W]``, True at every cell a three-bounce path with
+    non-zero photons reflected from (the ``h2`` cells). Reads the simulator's ground truth.
+
+    Raises:
+        ValueError: a scan without ground truth (a measured one).
+    """
+    if not isinstance(scan, SpadScan):
+        raise ValueError(f"scan must be a SpadScan, got {type(scan).__name__}")
+    if scan.truth is None:
+        raise ValueError("nlos_ground_truth needs a simulated scan: this scan carries no ground truth")
+    truth = np.zeros(scan.grid_shape, bool)
+    cells = scan.truth.h2_rc[scan.truth.h2_counts > 0]
+    truth[cells[:, 0], cells[:, 1]] = True
+    return truth

@@ -1,6 +1,6 @@
 """Non-learned map predictors: honest baselines for the planners until the learned ensembles exist.
 
-Both satisfy :class:`~superex_deploy.explore.types.MapPredictor`.
+Both satisfy :class:`~superex_deploy.onboard.types.MapPredictor`.
 """
 
 from __future__ import annotations
@@ -9,10 +9,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Prediction
-from superex_deploy.maps import OccupancyGrid
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
-__all__ = ["ObservedAsPrediction", "EvidenceAsPrediction", "OraclePredictor", "check_observed"]
+__all__ = ["ObservedAsPrediction", "EvidenceAsPrediction", "check_observed"]
 
 
 def check_observed(observed: np.ndarray, shape: Optional[tuple[int, int]] = None) -> np.ndarray:
@@ -31,7 +30,7 @@ class ObservedAsPrediction:
     """The observed map taken as the prediction: unknown cells are assumed free, walls are certain.
 
     Variance is zero everywhere (no uncertainty model), so variance-driven planners fall back to counting
-    unknown cells (see :class:`~superex_deploy.explore.planners.MapexPlanner`).
+    unknown cells (see :class:`~superex_deploy.onboard.planners.MapexPlanner`).
     """
 
     name = "observed"
@@ -63,21 +62,3 @@ class EvidenceAsPrediction:
             unknown = observed == UNKNOWN
             mean[unknown] = np.clip(np.nan_to_num(extra[unknown], nan=0.0), 0.0, 1.0)
         return Prediction(mean=mean, variance=np.zeros_like(mean))
-
-
-class OraclePredictor:
-    """Ground-truth walls as the prediction: an upper bound for testing planners, never reported as a method.
-
-    Observed cells keep their observed value (they agree with the ground truth in simulation); unknown cells
-    take the ground truth. Variance is zero.
-    """
-
-    name = "oracle"
-
-    def __init__(self, grid: OccupancyGrid):
-        self._walls = grid.occupied.astype(np.float32)
-
-    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
-        observed = check_observed(observed, self._walls.shape)
-        mean = np.where(observed == UNKNOWN, self._walls, (observed == OCCUPIED).astype(np.float32))
-        return Prediction(mean=mean.astype(np.float32), variance=np.zeros_like(self._walls))

@@ -2,9 +2,10 @@
 
 Everything here works from what a real sensor gives: the histograms, the ray angles, the robot pose, the bin
 width and the sensor's own configuration. Only the detections are read (bins whose count exceeds the detection
-threshold: every non-zero bin without noise), as :class:`~superex_deploy.spad.SparseHistograms`: the simulator's
+threshold: every non-zero bin without noise), as :class:`~superex_deploy.spad_types.SparseHistograms`: the simulator's
 noise-free scans come in that form, dense (noisy) histograms are read once to extract them. The simulator's
-ground truth (``scan.truth``) is read only by :func:`nlos_ground_truth`, which builds labels.
+ground truth (``scan.truth``) is never read here: the labels come from
+:func:`superex_deploy.sim.spad.nlos_ground_truth`.
 
 Space carving (Tsai et al., CVPR 2017) and why it is sound
 -----------------------------------------------------------
@@ -66,11 +67,11 @@ import numba
 import numpy as np
 from scipy import ndimage, stats
 
-from superex_deploy.geometry import _group_by_cell
-from superex_deploy.spad import SpadScan, SparseHistograms
+from superex_deploy.geometry import group_by_cell
+from superex_deploy.spad_types import SpadScan, SparseHistograms
 
 __all__ = ["NlosConfig", "LosEstimate", "GridPatch", "NlosResult", "estimate_los", "carve", "back_project",
-           "laplacian_filter", "process_scan", "nlos_ground_truth", "wall_iou", "wall_iou_tolerant",
+           "laplacian_filter", "process_scan", "wall_iou", "wall_iou_tolerant",
            "carve_radius_cap_m"]
 
 
@@ -365,7 +366,7 @@ def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
     empty_radius = np.empty(n_rays)
     _wall_points_of_rays(los_bin, first_late, scan.angles, scan.origin_yx[0], scan.origin_yx[1], w, res,
                          scan.grid_shape[0], scan.grid_shape[1], scan.config.range_m, d1, h1, empty_radius)
-    ray_wall, wall_cells, _ = _group_by_cell(h1, scan.grid_shape[1])
+    ray_wall, wall_cells, _ = group_by_cell(h1, scan.grid_shape[1])
     wall_normal, normal_reliable, wall_apex = _observed_normals(wall_cells, scan, cfg)
     return LosEstimate(los_bin=los_bin, d1_m=d1, h1_rc=h1, first_late_bin=first_late,
                        empty_radius_m=empty_radius, wall_cells=wall_cells, ray_wall=ray_wall,
@@ -1004,18 +1005,6 @@ def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional
     bp = _back_projection_patch(scan, los, cfg, known)
     return NlosResult(carved_patch=_carved_patch(scan, los, cfg), bp_patch=bp,
                       bp_filtered_patch=_filtered_patch(bp, 1.0), los=los)
-
-
-def nlos_ground_truth(scan: SpadScan) -> np.ndarray:
-    """Label image aligned with the BP map: bool ``[H, W]``, True at every cell a three-bounce path with
-    non-zero photons reflected from (the ``h2`` cells). Reads the simulator's ground truth."""
-    _check_scan(scan)
-    if scan.truth is None:
-        raise ValueError("nlos_ground_truth needs a simulated scan: this scan carries no ground truth")
-    truth = np.zeros(scan.grid_shape, bool)
-    cells = scan.truth.h2_rc[scan.truth.h2_counts > 0]
-    truth[cells[:, 0], cells[:, 1]] = True
-    return truth
 
 
 def wall_iou(pred: np.ndarray, truth: np.ndarray) -> float:

@@ -19,8 +19,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.explore.types import UNKNOWN, Frontier, PlanningContext, Prediction
-from superex_deploy.geometry import _dda_start
+from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction
+from superex_deploy.geometry import dda_start
 
 __all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
            "connected_unknown_gains",
@@ -69,7 +69,7 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, 
         return
     for k in range(n_rays):
         angle = 2.0 * np.pi * k / n_rays
-        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = _dda_start(
+        r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
             y0, x0, np.sin(angle), np.cos(angle))
         transmittance = 1.0 - own
         reach = max_t

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from superex_deploy.explore.types import FREE, UNKNOWN, Frontier
+from superex_deploy.onboard.types import FREE, UNKNOWN, Frontier
 
 __all__ = ["frontier_cells", "find_frontiers"]
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from superex_deploy.explore.types import FREE, OCCUPIED
+from superex_deploy.onboard.types import FREE, OCCUPIED
 
 __all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear",
            "advance"]

@@ -11,7 +11,7 @@ missing, corrupt or mismatched model. Input and output tensor names are read fro
 Encodings (shared with :mod:`superex_train`, which imports them from here):
 
 * **Pix2Pix** (:attr:`ModelKind.PIX2PIX`): one square window of ``window_cells`` cells of the raw
-  back-projection (``superex_deploy.nlos.back_project``, in [0, 1]) centred on the robot, whose cell is the
+  back-projection (``superex_deploy.onboard.nlos.back_project``, in [0, 1]) centred on the robot, whose cell is the
   window's ``(S // 2, S // 2)``; fed as ``2 x - 1``; the output is the probability, per cell, of a hidden wall.
 * **LaMa** (:attr:`ModelKind.LAMA_BP`, :attr:`ModelKind.LAMA_LOS`): the whole observed map, channels in
   {0, 1} except the evidence: ``observed_wall`` (1 where observed OCCUPIED), ``evidence`` (the filtered
@@ -32,8 +32,8 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from superex_deploy.explore.prediction import check_observed
-from superex_deploy.explore.types import OCCUPIED, UNKNOWN, Prediction
+from superex_deploy.onboard.prediction import check_observed
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry",
@@ -46,7 +46,7 @@ FORMAT_VERSION = "1"
 
 MANIFEST_NAME = "manifest.json"
 
-DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "exported"
+DEFAULT_MODEL_DIR = Path(__file__).resolve().parents[2] / "exported"
 """``exported/`` of the repository checkout (where ``superex export`` writes by default)."""
 
 
@@ -444,7 +444,7 @@ class Pix2PixFilter:
         """Filter the window of a map-frame back-projection around the robot.
 
         Args:
-            bp: float32 ``[H, W]`` raw back-projection in [0, 1] (``superex_deploy.nlos.back_project``).
+            bp: float32 ``[H, W]`` raw back-projection in [0, 1] (``superex_deploy.onboard.nlos.back_project``).
             pose_rc: the robot cell (row, col) the scan was taken from.
 
         Returns:
@@ -458,7 +458,7 @@ class Pix2PixFilter:
 
 
 class LamaEnsemble:
-    """An ensemble of LaMa map predictors: a :class:`~superex_deploy.explore.types.MapPredictor`.
+    """An ensemble of LaMa map predictors: a :class:`~superex_deploy.onboard.types.MapPredictor`.
 
     ``predict`` encodes the observed map (and the evidence, for LAMA_BP), pads it at the bottom and right with
     unknown cells to a size the network takes (multiples of ``size_multiple``, at least ``min_size``), runs every

@@ -28,11 +28,11 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.explore.frontiers import find_frontiers
-from superex_deploy.explore.motion import dijkstra
-from superex_deploy.explore.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
+from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.motion import dijkstra
+from superex_deploy.onboard.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
                                                union_visible_unknown, visible_gains)
-from superex_deploy.explore.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
 

@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from superex_deploy.explore.metrics import coverage_at
+from superex_deploy.sim.metrics import coverage_at
 
 __all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
            "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary", "coverage_curves"]

@@ -1,1 +1,0 @@
-"""Exploration engine: observed map, frontiers, motion planning, planners, episodes and metrics."""

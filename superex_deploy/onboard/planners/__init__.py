@@ -1,0 +1,73 @@
+"""Goal selection for exploration: nearest frontier, IG-Hector, UPEN and MapEx, and the registry of all planners
+(one module per planner:
+:mod:`.nearest`, :mod:`.hector`, :mod:`.upen`, :mod:`.mapex`, :mod:`.superex`).
+
+These reproduce the line-of-sight planners of the MapEx benchmark (castacks/MapEx, ICRA 2025; its
+``scripts/explore.py``, ``sim_utils.py``, ``simple_mask_utils.py`` and ``upen_baseline.py``) in our own code,
+one class per method where MapEx selects them with mode strings (``nearest``, ``hectoraug``, ``upen``,
+``visvarprob``). Each planner reads a :class:`~superex_deploy.onboard.types.PlanningContext` and returns a goal
+cell of finite travel cost; the episode loop drives there and keeps the goal until it is reached or blocked.
+
+Differences common to all planners, and why:
+
+* Distances are the engine's cost-to-go (``ctx.travel_cost``: path length weighted by the wall-proximity cost),
+  not MapEx's straight-line distance from the robot to the frontier centre: a frontier behind a wall is not
+  near, and an unreachable one (``inf``) is never chosen (MapEx picks by straight line, then drops goals that A*
+  cannot reach).
+* Ties are broken by travel cost, then by cell, so a choice never depends on the order of the frontiers.
+
+The predicted visibility that MapEx and IG-Hector score lives in :mod:`superex_deploy.onboard.visibility`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from superex_deploy.onboard.planners.hector import HectorConfig, HectorPlanner
+from superex_deploy.onboard.planners.mapex import MapexConfig, MapexPlanner
+from superex_deploy.onboard.planners.nearest import NearestFrontier
+from superex_deploy.onboard.planners.superex import SuperexConfig, SuperexPlanner
+from superex_deploy.onboard.planners.upen import RandomTree, UpenConfig, UpenPlanner, grow_rrt
+from superex_deploy.onboard.types import Planner
+from superex_deploy.onboard.visibility import (VisibilityConfig, connected_unknown_gains, predicted_visibility,
+                                               reachable_frontiers, visible_gains, visible_ranges)
+
+__all__ = [
+    "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "connected_unknown_gains",
+    "reachable_frontiers",
+    "RandomTree", "grow_rrt",
+    "NearestFrontier", "HectorConfig", "HectorPlanner", "UpenConfig", "UpenPlanner", "MapexConfig", "MapexPlanner",
+    "SuperexConfig", "SuperexPlanner", "PLANNERS", "make_planner",
+]
+
+PLANNERS: dict[str, type[Planner]] = {
+    NearestFrontier.name: NearestFrontier,
+    HectorPlanner.name: HectorPlanner,
+    UpenPlanner.name: UpenPlanner,
+    MapexPlanner.name: MapexPlanner,
+    SuperexPlanner.name: SuperexPlanner,
+}
+
+_CONFIGS = {HectorPlanner: HectorConfig, UpenPlanner: UpenConfig, MapexPlanner: MapexConfig,
+            SuperexPlanner: SuperexConfig}
+
+
+def make_planner(name: str, **config_overrides) -> Planner:
+    """Create a planner by name (``nearest``, ``hector``, ``upen``, ``mapex``), overriding its config fields.
+
+    Raises:
+        ValueError: an unknown name (the message lists the valid ones), or overrides the config does not take.
+    """
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose one of {', '.join(sorted(PLANNERS))}")
+    planner_class = PLANNERS[name]
+    config_class = _CONFIGS.get(planner_class)
+    if config_class is None:
+        if config_overrides:
+            raise ValueError(f"planner {name!r} takes no configuration, got {sorted(config_overrides)}")
+        return planner_class()
+    try:
+        config = replace(config_class(), **config_overrides)
+    except TypeError as error:
+        raise ValueError(f"bad configuration for planner {name!r}: {error}") from None
+    return planner_class(config)

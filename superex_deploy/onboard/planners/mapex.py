@@ -1,0 +1,88 @@
+"""MapEx (Ho et al., ICRA 2025; ``visvarprob``): predicted-visible variance per unit of distance."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers, visible_gains
+
+__all__ = ["MapexConfig", "MapexPlanner"]
+
+
+@dataclass(frozen=True)
+class MapexConfig:
+    """MapEx (``visvarprob``): predicted-visible variance per unit distance.
+
+    Attributes:
+        visibility: the probabilistic raycast (MapEx: 250 rays over 20 m, hit threshold 0.8).
+        distance: the divisor: ``"travel"`` (default), the cost-to-go of the planning map (path length weighted
+            by the wall-proximity cost), or ``"euclidean"``, the straight-line distance from the robot to the
+            frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
+        min_distance_cells: floor on the divisor. Frontiers within the goal tolerance (1 m) are never offered,
+            so it only guards against a zero distance.
+    """
+
+    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+    distance: str = "travel"
+    min_distance_cells: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.min_distance_cells > 0:
+            raise ValueError(f"min_distance_cells must be positive, got {self.min_distance_cells}")
+        if self.distance not in ("travel", "euclidean"):
+            raise ValueError(f"MapexConfig.distance must be 'travel' or 'euclidean', got {self.distance!r}")
+
+
+class MapexPlanner(Planner):
+    """MapEx: each frontier scores the predicted variance summed over the currently unknown cells predicted
+    visible from it, divided by its distance; the best score wins.
+
+    As MapEx, visibility comes from the probabilistic raycast on the ensemble mean and the variance from the
+    ensemble. Differences: the divisor is the travel cost rather than the straight-line distance (see the
+    module docstring; ``MapexConfig(distance="euclidean")`` divides as MapEx's code does); and when the
+    prediction carries no variance at all (a deterministic predictor such as
+    :class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` or the oracle), where MapEx would tie every
+    frontier at zero and take the first, the visible unknown cells are counted instead (MapEx's ``visunk``).
+
+    Reuse: the predictor and its evidence reach the planner only through ``ctx.predict``, so a SuperEx variant
+    is this class run with another predictor; :meth:`information` is the hook for a different information
+    measure and :meth:`score` gives every reachable frontier's score.
+    """
+
+    name = "mapex"
+
+    def __init__(self, cfg: MapexConfig = MapexConfig()):
+        self.cfg = cfg
+
+    def information(self, prediction: Prediction, observed: np.ndarray, cells_rc, resolution_m: float
+                    ) -> np.ndarray:
+        """float64 ``[N]``: visible-unknown variance of each viewpoint, or the visible unknown count when the
+        prediction has no variance anywhere."""
+        counts, var_sums = visible_gains(prediction, observed, cells_rc, self.cfg.visibility, resolution_m)
+        if np.any(prediction.variance > 0.0):
+            return var_sums
+        return counts.astype(np.float64)
+
+    def score(self, ctx: PlanningContext) -> tuple[list[Frontier], np.ndarray, np.ndarray]:
+        """The reachable frontiers, their travel costs and their scores (information per unit of
+        ``cfg.distance``), float64 ``[N]`` each."""
+        frontiers, costs = reachable_frontiers(ctx)
+        if not frontiers:
+            return [], costs, np.zeros(0)
+        cells = np.array([f.cell_rc for f in frontiers], np.float64)
+        information = self.information(ctx.predict(), ctx.observed, cells.astype(np.int64), ctx.resolution_m)
+        if self.cfg.distance == "euclidean":
+            distance = np.hypot(cells[:, 0] - ctx.pose_rc[0], cells[:, 1] - ctx.pose_rc[1])
+        else:
+            distance = costs
+        return frontiers, costs, information / np.maximum(distance, self.cfg.min_distance_cells)
+
+    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+        frontiers, costs, scores = self.score(ctx)
+        if not frontiers:
+            return None
+        return best_frontier(-scores, costs, frontiers)
