@@ -60,7 +60,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, heldout: bool = False) ->
 
 
 def _episode(task: tuple) -> dict:
-    from superex_deploy.commands.explore import make_predictor
+    from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
     from superex_deploy.onboard.planners import make_planner
 

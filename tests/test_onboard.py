@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from superex_deploy.commands.explore import make_predictor, make_sensing
+from superex_deploy.pipeline import make_predictor, make_sensing
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
@@ -377,3 +377,24 @@ def test_the_gymnasium_environment_passes_the_checker_and_runs_a_random_agent():
     np.testing.assert_array_equal(again, first)
     with pytest.raises(ValueError, match="oracle"):
         gymnasium.make("SuperEx/Explore-v0", map="50052750", predictor="oracle")
+
+
+def test_the_readme_loop_explores_from_observations_alone():
+    from superex_deploy.pipeline import make_processing
+
+    grid = load_map("50052750")
+    world = World(grid, start_poses("50052750")[3], WorldConfig(spad=SpadConfig()))
+    explorer = Explorer(world.frame, make_planner("superex"), make_predictor("evidence"),
+                        nlos=make_processing("evidence"))
+    known = []
+    for _ in range(12):
+        command = explorer.step(world.observe())
+        if command.finished:
+            break
+        world.apply(command)
+        known.append(int(explorer.mapper.known().sum()))
+    assert known == sorted(known) and known[-1] > known[0]
+    assert explorer.evidence is not None and explorer.evidence.max() > 0
+    assert int(explorer.mapper.carved.sum()) > 0  # the SPAD frames carved hidden free space
+    with pytest.raises(ValueError, match="oracle predictor reads the ground truth"):
+        make_predictor("oracle")

@@ -42,7 +42,7 @@ def run_scenario(task: tuple) -> dict:
 
     ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
     config overrides])``; the overrides default to an IoU evaluation every 50 steps."""
-    from superex_deploy.commands.explore import make_predictor, make_sensing
+    from superex_deploy.pipeline import make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map

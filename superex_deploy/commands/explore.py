@@ -6,8 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp", "evidence")
-EVIDENCE_PREDICTORS = ("lama_bp", "evidence")
+from superex_deploy.pipeline import PREDICTORS, make_predictor, make_sensing
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,44 +32,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
                              "`superex replay FILE` reruns the explorer on it)")
     parser.add_argument("--out", required=True, type=Path)
-
-
-def make_predictor(name: str, grid, models=None):
-    from superex_deploy.onboard.prediction import EvidenceAsPrediction, ObservedAsPrediction
-    from superex_deploy.sim.oracle import OraclePredictor
-
-    if name == "observed":
-        return ObservedAsPrediction()
-    if name == "evidence":
-        return EvidenceAsPrediction()
-    if name == "oracle":
-        return OraclePredictor(grid)
-    if name in ("lama_los", "lama_bp"):
-        from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
-
-        return LamaEnsemble.from_manifest(ModelKind(name), models or DEFAULT_MODEL_DIR)
-    raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
-
-
-def make_sensing(predictor: str, spad: bool, seed: int, models=None):
-    """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` and ``evidence`` get the Pix2Pix
-    filter's evidence.
-
-    Raises:
-        ValueError: ``lama_bp`` or ``evidence`` without ``spad`` (they read the SPAD evidence).
-    """
-    if predictor in EVIDENCE_PREDICTORS and not spad:
-        raise ValueError(f"--predictor {predictor} reads the SPAD evidence: add --spad")
-    if not spad:
-        return None
-    from superex_deploy.sim.sensing import SpadSensing
-
-    bp_filter = None
-    if predictor in EVIDENCE_PREDICTORS:
-        from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
-
-        bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
-    return SpadSensing(seed=seed, bp_filter=bp_filter)
 
 
 def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:

@@ -38,11 +38,11 @@ def build_explorer(metadata: dict, frame, models=None):
     """
     from dataclasses import fields
 
-    from superex_deploy.commands.explore import EVIDENCE_PREDICTORS, make_predictor
+    from superex_deploy.pipeline import make_predictor, make_processing
     from superex_deploy.onboard.motion import MotionConfig
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
+    from superex_deploy.onboard import Explorer, ExplorerConfig
     from superex_deploy.spad_types import SpadConfig, SpadNoise
 
     try:
@@ -64,12 +64,7 @@ def build_explorer(metadata: dict, frame, models=None):
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
-            bp_filter = None
-            if predictor_name in EVIDENCE_PREDICTORS:
-                from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
-
-                bp_filter = Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
-            nlos = SpadProcessing(sensor=sensor, nlos=nlos_cfg, bp_filter=bp_filter)
+            nlos = make_processing(predictor_name, sensor, nlos_cfg, models)
     except (KeyError, TypeError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
     return Explorer(frame, planner, predictor, nlos=nlos, cfg=cfg, seed=seed)

@@ -77,7 +77,7 @@ class ExplorationEnv(gym.Env):
 
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
-        from superex_deploy.commands.explore import make_predictor
+        from superex_deploy.pipeline import make_predictor
 
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
