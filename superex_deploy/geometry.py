@@ -13,7 +13,8 @@ Conventions used throughout SuperEx
 The kernels are private ``_name`` functions compiled with ``numba.njit(cache=True)``; the public wrappers
 check dtypes, shapes and bounds and raise ``ValueError``. Two kernels are shared with other modules' kernels (the
 SPAD simulator, the NLOS processing, the planners' visibility) and so are public, unchecked, callable only from
-compiled code or with already-checked arguments: :func:`dda_start` and :func:`group_by_cell`. Slow references live
+compiled code or with already-checked arguments: :func:`dda_start`, :func:`dda_step` and
+:func:`group_by_cell`. Slow references live
 in ``tests/naive.py``.
 """
 
@@ -25,7 +26,7 @@ import numba
 import numpy as np
 
 __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
-           "dda_start", "group_by_cell",
+           "dda_start", "dda_step", "group_by_cell",
            "RETURN_TOLERANCE_CELLS"]
 
 NO_HIT = -1
@@ -100,6 +101,17 @@ def dda_start(y0, x0, dy, dx):
     return r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c
 
 
+@numba.njit(cache=True, inline="always")
+def dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c):
+    """One Amanatides-Woo step into the next cell. Returns ``(r, c, t_next_r, t_next_c, t_entry, axis)``: the new
+    cell, the updated boundary parameters, where the ray entered the cell and through which boundary (0: a row
+    boundary, 1: a column boundary). Exact ties (a cell corner) step along columns first, so a ray cannot slip
+    between two cells that touch only at a corner."""
+    if t_next_c <= t_next_r:
+        return r, c + step_c, t_next_r, t_next_c + t_delta_c, t_next_c, 1
+    return r + step_r, c, t_next_r + t_delta_r, t_next_c, t_next_r, 0
+
+
 @numba.njit(cache=True)
 def _trace_first_hit(occupied, y0, x0, dy, dx, max_t):
     """Walk one ray through the grid; return (row, col, t_entry, entry_axis) of the first occupied cell.
@@ -115,16 +127,7 @@ def _trace_first_hit(occupied, y0, x0, dy, dx, max_t):
     if occupied[r, c]:
         return r, c, 0.0, -1
     while True:
-        if t_next_c <= t_next_r:
-            t = t_next_c
-            c += step_c
-            t_next_c += t_delta_c
-            axis = 1
-        else:
-            t = t_next_r
-            r += step_r
-            t_next_r += t_delta_r
-            axis = 0
+        r, c, t_next_r, t_next_c, t, axis = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c)
         if t > max_t:
             return -1, -1, max_t, -1
         if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
@@ -155,14 +158,8 @@ def _mark_rays(occupied, y0, x0, angles, max_t, free_out, hit_out):
             continue
         free_out[r, c] = True
         while True:
-            if t_next_c <= t_next_r:
-                t = t_next_c
-                c += step_c
-                t_next_c += t_delta_c
-            else:
-                t = t_next_r
-                r += step_r
-                t_next_r += t_delta_r
+            r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
+                                                      t_delta_c)
             if t > max_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
                 break
             if occupied[r, c]:
@@ -258,14 +255,8 @@ def _mark_ranges(y0, x0, angles, ranges, max_t, tolerance, free_out, hit_out):
                 hit_out[r, c] = True
                 break
             free_out[r, c] = True
-            if t_next_c <= t_next_r:
-                t = t_next_c
-                c += step_c
-                t_next_c += t_delta_c
-            else:
-                t = t_next_r
-                r += step_r
-                t_next_r += t_delta_r
+            r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
+                                                      t_delta_c)
             if t > max_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
                 break
 

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction
-from superex_deploy.geometry import dda_start
+from superex_deploy.geometry import dda_start, dda_step
 
 __all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
            "connected_unknown_gains",
@@ -74,14 +74,8 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, 
         transmittance = 1.0 - own
         reach = max_t
         while True:
-            if t_next_c <= t_next_r:
-                t = t_next_c
-                c += step_c
-                t_next_c += t_delta_c
-            else:
-                t = t_next_r
-                r += step_r
-                t_next_r += t_delta_r
+            r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
+                                                      t_delta_c)
             if t >= max_t:
                 break
             if r < 0 or r >= n_rows or c < 0 or c >= n_cols:

@@ -52,7 +52,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.geometry import dda_start, group_by_cell, cell_centre, ray_angles
+from superex_deploy.geometry import dda_start, dda_step, group_by_cell, cell_centre, ray_angles
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
@@ -381,16 +381,8 @@ def _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
         if kind == CELL_FREE:
             # Cell level, until the ray hits a wall or steps into a wall-free block.
             while True:
-                if t_next_c <= t_next_r:
-                    t = t_next_c
-                    c += step_c
-                    t_next_c += t_delta_c
-                    axis = 1
-                else:
-                    t = t_next_r
-                    r += step_r
-                    t_next_r += t_delta_r
-                    axis = 0
+                r, c, t_next_r, t_next_c, t, axis = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
+                                                             t_delta_c)
                 if t > max_t:
                     return -1, -1, max_t, -1
                 if r < 0 or r >= n_rows or c < 0 or c >= n_cols:
