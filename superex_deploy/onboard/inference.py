@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import enum
 import hashlib
+import importlib.resources
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
@@ -46,8 +48,21 @@ FORMAT_VERSION = "1"
 
 MANIFEST_NAME = "manifest.json"
 
-DEFAULT_MODEL_DIR = Path(__file__).resolve().parents[2] / "exported"
-"""``exported/`` of the repository checkout (where ``superex export`` writes by default)."""
+def _default_model_dir() -> Path:
+    """``$SUPEREX_MODELS`` if set, else the installed package ``superex_deploy.models`` (the repository's
+    ``exported/`` in an editable install, ``site-packages/superex_deploy/models`` from the wheel)."""
+    override = os.environ.get("SUPEREX_MODELS")
+    if override:
+        return Path(override).expanduser().resolve()
+    try:
+        return Path(str(importlib.resources.files("superex_deploy.models"))).resolve()
+    except ModuleNotFoundError:  # a checkout on sys.path that was never installed
+        return Path(__file__).resolve().parents[2] / "exported"
+
+
+DEFAULT_MODEL_DIR = _default_model_dir()
+"""Where the models are looked up when no folder is given: ``$SUPEREX_MODELS``, else the installed models (see
+:func:`_default_model_dir`); ``superex export`` writes to the repository's ``exported/`` by default."""
 
 
 class ModelKind(enum.Enum):
