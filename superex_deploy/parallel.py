@@ -7,12 +7,26 @@ process pool of the project therefore comes from :func:`process_pool`, whose wor
 ``forkserver`` process, and runs single-threaded numba kernels, since the workers already share the cores.
 Code outside the project that forks after running SuperEx should do the same (or set
 ``NUMBA_THREADING_LAYER=workqueue``, which is fork-safe but gained little here).
+
+Long sweeps go through :func:`run_tasks`: every finished task is appended to a journal at once, a rerun skips what
+the journal holds, and SIGTERM / SIGINT stop the workers instead of leaving them running.
 """
 
 from __future__ import annotations
 
+import ctypes
+import json
 import multiprocessing
+import os
+import signal
+import sys
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted"]
+
+_PR_SET_PDEATHSIG = 1
 
 
 def _single_threaded_worker() -> None:
@@ -34,3 +48,106 @@ def process_pool(jobs: int) -> ProcessPoolExecutor:
         raise ValueError(f"jobs must be an integer >= 1, got {jobs}")
     return ProcessPoolExecutor(max_workers=int(jobs), mp_context=multiprocessing.get_context("forkserver"),
                                initializer=_single_threaded_worker)
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to send this process SIGTERM when its parent dies (a killed benchmark leaves no workers)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:  # no glibc: the pool's terminate() on SIGTERM / SIGINT still stops the workers
+        pass
+
+
+def _journal_worker() -> None:
+    _die_with_parent()
+    _single_threaded_worker()
+
+
+class Interrupted(Exception):
+    """SIGTERM or SIGINT arrived while :func:`run_tasks` ran; the workers were stopped, the journal is consistent."""
+
+
+def read_journal(path: Path) -> dict:
+    """``key -> result`` of a journal written by :func:`run_tasks`. A last line cut short (a kill mid-write) is
+    ignored; any other unreadable line raises ``ValueError``."""
+    done = {}
+    if not path.is_file():
+        return done
+    lines = path.read_text().split("\n")
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            done[record["key"]] = record["result"]
+        except (json.JSONDecodeError, KeyError, TypeError):
+            if number == len(lines) or (number == len(lines) - 1 and not lines[-1]):
+                continue  # the line being written when the run was killed
+            raise ValueError(f"{path}: line {number} is not a journal record") from None
+    return done
+
+
+def _call(payload):
+    worker, key, task = payload
+    return key, worker(task)
+
+
+def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], jobs: int, journal: Path,
+              progress: Optional[str] = None) -> list:
+    """Run ``worker(task)`` for every task in a pool of ``jobs`` processes (one numba thread each), appending each
+    result to ``journal`` (one JSON line ``{"key", "result"}``, flushed and synced) the moment it arrives, and
+    skipping the tasks whose key the journal already holds. Returns the results in task order.
+
+    SIGTERM and SIGINT stop the workers at once (a pool worker also dies with its parent, even on SIGKILL) and
+    raise :class:`Interrupted`; the journal then holds every finished task, so the same call resumes the run.
+
+    Args:
+        worker: a module-level function of one task returning something JSON-serialisable.
+        tasks, keys: the tasks and a unique string key for each.
+        jobs: worker processes (>= 1).
+        journal: the ``.jsonl`` file to append to (its folder must exist).
+        progress: a tqdm label, or None for no progress bar.
+
+    Raises:
+        ValueError: ``jobs`` < 1, keys that are not unique or do not match the tasks, a corrupt journal.
+        Interrupted: a signal stopped the run.
+    """
+    from tqdm import tqdm
+
+    if int(jobs) != jobs or jobs < 1:
+        raise ValueError(f"jobs must be an integer >= 1, got {jobs}")
+    if len(keys) != len(tasks) or len(set(keys)) != len(keys):
+        raise ValueError("run_tasks needs one unique key per task")
+    journal = Path(journal)
+    done = read_journal(journal)
+    todo = [(worker, key, task) for key, task in zip(keys, tasks) if key not in done]
+    if todo:
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+
+        def stop(signum, frame):
+            raise Interrupted(f"stopped by {signal.Signals(signum).name}")
+
+        for sig in previous:
+            signal.signal(sig, stop)
+        pool = multiprocessing.get_context("forkserver").Pool(int(jobs), initializer=_journal_worker)
+        try:
+            with open(journal, "a") as out, tqdm(total=len(keys), initial=len(keys) - len(todo), desc=progress,
+                                                 unit="episode", disable=progress is None) as bar:
+                for key, result in pool.imap_unordered(_call, todo):
+                    out.write(json.dumps({"key": key, "result": result}) + "\n")
+                    out.flush()
+                    os.fsync(out.fileno())
+                    done[key] = result
+                    bar.update(1)
+            pool.close()
+        except BaseException:
+            pool.terminate()
+            raise
+        finally:
+            pool.join()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+    return [done[key] for key in keys]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 from superex_deploy.commands.explore import add_planner_option, planner_options
@@ -30,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
     parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out: skip the episodes OUT/episodes.jsonl already holds (the "
+                             "settings must be the same)")
     parser.add_argument("--suite", choices=("paper",), default=None,
                         help="paper: the paper's rows (see --rows), IoU every 10 steps up to 35 %% coverage, "
                              "paired against MapEx on LaMa-LOS; --planners / --predictor / --spad are ignored")
@@ -61,17 +65,45 @@ def run_scenario(task: tuple) -> dict:
     return summary
 
 
+def write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: a reader never sees half a file."""
+    part = path.with_name(path.name + ".part")
+    part.write_text(text)
+    os.replace(part, path)
+
+
+def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
+    """Check (or create) the output folder of a resumable run and return its journal, ``OUT/episodes.jsonl``.
+
+    ``OUT/settings.json`` records the run's settings; a folder that holds another run is refused, and one that
+    holds this run's journal only with ``resume``.
+
+    Raises:
+        ValueError: ``out`` is a file, holds a run of other settings, or holds a journal without ``resume``.
+    """
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    journal, recorded = out / "episodes.jsonl", out / "settings.json"
+    if recorded.is_file():
+        previous = json.loads(recorded.read_text())
+        if previous != json.loads(json.dumps(settings)):
+            raise ValueError(f"{out} holds a run with other settings ({previous}); choose another --out")
+    if journal.is_file() and not resume:
+        raise ValueError(f"{out} already holds a run ({journal}): pass --resume to finish it, or choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    write_atomically(recorded, json.dumps(settings))
+    return journal
+
+
 def run(args: argparse.Namespace) -> int:
     if args.suite == "paper":
         from superex_deploy.commands.paper_benchmark import run_paper
 
         return run_paper(args)
-    from tqdm import tqdm
-
     from superex_deploy.sim.metrics import results_markdown, summarise
     from superex_deploy.onboard.planners import PLANNERS, make_planner
     from superex_deploy.maps import list_maps, start_poses
-    from superex_deploy.parallel import process_pool
+    from superex_deploy.parallel import Interrupted, read_journal, run_tasks
     from superex_deploy.render import save_benchmark_plots
 
     names = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
@@ -83,21 +115,32 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     if args.predictor == "lama_bp" and not args.spad:
         raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    if args.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {args.steps}")
     options = planner_options(args.planner_option)
     for planner in planners:  # a bad option fails here, not in a worker
         make_planner(planner, **options)
     tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed)
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
-    args.out.mkdir(parents=True, exist_ok=True)
-    with process_pool(args.jobs) as pool:
-        results = list(tqdm(pool.map(run_scenario, tasks), total=len(tasks), desc="episodes", unit="episode"))
+    keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
+    settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
+                "spad": args.spad, "steps": args.steps, "seed": args.seed}
+    journal = prepare_output(args.out, settings, args.resume)
+    try:
+        results = run_tasks(run_scenario, tasks, keys, args.jobs, journal, "episodes")
+    except Interrupted as stop:
+        held = len(read_journal(journal))
+        print(f"superex benchmark: {stop}; {held} of {len(tasks)} episodes are in {journal}: rerun with --resume "
+              f"to finish", file=sys.stderr)
+        return 130
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)
-    (args.out / "results.json").write_text(json.dumps({"episodes": results, "summary": table,
-                                                       "planner_options": options}))
+    write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,
+                                                          "planner_options": options}))
     table_text = results_markdown(table)
     settings = "".join(f", {k}={v}" for k, v in options.items())
-    (args.out / "results.md").write_text(
+    write_atomically(
+        args.out / "results.md",
         f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}; {len(names)} maps, "
         f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
         f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "

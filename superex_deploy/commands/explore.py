@@ -75,7 +75,11 @@ def resolve_start(grid, start_index: int, pose):
     from superex_deploy.maps import start_poses
 
     if pose is not None:
-        return grid.check_pose(pose)
+        start = grid.check_pose(pose)
+        if not grid.valid[start]:
+            raise ValueError(f"--pose {start[0]} {start[1]} lies outside the valid (inside-the-building) area of map "
+                             f"{grid.name!r}: nothing there could be explored")
+        return start
     poses = start_poses(grid.name)
     if not 0 <= start_index < len(poses):
         raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")

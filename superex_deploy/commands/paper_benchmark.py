@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,18 +31,22 @@ def _rows(spec: str) -> list[str]:
     return names
 
 
-def _run_row(name: str, args: argparse.Namespace, maps: list[str]) -> list[dict]:
-    from tqdm import tqdm
-
+def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
+    """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
     from superex_deploy.commands.benchmark import run_scenario
     from superex_deploy.maps import start_poses
-    from superex_deploy.parallel import process_pool
+    from superex_deploy.parallel import run_tasks
 
     row = PAPER_ROWS[name]
     tasks = [(m, k, pose, row.planner, {}, row.predictor, row.spad, args.steps, args.seed, IOU_SCHEDULE)
              for m in maps for k, pose in enumerate(start_poses(m))]
-    with process_pool(args.jobs) as pool:
-        episodes = list(tqdm(pool.map(run_scenario, tasks), total=len(tasks), desc=name, unit="episode"))
+    keys = [f"{m}/{k}" for m, k, *_ in tasks]
+    recorded = rows_dir / f"{name}.setting.json"
+    if recorded.is_file() and json.loads(recorded.read_text()) != json.loads(json.dumps(setting)):
+        raise ValueError(f"{recorded} holds a partial row of other settings; move it and {name}.episodes.jsonl "
+                         f"away or choose another --out")
+    _write_atomically(recorded, json.dumps(setting))
+    episodes = run_tasks(run_scenario, tasks, keys, args.jobs, rows_dir / f"{name}.episodes.jsonl", name)
     for episode in episodes:
         episode["row"] = name
     return episodes
@@ -92,6 +97,7 @@ def _table(rows: dict[str, list[dict]], steps: int) -> tuple[str, dict]:
 
 def run_paper(args: argparse.Namespace) -> int:
     from superex_deploy.maps import list_maps
+    from superex_deploy.parallel import Interrupted
     from superex_deploy.render import save_suite_plots
 
     names = _rows(args.rows)
@@ -100,6 +106,8 @@ def run_paper(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     maps = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out} exists and is not a folder")
     rows_dir = args.out / "rows"
     rows_dir.mkdir(parents=True, exist_ok=True)
     setting = {"maps": maps, "steps": args.steps, "seed": args.seed, "iou": IOU_SCHEDULE}
@@ -112,7 +120,12 @@ def run_paper(args: argparse.Namespace) -> int:
                 continue
             raise ValueError(f"{path} was run with other settings ({done.get('setting')}); move it away or "
                              f"choose another --out")
-        episodes = _run_row(name, args, maps)
+        try:
+            episodes = _run_row(name, args, maps, rows_dir, setting)
+        except Interrupted as stop:
+            print(f"superex benchmark: {stop}; the finished episodes of row {name} are in "
+                  f"{rows_dir / (name + '.episodes.jsonl')}: rerun the same command to finish", file=sys.stderr)
+            return 130
         _write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
     rows = {}
     for name in PAPER_ROWS:  # every finished row, in the table's order
