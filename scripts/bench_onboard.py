@@ -34,12 +34,18 @@ SCENARIOS = (("50015847", 0), ("50052750", 0), ("50010539", 2), ("50045230", 1))
 
 def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
     """One episode in this process (either package layout); per-step stage times in seconds."""
-    try:
+    import superex_deploy
+
+    # Decide by the files: an editable install's import hook would otherwise fill the legacy tree's gaps from this one.
+    if (Path(superex_deploy.__file__).parent / "sim").is_dir():
+        from superex_deploy.onboard.planners import make_planner
         from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    except ImportError:  # the legacy layout
-        from superex_deploy.explore.episode import ExplorationConfig, run_episode
+    else:  # the legacy layout of commit 4253e2c
+        legacy = "superex_deploy.explore"
+        episode_module = __import__(f"{legacy}.episode", fromlist=["run_episode"])
+        ExplorationConfig, run_episode = episode_module.ExplorationConfig, episode_module.run_episode
+        make_planner = __import__(f"{legacy}.planners", fromlist=["make_planner"]).make_planner
     from superex_deploy.commands.explore import make_predictor, make_sensing
-    from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map, start_poses
 
     planner, predictor, spad = SETTINGS[setting]

@@ -55,6 +55,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         print(f"superex {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as error:
+        extra = {"torch": "train", "onnx": "train", "onnxscript": "train", "gymnasium": "gym"}.get(
+            (error.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"superex {args.command}: error: this command needs {error.name!r}, which is not installed: "
+              f"pip install 'superex[{extra}]'", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
