@@ -398,3 +398,72 @@ def test_the_readme_loop_explores_from_observations_alone():
     assert int(explorer.mapper.carved.sum()) > 0  # the SPAD frames carved hidden free space
     with pytest.raises(ValueError, match="oracle predictor reads the ground truth"):
         make_predictor("oracle")
+
+
+class _SlowThreadRecordingPredictor:
+    """Unknown = free, but slow, recording the thread of every call."""
+
+    name = "slow"
+
+    def __init__(self, seconds=0.02):
+        self.seconds, self.threads = seconds, []
+
+    def predict(self, observed, extra=None):
+        import threading
+        import time as clock
+
+        self.threads.append(threading.current_thread().name)
+        clock.sleep(self.seconds)
+        return ObservedAsPrediction().predict(observed)
+
+
+def _async_run(schedule, steps=60, planner="mapex"):
+    from superex_deploy.onboard import PredictionSchedule  # noqa: F401 - the public name
+
+    grid = load_map("50052750")
+    predictor = _SlowThreadRecordingPredictor()
+    commands = []
+    result = run_episode(grid, start_poses("50052750")[1], make_planner(planner), predictor, steps=steps, seed=2,
+                         cfg=ExplorationConfig(iou_every=10, prediction=schedule),
+                         on_observation=lambda o, c, e: commands.append(c))
+    return result, commands, predictor
+
+
+def test_asynchronous_prediction_never_runs_in_the_step_and_the_deterministic_mode_is_reproducible():
+    from superex_deploy.onboard import PredictionSchedule
+
+    schedule = PredictionSchedule(asynchronous=True, every_steps=5, apply_after_steps=2)
+    first, commands, predictor = _async_run(schedule)
+    again, _, _ = _async_run(schedule)
+    assert first.goals == again.goals and first.coverage.tolist() == again.coverage.tolist()
+    assert first.iou == again.iou
+    assert predictor.threads and all(name.startswith("superex-predict") for name in predictor.threads)
+    # Predictions of the maps of steps 0, 5, 10, ... land at steps 2, 7, 12, ...: never older than N + L - 1 = 6.
+    for command in commands:
+        if command.step < 2:
+            assert command.prediction_step == -1 and command.prediction is None
+        else:
+            assert command.prediction_step % 5 == 0 and 2 <= command.step - command.prediction_step <= 6
+    with pytest.raises(ValueError, match="apply_after_steps must lie in"):
+        PredictionSchedule(asynchronous=True, every_steps=3, apply_after_steps=4)
+
+
+def test_free_running_prediction_keeps_the_loop_going():
+    from superex_deploy.onboard import PredictionSchedule
+
+    result, commands, predictor = _async_run(PredictionSchedule(asynchronous=True, every_steps=0), steps=40)
+    assert result.steps == 40 and len(result.goals) >= 1
+    landed = [c.prediction_step for c in commands if c.prediction_step >= 0]
+    assert landed and landed == sorted(landed) and all(c.step >= c.prediction_step for c in commands)
+    assert all(name.startswith("superex-predict") for name in predictor.threads)
+
+
+def test_a_stale_prediction_is_overwritten_by_what_the_map_knows_now():
+    from superex_deploy.onboard.explorer import merge_with_map
+    from superex_deploy.onboard.types import Prediction
+
+    old = Prediction(mean=np.full((2, 3), 0.7, np.float32), variance=np.full((2, 3), 0.1, np.float32))
+    observed = np.array([[-1, 0, 1], [1, -1, 0]], np.int8)
+    merged = merge_with_map(old, observed)
+    np.testing.assert_array_equal(merged.mean, np.array([[0.7, 0, 1], [1, 0.7, 0]], np.float32))
+    np.testing.assert_array_equal(merged.variance, np.array([[0.1, 0, 0], [0, 0.1, 0]], np.float32))

@@ -42,7 +42,7 @@ def build_explorer(metadata: dict, frame, models=None):
     from superex_deploy.onboard.motion import MotionConfig
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard import Explorer, ExplorerConfig
+    from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
 
     try:
@@ -57,7 +57,9 @@ def build_explorer(metadata: dict, frame, models=None):
     predictor = make_predictor(predictor_name, None, models)
     try:
         explorer_fields = dict(metadata["explorer"])
-        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), **explorer_fields)
+        schedule = PredictionSchedule(**explorer_fields.pop("prediction", {}))
+        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule,
+                             **explorer_fields)
         nlos = None
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])

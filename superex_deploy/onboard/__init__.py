@@ -3,7 +3,7 @@
 >>> from superex_deploy.onboard import Explorer, ExplorerConfig
 """
 
-from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
+from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.spad_processing import SpadProcessing, scan_from_frame
 
-__all__ = ["STAGES", "Explorer", "ExplorerConfig", "SpadProcessing", "scan_from_frame"]
+__all__ = ["STAGES", "Explorer", "ExplorerConfig", "PredictionSchedule", "SpadProcessing", "scan_from_frame"]

@@ -22,6 +22,7 @@ left in any tier. The explorer is deterministic for a seed (the seed feeds only 
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -30,7 +31,7 @@ import numpy as np
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
-from superex_deploy.onboard.types import FREE, Frontier, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext, Prediction
 from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing
@@ -42,6 +43,37 @@ STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
 
 
 @dataclass(frozen=True)
+class PredictionSchedule:
+    """When the explorer runs its map predictor.
+
+    Attributes:
+        asynchronous: False (default): inside the step whose planner asks for it; the step waits for the whole
+            ensemble (up to ~0.9 s on 2 cores on the largest eval map). True: in a worker thread, never inside a
+            step; planners read the newest finished prediction, with the cells known since overwritten by the
+            current map (:func:`merge_with_map`).
+        every_steps: with ``asynchronous``: 0 runs free (a new prediction of the newest map starts as soon as the
+            last one finished; fast, but the steps at which predictions land depend on the machine, so episodes are
+            not reproducible). ``N >= 1`` is the deterministic mode for benchmarks and tests: the map of every
+            step ``k N`` is predicted, and the result is applied at step ``k N + apply_after_steps``, waiting for it
+            there if it is not done; episodes are reproducible on any machine.
+        apply_after_steps: the deterministic delay (``1 <= apply_after_steps <= every_steps``).
+    """
+
+    asynchronous: bool = False
+    every_steps: int = 10
+    apply_after_steps: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("every_steps", "apply_after_steps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        if self.every_steps and not 1 <= self.apply_after_steps <= self.every_steps:
+            raise ValueError(f"apply_after_steps must lie in 1..every_steps = {self.every_steps}, got "
+                             f"{self.apply_after_steps}")
+
+
+@dataclass(frozen=True)
 class ExplorerConfig:
     """Onboard exploration parameters.
 
@@ -50,14 +82,18 @@ class ExplorerConfig:
             drive per step; the explorer follows wherever it actually stops).
         frontier_min_cells: frontier regions with fewer cells are offered to the planner only when no larger
             region gives a goal (MapEx drops them: 10).
+        prediction: when the predictor runs (:class:`PredictionSchedule`).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
     frontier_min_cells: int = 10
+    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
 
     def __post_init__(self) -> None:
         if not isinstance(self.motion, MotionConfig):
             raise ValueError(f"motion must be a MotionConfig, got {type(self.motion).__name__}")
+        if not isinstance(self.prediction, PredictionSchedule):
+            raise ValueError(f"prediction must be a PredictionSchedule, got {type(self.prediction).__name__}")
         if int(self.frontier_min_cells) < 1:
             raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
 
@@ -74,6 +110,36 @@ class _LazyPrediction:
         if self.value is None:
             started = time.perf_counter()
             self.value = self._predictor.predict(self._observed, self._evidence)
+            self.seconds = time.perf_counter() - started
+        return self.value
+
+
+def merge_with_map(prediction: Prediction, observed: np.ndarray) -> Prediction:
+    """A prediction made on an older map, brought up to date: cells known in ``observed`` (int8 ``[H, W]``) take
+    their observed value (wall probability 1 or 0, variance 0); unknown cells keep the prediction."""
+    unknown = observed == UNKNOWN
+    mean = np.where(unknown, prediction.mean, (observed == OCCUPIED).astype(np.float32)).astype(np.float32)
+    variance = np.where(unknown, prediction.variance, np.float32(0.0)).astype(np.float32)
+    return Prediction(mean=mean, variance=variance)
+
+
+class _StalePrediction:
+    """What a planner reads in asynchronous mode: the newest finished prediction merged with this step's map
+    (computed on the first call, then cached), or the map itself (unknown = free) before any prediction landed."""
+
+    def __init__(self, newest: Optional[Prediction], observed: np.ndarray):
+        self._newest, self._observed = newest, observed
+        self.value: Optional[Prediction] = None
+        self.seconds = 0.0
+
+    def __call__(self) -> Prediction:
+        if self.value is None:
+            started = time.perf_counter()
+            if self._newest is None:
+                mean = (self._observed == OCCUPIED).astype(np.float32)
+                self.value = Prediction(mean=mean, variance=np.zeros_like(mean))
+            else:
+                self.value = merge_with_map(self._newest, self._observed)
             self.seconds = time.perf_counter() - started
         return self.value
 
@@ -190,6 +256,10 @@ class Explorer:
         self._prediction: Optional[_LazyPrediction] = None
         self._latest: Optional[Prediction] = None
         self._latest_step = -1
+        schedule = cfg.prediction
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="superex-predict") if schedule.asynchronous else None
+        self._pending: Optional[Future] = None
+        self._pending_step = -1
         planner.reset()
         if nlos is not None:
             nlos.reset()
@@ -208,8 +278,43 @@ class Explorer:
         if self._prediction is None:
             raise RuntimeError("no observation yet: call step() first")
         value = self._prediction()
-        self._latest, self._latest_step = value, self.steps - 1
+        if self._worker is None:
+            self._latest, self._latest_step = value, self.steps - 1
         return value
+
+    def close(self) -> None:
+        """Stop the prediction worker (asynchronous mode); the explorer cannot step afterwards."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True, cancel_futures=True)
+            self._worker = None
+            self._closed = True
+
+    def __enter__(self) -> "Explorer":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+    def _run_prediction(self, observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
+        return self.predictor.predict(observed, evidence)
+
+    def _schedule_predictions(self, observed: np.ndarray, t: int) -> float:
+        """Asynchronous mode: take a finished prediction (in the deterministic mode: wait for the one due at this
+        step) and start the next; returns the seconds this step waited."""
+        schedule, waited = self.cfg.prediction, 0.0
+        if self._pending is not None:
+            due = schedule.every_steps and t >= self._pending_step + schedule.apply_after_steps
+            if due or (not schedule.every_steps and self._pending.done()):
+                clock = time.perf_counter()
+                self._latest, self._latest_step = self._pending.result(), self._pending_step
+                waited = time.perf_counter() - clock
+                self._pending = None
+        start = t % schedule.every_steps == 0 if schedule.every_steps else True
+        if self._pending is None and start:
+            evidence = None if self.evidence is None else self.evidence.copy()
+            self._pending = self._worker.submit(self._run_prediction, observed.copy(), evidence)
+            self._pending_step = t
+        return waited
 
     @property
     def step_prediction(self) -> Optional[Prediction]:
@@ -233,6 +338,8 @@ class Explorer:
         """
         if not isinstance(obs, Observation):
             raise ValueError(f"step() takes an Observation, got {type(obs).__name__}")
+        if getattr(self, "_closed", False):
+            raise RuntimeError("this explorer was closed")
         pose = self._pose_cell(obs)
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
@@ -252,11 +359,17 @@ class Explorer:
         frontiers = find_frontiers(observed, self.cfg.frontier_min_cells)
         timings["frontiers"] = time.perf_counter() - clock
 
-        prediction = _LazyPrediction(self.predictor, observed, self.evidence)
+        waited = 0.0
+        if self._worker is not None:
+            waited = self._schedule_predictions(observed, t)
+            prediction = _StalePrediction(self._latest, observed)
+        else:
+            prediction = _LazyPrediction(self.predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
         self.steps += 1
         new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
-        if prediction.value is not None:
+        timings["prediction"] += waited
+        if self._worker is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
         path_rc = np.asarray(self.path, np.int64).reshape(-1, 2)
         return Command(stamp_s=obs.stamp_s,

@@ -26,7 +26,7 @@ from superex_deploy.sim.metrics import evaluation_area, map_iou
 from superex_deploy.onboard.motion import MotionConfig
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
+from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 
@@ -44,6 +44,8 @@ class ExplorationConfig:
             region gives a goal (MapEx drops them: 10). Dropping them outright stopped 2 of the 40 benchmark
             episodes at their first step, in rooms whose open door, seen edge-on, showed fewer frontier cells.
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
+        prediction: when the explorer runs its predictor (synchronously by default; see
+            :class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
@@ -54,6 +56,7 @@ class ExplorationConfig:
     frontier_min_cells: int = 10
     iou_every: int = 25
     iou_dense_until: float = 1.0
+    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
 
     def __post_init__(self) -> None:
         if int(self.frontier_min_cells) < 1:
@@ -185,7 +188,8 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, pre
                                               step_cells=cfg.motion.step_cells,
                                               seed=0 if nlos is None else nlos.seed))
     explorer = Explorer(world.frame, planner, predictor, nlos=None if nlos is None else nlos.processing(),
-                        cfg=ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells), seed=seed)
+                        cfg=ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells,
+                                           prediction=cfg.prediction), seed=seed)
     return world, explorer
 
 
@@ -219,7 +223,14 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
     steps = _check_inputs(grid, steps, cfg, nlos)
     world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, nlos)
     iou_area = evaluation_area(grid) if cfg.iou_every else None
+    try:
+        return _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area, on_step, on_observation)
+    finally:
+        explorer.close()
 
+
+def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area, on_step, on_observation
+          ) -> EpisodeResult:
     timings = {stage: np.zeros(steps) for stage in STAGES}
     evaluation_s, simulation_s = np.zeros(steps), np.zeros(steps)
     poses = np.zeros((steps, 2), np.int64)
@@ -232,6 +243,7 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
     last_prediction: Optional[Prediction] = None
     finished = False
     logged = steps
+    start = world.pose_rc
 
     for t in range(steps):
         clock = time.perf_counter()
@@ -275,7 +287,7 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
 
     return EpisodeResult(
         map_name=grid.name, planner=planner.name, predictor=getattr(predictor, "name", type(predictor).__name__),
-        seed=int(seed), start_rc=world.grid.check_pose(start_rc), poses=poses[:logged], coverage=coverage[:logged],
+        seed=int(seed), start_rc=start, poses=poses[:logged], coverage=coverage[:logged],
         coverage_with_carving=coverage_carved[:logged], path_length_m=path_length[:logged],
         timings_s={stage: values[:logged] for stage, values in timings.items()},
         evaluation_s=evaluation_s[:logged], simulation_s=simulation_s[:logged], iou_steps=iou_steps,
