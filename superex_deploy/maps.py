@@ -173,7 +173,10 @@ def _load_ros_yaml(path: Path) -> OccupancyGrid:
         raise ValueError(f"map YAML {path}: resolution must be positive, got {spec['resolution']}")
     if not 0.0 <= occupied_thresh <= 1.0:
         raise ValueError(f"map YAML {path}: occupied_thresh must lie in [0, 1], got {occupied_thresh}")
-    negate = bool(int(spec.get("negate", 0)))
+    negate = spec.get("negate", 0)
+    if not (isinstance(negate, bool) or (isinstance(negate, (int, float)) and negate in (0, 1))):
+        raise ValueError(f"map YAML {path}: negate must be 0 or 1, got {negate!r}")
+    negate = bool(negate)
     return _grid_from_image(image_path, resolution, occupied_thresh, negate, name=path.stem)
 
 
