@@ -22,9 +22,10 @@ import signal
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from contextlib import contextmanager
+from typing import Callable, Iterator, Optional, Sequence
 
-__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted"]
+__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "LocalBackend", "RayBackend"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -95,30 +96,112 @@ def _call(payload):
     return key, worker(task)
 
 
-def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], jobs: int, journal: Path,
-              progress: Optional[str] = None) -> list:
-    """Run ``worker(task)`` for every task in a pool of ``jobs`` processes (one numba thread each), appending each
-    result to ``journal`` (one JSON line ``{"key", "result"}``, flushed and synced) the moment it arrives, and
-    skipping the tasks whose key the journal already holds. Returns the results in task order.
+class LocalBackend:
+    """``jobs`` worker processes on this machine (a fork-server pool, one numba thread each)."""
 
-    SIGTERM and SIGINT stop the workers at once (a pool worker also dies with its parent, even on SIGKILL) and
-    raise :class:`Interrupted`; the journal then holds every finished task, so the same call resumes the run.
+    def __init__(self, jobs: int):
+        if isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1:
+            raise ValueError(f"jobs must be an integer >= 1, got {jobs}")
+        self.jobs = int(jobs)
+
+    def __repr__(self) -> str:
+        return f"LocalBackend(jobs={self.jobs})"
+
+    @contextmanager
+    def imap_unordered(self, function: Callable, items: Sequence) -> Iterator:
+        """``function(item)`` for every item, in the order they finish; the workers stop when the block exits
+        early (an exception, a signal)."""
+        pool = multiprocessing.get_context("forkserver").Pool(self.jobs, initializer=_journal_worker)
+        try:
+            yield pool.imap_unordered(function, items)
+            pool.close()
+        except BaseException:
+            pool.terminate()
+            raise
+        finally:
+            pool.join()
+
+
+class RayBackend:
+    """Ray tasks, one CPU each, with one numba / OpenMP thread per task (the ``ray`` extra).
+
+    Args:
+        address: a running cluster (``"auto"`` or ``"HOST:PORT"``, as ``ray start --head`` prints), or None to start a
+            local Ray instance for the run (shut down afterwards).
+        num_cpus: CPUs of the local instance (ignored with ``address``).
+
+    Every node needs this package installed (``pip install 'superex[ray]'``); tasks are pickled by reference.
+    """
+
+    def __init__(self, address: Optional[str] = None, num_cpus: Optional[int] = None):
+        try:
+            import ray  # noqa: F401
+        except ModuleNotFoundError:
+            raise ValueError("the Ray backend needs Ray: pip install 'superex[ray]'") from None
+        if num_cpus is not None and (isinstance(num_cpus, bool) or int(num_cpus) != num_cpus or num_cpus < 1):
+            raise ValueError(f"num_cpus must be an integer >= 1, got {num_cpus}")
+        self.address, self.num_cpus = address, num_cpus
+
+    def __repr__(self) -> str:
+        return f"RayBackend(address={self.address!r}, num_cpus={self.num_cpus})"
+
+    @contextmanager
+    def imap_unordered(self, function: Callable, items: Sequence) -> Iterator:
+        import ray
+
+        started = not ray.is_initialized()
+        if started:
+            threads = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+            options = dict(runtime_env={"env_vars": threads}, include_dashboard=False, log_to_driver=False,
+                           configure_logging=False)
+            if self.address is None:
+                ray.init(num_cpus=self.num_cpus, **options)
+            else:
+                ray.init(address=self.address, **options)
+        remote = ray.remote(num_cpus=1, max_retries=0)(function)
+        pending = [remote.remote(item) for item in items]
+
+        def results():
+            nonlocal pending
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                yield ray.get(done[0])
+
+        try:
+            yield results()
+        finally:
+            for ref in pending:  # stopped early: nothing keeps running on the cluster
+                ray.cancel(ref, force=True)
+            if started:
+                ray.shutdown()
+
+
+def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], backend, journal: Path,
+              progress: Optional[str] = None) -> list:
+    """Run ``worker(task)`` for every task on ``backend`` (:class:`LocalBackend`, :class:`RayBackend`, or an int:
+    that many local workers), appending each result to ``journal`` (one JSON line ``{"key", "result"}``, flushed
+    and synced) the moment it arrives, and skipping the tasks whose key the journal already holds. Returns the
+    results in task order, whichever backend ran them and in whatever order they finished.
+
+    SIGTERM and SIGINT stop the workers at once (a local worker also dies with its parent, even on SIGKILL; Ray
+    tasks are cancelled) and raise :class:`Interrupted`; the journal then holds every finished task, so the same
+    call resumes the run.
 
     Args:
         worker: a module-level function of one task returning something JSON-serialisable.
         tasks, keys: the tasks and a unique string key for each.
-        jobs: worker processes (>= 1).
+        backend: where the tasks run.
         journal: the ``.jsonl`` file to append to (its folder must exist).
         progress: a tqdm label, or None for no progress bar.
 
     Raises:
-        ValueError: ``jobs`` < 1, keys that are not unique or do not match the tasks, a corrupt journal.
+        ValueError: a bad backend, keys that are not unique or do not match the tasks, a corrupt journal.
         Interrupted: a signal stopped the run.
     """
     from tqdm import tqdm
 
-    if int(jobs) != jobs or jobs < 1:
-        raise ValueError(f"jobs must be an integer >= 1, got {jobs}")
+    if not isinstance(backend, (LocalBackend, RayBackend)):
+        backend = LocalBackend(backend)
     if len(keys) != len(tasks) or len(set(keys)) != len(keys):
         raise ValueError("run_tasks needs one unique key per task")
     journal = Path(journal)
@@ -132,22 +215,17 @@ def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], jobs: int,
 
         for sig in previous:
             signal.signal(sig, stop)
-        pool = multiprocessing.get_context("forkserver").Pool(int(jobs), initializer=_journal_worker)
         try:
             with open(journal, "a") as out, tqdm(total=len(keys), initial=len(keys) - len(todo), desc=progress,
-                                                 unit="episode", disable=progress is None) as bar:
-                for key, result in pool.imap_unordered(_call, todo):
+                                                 unit="episode", disable=progress is None) as bar, \
+                    backend.imap_unordered(_call, todo) as finished:
+                for key, result in finished:
                     out.write(json.dumps({"key": key, "result": result}) + "\n")
                     out.flush()
                     os.fsync(out.fileno())
                     done[key] = result
                     bar.update(1)
-            pool.close()
-        except BaseException:
-            pool.terminate()
-            raise
         finally:
-            pool.join()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
     return [done[key] for key in keys]

@@ -7,6 +7,8 @@ no ground truth; :func:`make_sensing` and the oracle belong to simulations.
 
 from __future__ import annotations
 
+from functools import lru_cache
+from pathlib import Path
 from typing import Optional
 
 __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "make_predictor", "make_sensing", "make_processing"]
@@ -18,10 +20,25 @@ EVIDENCE_PREDICTORS = ("lama_bp", "evidence")
 """Predictors that read the SPAD evidence (they need SPAD sensing and the Pix2Pix filter)."""
 
 
-def _pix2pix_filter(models=None):
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, Pix2PixFilter
+@lru_cache(maxsize=8)
+def _load_model(kind: str, directory: str):
+    """A learned model, loaded once per process (its ONNX Runtime sessions hold no state between calls): the
+    benchmark and data-generation workers run many episodes each."""
+    from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, Pix2PixFilter
 
-    return Pix2PixFilter.from_manifest(models or DEFAULT_MODEL_DIR).filter_map
+    if kind == "pix2pix":
+        return Pix2PixFilter.from_manifest(directory)
+    return LamaEnsemble.from_manifest(ModelKind(kind), directory)
+
+
+def _models_dir(models) -> str:
+    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR
+
+    return str(Path(models or DEFAULT_MODEL_DIR).resolve())
+
+
+def _pix2pix_filter(models=None):
+    return _load_model("pix2pix", _models_dir(models)).filter_map
 
 
 def make_predictor(name: str, grid=None, models=None):
@@ -43,9 +60,7 @@ def make_predictor(name: str, grid=None, models=None):
 
         return OraclePredictor(grid)
     if name in ("lama_los", "lama_bp"):
-        from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind
-
-        return LamaEnsemble.from_manifest(ModelKind(name), models or DEFAULT_MODEL_DIR)
+        return _load_model(name, _models_dir(models))
     raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
 
 

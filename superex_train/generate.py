@@ -39,7 +39,7 @@ from superex_deploy.onboard.inference import (ModelKind, Pix2PixFilter, crop_win
 from superex_deploy.maps import list_maps, load_map, map_building, random_start
 from superex_deploy.onboard.nlos import NlosConfig, back_project, estimate_los
 from superex_deploy.sim.spad import nlos_ground_truth
-from superex_deploy.parallel import process_pool
+from superex_deploy.parallel import LocalBackend
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.sim.spad import simulate_scan
 from superex_train.datasets import DatasetInfo, ShardWriter
@@ -225,19 +225,32 @@ def _lama_episode(episode: _Episode, cfg: GenerationConfig, pix2pix_path: Option
     return samples
 
 
-def _run_all(worker: Callable, episodes: Sequence[_Episode], jobs: int, progress: bool, label: str) -> Iterator:
+def _indexed(payload):
+    worker, index, episode = payload
+    return index, worker(episode)
+
+
+def _run_all(worker: Callable, episodes: Sequence[_Episode], jobs: int, progress: bool, label: str,
+             backend=None) -> Iterator:
+    """``(episode, worker(episode))`` in episode order, whatever order the backend finishes them in (so the
+    dataset is the same on every backend); ``backend`` None: ``jobs`` local processes (in this one if 1)."""
     from tqdm import tqdm
 
     with tqdm(total=len(episodes), desc=label, unit="episode", disable=not progress) as bar:
-        if jobs == 1:
+        if backend is None and jobs == 1:
             for episode in episodes:
                 yield episode, worker(episode)
                 bar.update(1)
             return
-        with process_pool(jobs) as pool:
-            for episode, result in zip(episodes, pool.map(worker, episodes, chunksize=1)):
-                yield episode, result
-                bar.update(1)
+        backend = backend or LocalBackend(jobs)
+        waiting, next_index = {}, 0
+        with backend.imap_unordered(_indexed, [(worker, i, e) for i, e in enumerate(episodes)]) as finished:
+            for index, result in finished:
+                waiting[index] = result
+                while next_index in waiting:
+                    yield episodes[next_index], waiting.pop(next_index)
+                    next_index += 1
+                    bar.update(1)
 
 
 class _Bound:
@@ -250,14 +263,16 @@ class _Bound:
         return self.function(episode, *self.args)
 
 
-def generate_pix2pix(out_dir: PathLike, cfg: GenerationConfig = GenerationConfig(), progress: bool = True
-                     ) -> DatasetInfo:
-    """Write the Pix2Pix dataset (see the module docstring) to ``out_dir``; returns its :class:`DatasetInfo`."""
+def generate_pix2pix(out_dir: PathLike, cfg: GenerationConfig = GenerationConfig(), progress: bool = True,
+                     backend=None) -> DatasetInfo:
+    """Write the Pix2Pix dataset (see the module docstring) to ``out_dir``; returns its :class:`DatasetInfo`.
+    ``backend``: a :class:`~superex_deploy.parallel.RayBackend` or :class:`~superex_deploy.parallel.LocalBackend`
+    (default: ``cfg.jobs`` local processes); the dataset is the same on every backend."""
     generator = {"source": "superex_train.generate.generate_pix2pix", **cfg.describe()}
     size = cfg.window_cells
     with ShardWriter(out_dir, ModelKind.PIX2PIX, (size, size), generator=generator) as writer:
         for episode, samples in _run_all(_Bound(_pix2pix_episode, cfg), _episodes(cfg), cfg.jobs, progress,
-                                         "pix2pix data"):
+                                         "pix2pix data", backend):
             building = map_building(episode.map_name)
             for inputs, target, mask in samples:
                 writer.add(inputs, target, mask, group=building)
@@ -265,7 +280,7 @@ def generate_pix2pix(out_dir: PathLike, cfg: GenerationConfig = GenerationConfig
 
 
 def generate_lama(bp_dir: PathLike, los_dir: PathLike, pix2pix_model: Optional[PathLike],
-                  cfg: GenerationConfig = GenerationConfig(), progress: bool = True
+                  cfg: GenerationConfig = GenerationConfig(), progress: bool = True, backend=None
                   ) -> tuple[DatasetInfo, DatasetInfo]:
     """Write the LAMA_BP dataset to ``bp_dir`` and the LAMA_LOS dataset of the same tiles to ``los_dir``.
 
@@ -285,7 +300,7 @@ def generate_lama(bp_dir: PathLike, los_dir: PathLike, pix2pix_model: Optional[P
     with ShardWriter(bp_dir, ModelKind.LAMA_BP, tile, generator=generator) as bp_writer, \
             ShardWriter(los_dir, ModelKind.LAMA_LOS, tile, generator=generator) as los_writer:
         for episode, samples in _run_all(_Bound(_lama_episode, cfg, model), _episodes(cfg), cfg.jobs, progress,
-                                         "lama data"):
+                                         "lama data", backend):
             building = map_building(episode.map_name)
             for bp_inputs, los_inputs, walls, mask in samples:
                 bp_writer.add(bp_inputs, walls, mask, group=building)

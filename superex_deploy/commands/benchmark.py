@@ -31,6 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
     parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--backend", choices=("local", "ray"), default="local",
+                        help="local: --jobs worker processes here; ray: Ray tasks (the ray extra), on a local Ray "
+                             "instance with --jobs CPUs or on the cluster at --address")
+    parser.add_argument("--address", default=None,
+                        help="with --backend ray: the cluster to use ('auto', or HOST:PORT from `ray start --head`)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out: skip the episodes OUT/episodes.jsonl already holds (the "
                              "settings must be the same)")
@@ -63,6 +68,19 @@ def run_scenario(task: tuple) -> dict:
     summary.pop("poses")
     summary.pop("timings_s")
     return summary
+
+
+def make_backend(args: argparse.Namespace):
+    """The backend ``--backend`` / ``--address`` / ``--jobs`` name."""
+    from superex_deploy.parallel import LocalBackend, RayBackend
+
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    if args.backend == "ray":
+        return RayBackend(address=args.address, num_cpus=None if args.address else args.jobs)
+    if args.address is not None:
+        raise ValueError("--address needs --backend ray")
+    return LocalBackend(args.jobs)
 
 
 def write_atomically(path: Path, text: str) -> None:
@@ -125,9 +143,10 @@ def run(args: argparse.Namespace) -> int:
     keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
                 "spad": args.spad, "steps": args.steps, "seed": args.seed}
+    backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:
-        results = run_tasks(run_scenario, tasks, keys, args.jobs, journal, "episodes")
+        results = run_tasks(run_scenario, tasks, keys, backend, journal, "episodes")
     except Interrupted as stop:
         held = len(read_journal(journal))
         print(f"superex benchmark: {stop}; {held} of {len(tasks)} episodes are in {journal}: rerun with --resume "

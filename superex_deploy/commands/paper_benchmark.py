@@ -33,7 +33,7 @@ def _rows(spec: str) -> list[str]:
 
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
-    from superex_deploy.commands.benchmark import run_scenario
+    from superex_deploy.commands.benchmark import make_backend, run_scenario
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
@@ -46,7 +46,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
         raise ValueError(f"{recorded} holds a partial row of other settings; move it and {name}.episodes.jsonl "
                          f"away or choose another --out")
     _write_atomically(recorded, json.dumps(setting))
-    episodes = run_tasks(run_scenario, tasks, keys, args.jobs, rows_dir / f"{name}.episodes.jsonl", name)
+    episodes = run_tasks(run_scenario, tasks, keys, make_backend(args), rows_dir / f"{name}.episodes.jsonl", name)
     for episode in episodes:
         episode["row"] = name
     return episodes

@@ -51,7 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--tile", type=int, default=128, help="lama tile side (cells)")
     data.add_argument("--tiles-per-sample", type=int, default=2)
     data.add_argument("--maps", nargs="*", default=None, help="train map names (default: all)")
-    data.add_argument("--jobs", type=int, default=max(1, os.cpu_count() or 1), help="worker processes")
+    data.add_argument("--jobs", type=int, default=max(1, os.cpu_count() or 1),
+                      help="worker processes (with --backend ray and no --address: CPUs of the local Ray instance)")
+    data.add_argument("--backend", choices=("local", "ray"), default="local",
+                      help="ray: run the episodes as Ray tasks (the ray extra); the dataset is the same")
+    data.add_argument("--address", default=None, help="with --backend ray: the cluster ('auto' or HOST:PORT)")
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--quiet", action="store_true", help="no progress bar")
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
@@ -118,12 +122,15 @@ def run(args: argparse.Namespace) -> int:
                                steps=args.steps, sample_every=args.sample_every, window_cells=args.window,
                                tile_cells=args.tile, tiles_per_sample=args.tiles_per_sample, jobs=args.jobs,
                                seed=args.seed)
+        from superex_deploy.commands.benchmark import make_backend
+
+        backend = make_backend(args) if args.backend == "ray" else None  # local: cfg.jobs processes
         if args.what == "pix2pix":
-            infos = [generate_pix2pix(args.out, cfg, progress=not args.quiet)]
+            infos = [generate_pix2pix(args.out, cfg, progress=not args.quiet, backend=backend)]
         else:
             model = None if args.laplacian else (args.pix2pix_model or DEFAULT_MODEL_DIR / "pix2pix.onnx")
             infos = list(generate_lama(args.out / "lama_bp", args.out / "lama_los", model, cfg,
-                                       progress=not args.quiet))
+                                       progress=not args.quiet, backend=backend))
         for info in infos:
             print(f"wrote {info.count} {info.kind.value} samples of {info.tile_hw} to {info.directory} "
                   f"(data sha256 {info.data_sha256[:12]})")
