@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from superex_deploy.pipeline import PREDICTORS, make_predictor, make_sensing
@@ -116,6 +117,11 @@ def run(args: argparse.Namespace) -> int:
         explorer_cfg = ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells)
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
                                  recording_metadata(grid, args, options, nlos, explorer_cfg))
+    from superex_deploy.commands.warmup import numba_cache_is_warm
+
+    if not numba_cache_is_warm():
+        print("superex explore: first run here: compiling the numba kernels (about half a minute, once; numba caches "
+              "them; `superex warmup` does it ahead)", file=sys.stderr, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     recorder = GifRecorder(every=args.gif_every)
     with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:

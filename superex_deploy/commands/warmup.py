@@ -1,0 +1,62 @@
+"""``superex warmup``: compile every numba kernel once (numba caches them on disk) and check the models load.
+
+The first episode in a fresh install otherwise spends ~30 s on its first step compiling; ``superex explore`` says
+so when it finds the cache cold.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+PLANNERS = ("nearest", "hector", "upen", "mapex", "superex")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--models", type=Path, default=None, help="folder of exported models (default: installed)")
+
+
+def numba_cache_is_warm() -> bool:
+    """Whether numba's on-disk cache holds the SPAD simulator's and the NLOS processing's kernels (the slowest to
+    compile) for this Python."""
+    from superex_deploy.onboard import nlos
+    from superex_deploy.sim import spad
+
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    return all(any((Path(module.__file__).parent / "__pycache__").glob(f"{Path(module.__file__).stem}.*{tag}.nbi"))
+               for module in (spad, nlos))
+
+
+def warm_up(models=None) -> float:
+    """Run a few steps of every planner with SPAD sensing on a small synthetic floor (compiling every kernel on the
+    way) and load the learned models; returns the seconds it took."""
+    from superex_deploy.maps import OccupancyGrid
+    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.pipeline import make_predictor, make_sensing
+    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+
+    started = time.perf_counter()
+    walls = np.zeros((40, 60), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[:, 30] = True
+    walls[15:22, 30] = False
+    grid = OccupancyGrid(walls, ~walls, 0.1, "warm-up")
+    for planner in PLANNERS:
+        run_episode(grid, (10, 10), make_planner(planner), make_predictor("evidence"), steps=4,
+                    cfg=ExplorationConfig(iou_every=2), nlos=make_sensing("evidence", True, 0, models))
+    for name in ("lama_los", "lama_bp"):
+        make_predictor(name, models=models)
+    return time.perf_counter() - started
+
+
+def run(args: argparse.Namespace) -> int:
+    cold = not numba_cache_is_warm()
+    print(f"superex warmup: {'compiling the numba kernels (once; numba caches them)' if cold else 'cache warm'}, "
+          f"loading the models...", flush=True)
+    seconds = warm_up(args.models)
+    print(f"superex warmup: done in {seconds:.1f} s")
+    return 0

@@ -1,0 +1,11 @@
+from superex_deploy.cli import main
+from superex_deploy.commands import warmup
+
+
+def test_warmup_compiles_and_loads_everything_and_a_cold_explore_says_why_it_waits(tmp_path, capsys, monkeypatch):
+    assert main(["warmup"]) == 0
+    assert "superex warmup: done in" in capsys.readouterr().out
+    assert warmup.numba_cache_is_warm()  # the warm-up ran every kernel: numba cached them
+    monkeypatch.setattr(warmup, "numba_cache_is_warm", lambda: False)
+    assert main(["explore", "--map", "50052750", "--steps", "2", "--gif-every", "10", "--out", str(tmp_path)]) == 0
+    assert "compiling the numba kernels" in capsys.readouterr().err
