@@ -82,7 +82,7 @@ def _grow_rrt(passable, reachable, start_y, start_x, samples, expand_cells, vari
             f = i / n
             r = int(np.floor(by + f * (ny - by)))
             c = int(np.floor(bx + f * (nx - bx)))
-            total += variance[r, c]
+            total += float(variance[r, c])  # float64 sums, compiled or not (numba: float32 + float64)
             if not left:
                 if reachable[r, c]:
                     exit_r = r
