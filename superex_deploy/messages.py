@@ -43,7 +43,8 @@ def _finite(name: str, value) -> float:
 def _float32(name: str, value) -> float:
     """``value`` rounded to float32, as a Python float (finite)."""
     value = _finite(name, value)
-    rounded = np.float32(value)
+    with np.errstate(over="ignore"):  # too large for float32: inf, refused below
+        rounded = np.float32(value)
     if not np.isfinite(rounded):
         raise ValueError(f"{name} = {value} does not fit a float32")
     return float(rounded)
