@@ -67,14 +67,18 @@ class MapFrame:
     def __post_init__(self) -> None:
         try:
             shape = tuple(int(n) for n in self.shape)
+            integral = all(int(n) == n for n in self.shape)
         except (TypeError, ValueError):
             raise ValueError(f"shape must be a (rows, cols) pair of integers, got {self.shape!r}") from None
-        if len(shape) != 2 or min(shape) < 1:
-            raise ValueError(f"shape must be a positive (rows, cols) pair, got {self.shape!r}")
+        if len(shape) != 2 or min(shape) < 1 or not integral:
+            raise ValueError(f"shape must be a positive (rows, cols) pair of integers, got {self.shape!r}")
         resolution = _finite("resolution_m", self.resolution_m)
         if resolution <= 0.0:
             raise ValueError(f"resolution_m must be positive, got {resolution}")
-        origin = tuple(_finite("origin_xy", v) for v in self.origin_xy)
+        try:
+            origin = tuple(_finite("origin_xy", v) for v in self.origin_xy)
+        except TypeError:
+            raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}") from None
         if len(origin) != 2:
             raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}")
         object.__setattr__(self, "shape", shape)
@@ -87,9 +91,10 @@ class MapFrame:
                 (x - self.origin_xy[0]) / self.resolution_m)
 
     def cell_of(self, x: float, y: float) -> tuple[int, int]:
-        """The cell ``(row, col)`` holding the map-frame point ``(x, y)``; it may lie outside the grid."""
-        gy, gx = self.grid_yx(x, y)
-        return int(math.floor(gy)), int(math.floor(gx))
+        """The cell ``(row, col)`` holding the map-frame point ``(x, y)`` (cells include their lower ``x`` and ``y``
+        edges); it may lie outside the grid."""
+        return (self.shape[0] - 1 - int(math.floor((y - self.origin_xy[1]) / self.resolution_m)),
+                int(math.floor((x - self.origin_xy[0]) / self.resolution_m)))
 
     def centre_xy(self, rc) -> tuple[float, float]:
         """Map-frame position (metres) of the centre of cell ``rc = (row, col)``."""
@@ -125,7 +130,7 @@ class Pose2D:
             object.__setattr__(self, name, _finite(f"pose.{name}", getattr(self, name)))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LaserScan:
     """One line-of-sight scan (``sensor_msgs/LaserScan``), in the robot's frame.
 
@@ -216,7 +221,7 @@ class SpadFrame:
         bin_width = _finite("spad.bin_width_s", self.bin_width_s)
         if bin_width <= 0.0:
             raise ValueError(f"spad.bin_width_s must be positive, got {bin_width}")
-        if isinstance(self.n_bins, bool) or int(self.n_bins) != self.n_bins or int(self.n_bins) < 1:
+        if not isinstance(self.n_bins, (int, np.integer)) or isinstance(self.n_bins, bool) or self.n_bins < 1:
             raise ValueError(f"spad.n_bins must be a positive integer, got {self.n_bins!r}")
         n_bins = int(self.n_bins)
         row_start, bins, counts = (np.asarray(a) for a in (self.row_start, self.bins, self.counts))
@@ -255,6 +260,8 @@ class SpadFrame:
         if histograms.ndim != 2 or not np.issubdtype(histograms.dtype, np.floating):
             raise ValueError(f"histograms must be a float [n_rays, n_bins] array, got {histograms.dtype} "
                              f"{histograms.shape}")
+        if not (np.all(np.isfinite(histograms)) and histograms.min(initial=0.0) >= 0.0):
+            raise ValueError("histograms must be finite and non-negative")
         rows, bins = np.nonzero(histograms > 0)
         row_start = np.zeros(histograms.shape[0] + 1, np.int64)
         np.cumsum(np.bincount(rows, minlength=histograms.shape[0]), out=row_start[1:])

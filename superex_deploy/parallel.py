@@ -91,6 +91,16 @@ def read_journal(path: Path) -> dict:
     return done
 
 
+def _drop_torn_line(journal: Path) -> None:
+    """Cut a last line left unfinished by a kill, so that the next record starts on a line of its own."""
+    if not journal.is_file() or journal.stat().st_size == 0:
+        return
+    with open(journal, "rb+") as file:
+        data = file.read()
+        if not data.endswith(b"\n"):
+            file.truncate(data.rfind(b"\n") + 1)
+
+
 def _call(payload):
     worker, key, task = payload
     return key, worker(task)
@@ -215,10 +225,13 @@ def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], backend, j
 
         for sig in previous:
             signal.signal(sig, stop)
+        _drop_torn_line(journal)
         try:
             with open(journal, "a") as out, tqdm(total=len(keys), initial=len(keys) - len(todo), desc=progress,
                                                  unit="episode", disable=progress is None) as bar, \
                     backend.imap_unordered(_call, todo) as finished:
+                for sig in previous:  # again: starting Ray installs its own SIGTERM handler
+                    signal.signal(sig, stop)
                 for key, result in finished:
                     out.write(json.dumps({"key": key, "result": result}) + "\n")
                     out.flush()

@@ -113,6 +113,7 @@ float64 goal_y
 bool new_goal            # the goal was chosen at this step
 bool finished            # no reachable frontier is left
 int32 prediction_step    # step of the newest prediction, -1 for none
+float64 robot_yaw        # the observation's yaw (rad), exactly: the /pose quaternion rounds it
 """ + _SEPARATOR + _HEADER
 
 _SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
@@ -204,17 +205,26 @@ class EpisodeRecorder:
         if int(map_every) < 1:
             raise ValueError(f"map_every must be >= 1, got {map_every}")
         self.frame, self.map_every = frame, int(map_every)
-        self._part = self.path.with_name(self.path.name + ".part")
-        self._file = open(self._part, "wb")
-        self._writer = Writer(self._file, chunk_size=int(chunk_bytes))
-        self._schemas = {topic: self._writer.register_msgdef(name, text) for topic, (name, text) in _SCHEMAS.items()}
         values = {"format_version": FORMAT_VERSION,
                   "frame": {"shape": list(frame.shape), "resolution_m": frame.resolution_m,
                             "origin_xy": list(frame.origin_xy)}, **metadata}
-        self._writer.add_metadata(METADATA_NAME, {key: json.dumps(value) for key, value in values.items()})
+        try:
+            encoded = {key: json.dumps(value) for key, value in values.items()}
+        except TypeError as error:
+            raise ValueError(f"recording metadata must be JSON-serialisable: {error}") from None
+        self._part = self.path.with_name(self.path.name + ".part")
+        self._file = open(self._part, "wb")
+        self._closed = False
+        try:
+            self._writer = Writer(self._file, chunk_size=int(chunk_bytes))
+            self._schemas = {topic: self._writer.register_msgdef(name, text)
+                             for topic, (name, text) in _SCHEMAS.items()}
+            self._writer.add_metadata(METADATA_NAME, encoded)
+        except BaseException:
+            self.abort()
+            raise
         self._last_map_step = -1
         self._last = (0.0, 0)
-        self._closed = False
 
     def _write(self, topic: str, message: dict, stamp_s: float, step: int) -> None:
         nanoseconds = int(round(stamp_s * 1e9))
@@ -249,7 +259,8 @@ class EpisodeRecorder:
                                  "goal_x": math.nan if goal is None else command.goal_xy[0],
                                  "goal_y": math.nan if goal is None else command.goal_xy[1],
                                  "new_goal": bool(command.new_goal), "finished": bool(command.finished),
-                                 "prediction_step": int(command.prediction_step)}, stamp, step)
+                                 "prediction_step": int(command.prediction_step), "robot_yaw": pose.yaw},
+                    stamp, step)
         self._write("/plan", {"header": _header(stamp, "map"),
                               "poses": [{"header": _header(stamp, "map"), "pose": _pose(float(x), float(y), 0.0)}
                                         for x, y in command.path_xy]}, stamp, step)
@@ -274,12 +285,16 @@ class EpisodeRecorder:
         self._last_map_step = step
 
     def close(self) -> None:
-        """Finish the file and move it into place."""
+        """Finish the file and move it into place (on failure, nothing is left at ``path`` or ``path.part``)."""
         if self._closed:
             return
-        self._writer.finish()
-        self._file.close()
-        os.replace(self._part, self.path)
+        try:
+            self._writer.finish()
+            self._file.close()
+            os.replace(self._part, self.path)
+        except BaseException:
+            self.abort()
+            raise
         self._closed = True
 
     def abort(self) -> None:
@@ -309,8 +324,7 @@ def _spad_frame(message) -> SpadFrame:
 
 def _observation(parts: dict) -> Observation:
     pose_message, scan_message = parts["/pose"], parts["/scan"]
-    orientation = pose_message.pose.orientation
-    yaw = 2.0 * math.atan2(orientation.z, orientation.w)
+    yaw = float(parts["/command"].robot_yaw)
     pose = Pose2D(pose_message.pose.position.x, pose_message.pose.position.y, yaw)
     scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
                      range_min=scan_message.range_min, range_max=scan_message.range_max,
@@ -326,7 +340,12 @@ def _metadata(data: bytes, path: Path) -> dict:
     try:
         for record in reader.iter_metadata():
             if record.name == METADATA_NAME:
-                return {key: json.loads(value) for key, value in record.metadata.items()}
+                try:
+                    return {key: json.loads(value) for key, value in record.metadata.items()}
+                except json.JSONDecodeError as error:
+                    raise ValueError(f"{path}: the {METADATA_NAME!r} metadata is not JSON ({error})") from None
+    except ValueError:
+        raise
     except Exception:  # the metadata comes first: a file broken before it holds nothing usable
         pass
     raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
@@ -359,7 +378,7 @@ def read_recording(path: Union[str, Path]) -> Recording:
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"{path}: the map frame in the metadata is unusable ({error})") from None
     recording = Recording(metadata=metadata, frame=frame)
-    reader = NonSeekingReader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+    reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True, decoder_factories=[DecoderFactory()])
     parts: dict = {}
     current = -1
     done = 0  # messages fully read

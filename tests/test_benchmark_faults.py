@@ -103,3 +103,17 @@ def test_a_journal_cut_mid_line_keeps_its_complete_records(tmp_path):
     journal.write_text('{"key": "a", "result": 1}\nnot json\n{"key": "c", "result": 3}\n')
     with pytest.raises(ValueError, match="line 2 is not a journal record"):
         read_journal(journal)
+
+
+def _double(x):
+    return 2 * x
+
+
+def test_a_journal_cut_mid_line_resumes_without_losing_a_record(tmp_path):
+    from superex_deploy.parallel import LocalBackend, run_tasks
+
+    journal = tmp_path / "episodes.jsonl"
+    journal.write_text('{"key": "a", "result": 2}\n{"key": "b", "res')  # killed while writing b
+    assert run_tasks(_double, [1, 2, 3], ["a", "b", "c"], LocalBackend(1), journal) == [2, 4, 6]
+    assert read_journal(journal) == {"a": 2, "b": 4, "c": 6}
+    assert journal.read_text().count("\n") == 3  # every record on a line of its own

@@ -107,3 +107,28 @@ def test_bad_inputs_raise_value_error():
         LidarConfig(range_m=float("inf"))
     with pytest.raises(ValueError, match="shape"):
         Mapper((0, 5))
+
+
+def test_invalid_readings_are_skipped_and_only_no_return_means_free():
+    grid = _box((30, 30))
+    frame = MapFrame(grid.shape, 0.1)
+    pose = Pose2D(*frame.centre_xy((15, 15)))
+    # Four rays along +x, +y (up), -x, -y: a valid return, +inf (no return), NaN and a reading below range_min.
+    scan = LaserScan(0.0, np.pi / 2, 0.2, 2.0, np.array([0.5, np.inf, np.nan, 0.05], np.float32))
+    mapper = Mapper(grid.shape)
+    mapper.integrate_scan(frame, pose, scan)
+    assert mapper.seen_wall[15, 20] and mapper.seen_free[15, 16:20].all()  # return at 0.5 m: cells 16-19 free
+    assert mapper.seen_free[1:15, 15].all()  # no return up: free to the range (2 m = 20 cells, the wall is nearer)
+    assert not mapper.seen_free[15, :15].any() and not mapper.seen_free[16:, 15].any()  # NaN, too close: skipped
+
+
+def test_cells_include_their_lower_edges_in_the_map_frame():
+    frame = MapFrame((10, 10), 0.1, (1.0, 2.0))
+    assert frame.cell_of(1.0, 2.0) == (9, 0)  # the lower-left corner is the bottom-left cell
+    assert frame.cell_of(1.0 + 0.999, 2.0 + 0.999) == (0, 9)
+    assert not frame.contains(frame.cell_of(1.0, 3.0)) and not frame.contains(frame.cell_of(2.0, 2.5))
+    for rc in [(0, 0), (9, 9), (3, 7)]:
+        assert frame.cell_of(*frame.centre_xy(rc)) == rc
+    mapper = Mapper((10, 10))  # a robot on the lower edge scans from the bottom row
+    mapper.integrate_scan(frame, Pose2D(1.55, 2.0), LaserScan(0.0, 0.5, 0.0, 0.5, np.full(4, np.inf, np.float32)))
+    assert mapper.seen_free[9, 5]

@@ -467,3 +467,29 @@ def test_a_stale_prediction_is_overwritten_by_what_the_map_knows_now():
     merged = merge_with_map(old, observed)
     np.testing.assert_array_equal(merged.mean, np.array([[0.7, 0, 1], [1, 0.7, 0]], np.float32))
     np.testing.assert_array_equal(merged.variance, np.array([[0.1, 0, 0], [0, 0.1, 0]], np.float32))
+
+
+def test_an_evidence_predictor_sees_zeros_until_the_first_spad_frame():
+    grid = load_map("50052750")
+    world = World(grid, start_poses("50052750")[0])  # no SPAD sensor on this robot
+    seen = []
+
+    class Evidence:
+        name = "evidence-reader"
+
+        def predict(self, observed, extra=None):
+            seen.append(extra)
+            return ObservedAsPrediction().predict(observed)
+
+    explorer = Explorer(world.frame, make_planner("mapex"), Evidence(), nlos=SpadProcessing())
+    explorer.step(world.observe())
+    assert seen and seen[0] is not None and seen[0].shape == grid.shape and not seen[0].any()
+
+
+def test_recording_into_the_output_folder_of_a_fresh_run(tmp_path):
+    from superex_deploy.cli import main
+
+    out = tmp_path / "fresh"
+    assert main(["explore", "--map", "50052750", "--steps", "4", "--gif-every", "10", "--out", str(out),
+                 "--record", str(out / "ep.mcap")]) == 0
+    assert (out / "ep.mcap").is_file() and not list(out.glob("*.part"))

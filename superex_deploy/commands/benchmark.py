@@ -108,6 +108,9 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
             raise ValueError(f"{out} holds a run with other settings ({previous}); choose another --out")
     if journal.is_file() and not resume:
         raise ValueError(f"{out} already holds a run ({journal}): pass --resume to finish it, or choose another --out")
+    if journal.is_file() and not recorded.is_file():
+        raise ValueError(f"{journal} has no settings.json beside it: its settings cannot be checked; choose another "
+                         f"--out")
     out.mkdir(parents=True, exist_ok=True)
     write_atomically(recorded, json.dumps(settings))
     return journal

@@ -40,7 +40,8 @@ def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
     from dataclasses import asdict
 
     return {"map": grid.name, "planner": args.planner, "planner_options": options, "predictor": args.predictor,
-            "seed": args.seed, "spad": nlos is not None, "models": None if args.models is None else str(args.models),
+            "seed": args.seed, "spad": nlos is not None,
+            "models": None if args.models is None else str(Path(args.models).resolve()),
             "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
             "explorer": asdict(explorer_cfg)}
 
@@ -109,39 +110,41 @@ def run(args: argparse.Namespace) -> int:
     nlos = make_sensing(args.predictor, args.spad, args.seed, args.models)
     predictor = make_predictor(args.predictor, grid, args.models)
     cfg = ExplorationConfig()
-    record = None
-    if args.record is not None:
-        if args.predictor == "oracle":
-            raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
-                             "record with another predictor")
-        explorer_cfg = ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells)
-        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
-                                 recording_metadata(grid, args, options, nlos, explorer_cfg))
+    if args.record is not None and args.predictor == "oracle":
+        raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
+                         "record with another predictor")
     from superex_deploy.commands.warmup import numba_cache_is_warm
 
     if not numba_cache_is_warm():
         print("superex explore: first run here: compiling the numba kernels (about half a minute, once; numba caches "
               "them; `superex warmup` does it ahead)", file=sys.stderr, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
+    record = None
+    if args.record is not None:
+        explorer_cfg = ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells,
+                                      prediction=cfg.prediction)
+        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
+                                 recording_metadata(grid, args, options, nlos, explorer_cfg))
     recorder = GifRecorder(every=args.gif_every)
-    with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
-        def on_step(state):
-            recorder(state)
-            bar.update(1)
+    try:
+        with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
+            def on_step(state):
+                recorder(state)
+                bar.update(1)
 
-        def on_observation(observation, command, explorer):
-            record.write(observation, command, explorer.observed)
+            def on_observation(observation, command, explorer):
+                record.write(observation, command, explorer.observed)
 
-        try:
             result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
-                                 on_step=on_step, nlos=nlos, on_observation=None if record is None else on_observation)
-        except BaseException:
-            if record is not None:
-                record.abort()
-            raise
-    if record is not None:
-        record.write_map(result.final_observed)
-        record.close()
+                                 on_step=on_step, nlos=nlos,
+                                 on_observation=None if record is None else on_observation)
+        if record is not None:
+            record.write_map(result.final_observed)
+            record.close()
+    except BaseException:
+        if record is not None:
+            record.abort()
+        raise
     metrics = result.to_json()
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)

@@ -42,6 +42,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
              for m in maps for k, pose in enumerate(start_poses(m))]
     keys = [f"{m}/{k}" for m, k, *_ in tasks]
     recorded = rows_dir / f"{name}.setting.json"
+    setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad}}
     if recorded.is_file() and json.loads(recorded.read_text()) != json.loads(json.dumps(setting)):
         raise ValueError(f"{recorded} holds a partial row of other settings; move it and {name}.episodes.jsonl "
                          f"away or choose another --out")
@@ -101,6 +102,8 @@ def run_paper(args: argparse.Namespace) -> int:
     from superex_deploy.render import save_suite_plots
 
     names = _rows(args.rows)
+    if args.planner_option:
+        raise ValueError("--planner-option does not apply to --suite paper: its rows fix their planners' settings")
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     if args.jobs < 1:

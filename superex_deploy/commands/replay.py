@@ -73,9 +73,6 @@ def build_explorer(metadata: dict, frame, models=None):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from superex_deploy.onboard import STAGES
     from superex_deploy.recording import read_recording
 
     if args.out.exists() and not args.out.is_dir():
@@ -83,7 +80,15 @@ def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
-    explorer = build_explorer(recording.metadata, recording.frame, args.models)
+    with build_explorer(recording.metadata, recording.frame, args.models) as explorer:
+        return _replay(args, recording, explorer)
+
+
+def _replay(args, recording, explorer) -> int:
+    from tqdm import tqdm
+
+    from superex_deploy.onboard import STAGES
+
     goals, goal_steps, mismatches = [], [], []
     timings = {stage: [] for stage in STAGES}
     finished = False

@@ -265,29 +265,38 @@ class Explorer:
             nlos.reset()
 
     @property
+    def visited_goals(self) -> frozenset:
+        """Goal cells reached so far whose frontier did not resolve (they are not offered again)."""
+        return frozenset(self._visited)
+
+    @property
     def evidence(self) -> Optional[np.ndarray]:
-        """float32 ``[H, W]`` the NLOS evidence the predictor reads (None without SPAD processing or frames)."""
-        return None if self.nlos is None else self.nlos.evidence
+        """float32 ``[H, W]`` the NLOS evidence the predictor reads: None without SPAD processing, zeros with it
+        until the first SPAD frame arrives (a predictor that reads evidence then sees none)."""
+        if self.nlos is None:
+            return None
+        if self.nlos.evidence is None:
+            return np.zeros(self.frame.shape, np.float32)
+        return self.nlos.evidence
 
     def predict(self) -> Prediction:
-        """The prediction of the latest step's map (computed once per step; a planner that asked already paid).
+        """What the planners read at the latest step: synchronously, the prediction of that step's map (computed
+        once per step; a planner that asked already paid); asynchronously, the newest finished prediction merged
+        with that map. For evaluation: it does not change what :class:`Command` reports.
 
         Raises:
             RuntimeError: before the first observation.
         """
         if self._prediction is None:
             raise RuntimeError("no observation yet: call step() first")
-        value = self._prediction()
-        if self._worker is None:
-            self._latest, self._latest_step = value, self.steps - 1
-        return value
+        return self._prediction()
 
     def close(self) -> None:
         """Stop the prediction worker (asynchronous mode); the explorer cannot step afterwards."""
         if self._worker is not None:
             self._worker.shutdown(wait=True, cancel_futures=True)
             self._worker = None
-            self._closed = True
+        self._closed = True
 
     def __enter__(self) -> "Explorer":
         return self
@@ -306,9 +315,9 @@ class Explorer:
             due = schedule.every_steps and t >= self._pending_step + schedule.apply_after_steps
             if due or (not schedule.every_steps and self._pending.done()):
                 clock = time.perf_counter()
-                self._latest, self._latest_step = self._pending.result(), self._pending_step
+                pending, self._pending = self._pending, None  # a failed prediction is raised once, not every step
+                self._latest, self._latest_step = pending.result(), self._pending_step
                 waited = time.perf_counter() - clock
-                self._pending = None
         start = t % schedule.every_steps == 0 if schedule.every_steps else True
         if self._pending is None and start:
             evidence = None if self.evidence is None else self.evidence.copy()

@@ -42,24 +42,30 @@ class Mapper:
     def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan) -> None:
         """Mark what a measured scan taken at ``pose`` saw.
 
-        Ranges outside ``[range_min, range_max]``, NaN and inf are rays without a return (free up to
-        ``range_max``). Angles are turned from the robot's frame (counter-clockwise from its heading) into grid
-        angles.
+        A range in ``[range_min, range_max]`` is a return; ``+inf`` or a range above ``range_max`` is no return
+        (free up to ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
+        close, or a dropout) and the ray is skipped. Angles are turned from the robot's frame (counter-clockwise
+        from its heading) into grid angles.
 
         Raises:
             ValueError: a frame of another shape, a pose outside the map.
         """
         if tuple(frame.shape) != self.shape:
             raise ValueError(f"the map frame has shape {frame.shape}, the map {self.shape}")
-        origin = frame.grid_yx(pose.x, pose.y)
-        if not (0.0 <= origin[0] < self.shape[0] and 0.0 <= origin[1] < self.shape[1]):
+        if not frame.contains(frame.cell_of(pose.x, pose.y)):
             raise ValueError(f"pose ({pose.x}, {pose.y}) m lies outside the map (grid {self.shape}, origin "
                              f"{frame.origin_xy} m)")
+        origin = frame.grid_yx(pose.x, pose.y)
+        # A pose on the grid's lower edge belongs to the bottom row (cells include their lower edges); the grid's
+        # y axis points down, so it would start the rays just outside: start them just inside.
+        origin = (min(origin[0], float(np.nextafter(self.shape[0], 0))), origin[1])
         resolution = frame.resolution_m
         ranges = scan.ranges.astype(np.float64)
-        returned = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+        valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
+        returned = valid & (ranges <= scan.range_max)
         # Map-frame angles (counter-clockwise) to grid angles (towards +row): negate after adding the heading.
-        self.integrate_ranges(origin, -(pose.yaw + scan.angles()), np.where(returned, ranges / resolution, np.inf),
+        angles = -(pose.yaw + scan.angles())
+        self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
                               scan.range_max / resolution)
 
     def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float) -> None:

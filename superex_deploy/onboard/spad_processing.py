@@ -66,7 +66,7 @@ class SpadProcessing:
     sensor: SpadConfig = field(default_factory=SpadConfig)
     nlos: NlosConfig = field(default_factory=NlosConfig)
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
-    _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False)
+    _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def evidence(self) -> Optional[np.ndarray]:

@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium import spaces
 
 from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.explorer import _near_visited, _reached
 from superex_deploy.onboard.motion import planning_map
 from superex_deploy.onboard.planners import NearestFrontier
 from superex_deploy.onboard.prediction import ObservedAsPrediction
@@ -70,7 +71,8 @@ class ExplorationEnv(gym.Env):
     Spaces:
         observation: float32 ``[C, crop, crop]`` in [0, 1]: free, occupied, unknown (+ predicted wall probability).
         action: ``Discrete(max_frontiers)``; ``info["action_mask"]`` (int8 ``[max_frontiers]``) marks the frontier
-            regions the robot can reach, nearest first.
+            regions the robot can reach, nearest first, that it has not reached before; a masked-out action drives
+            to the nearest frontier (``info["masked_action"]``).
     """
 
     metadata = {"render_modes": []}
@@ -79,8 +81,13 @@ class ExplorationEnv(gym.Env):
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
         from superex_deploy.pipeline import make_predictor
 
+        from superex_deploy.pipeline import EVIDENCE_PREDICTORS
+
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
+        if predictor in EVIDENCE_PREDICTORS:
+            raise ValueError(f"predictor {predictor!r} reads SPAD evidence, which this environment does not simulate; "
+                             f"choose observed or lama_los")
         for name, value in (("crop_cells", crop_cells), ("max_frontiers", max_frontiers),
                             ("steps_per_action", steps_per_action), ("max_steps", max_steps)):
             if isinstance(value, bool) or int(value) != value or value < 1:
@@ -96,6 +103,10 @@ class ExplorationEnv(gym.Env):
         self._world = self._explorer = None
         self._goals: list[tuple[int, int]] = []
 
+    def close(self) -> None:
+        if self._explorer is not None:
+            self._explorer.close()
+
     def _observation(self) -> np.ndarray:
         observed = self._explorer.observed
         pose = self._world.pose_rc
@@ -108,7 +119,13 @@ class ExplorationEnv(gym.Env):
     def _action_mask(self) -> np.ndarray:
         observed = self._explorer.observed
         plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
-        regions = find_frontiers(observed, 1)
+        not_free = observed != FREE
+        pose = self._world.pose_rc
+        reach = self._cfg.motion.goal_reached_m / self.grid.resolution_m
+        # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
+        # visited before would be dropped at once, wasting the action.
+        regions = [f for f in find_frontiers(observed, 1) if not _near_visited(f.cell_rc, self._explorer.visited_goals)
+                   and not _reached(not_free, pose, f.cell_rc, reach)]
         reachable = [(plan.travel_cost[f.cell_rc], f.cell_rc) for f in regions if np.isfinite(plan.travel_cost[f.cell_rc])]
         reachable.sort()
         self._goals = [cell for _, cell in reachable[:self.max_frontiers]]
@@ -125,6 +142,7 @@ class ExplorationEnv(gym.Env):
 
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)
+        self.close()
         start = random_start(self.grid, self.np_random, 0.4)
         self._agent = _AgentGoal()
         self._world, self._explorer = make_world_and_explorer(self.grid, start, self._agent,
@@ -138,9 +156,11 @@ class ExplorationEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         if not self.action_space.contains(action):
             raise ValueError(f"action must be an integer in [0, {self.max_frontiers}), got {action!r}")
+        # A masked-out action (an agent that ignores info["action_mask"], or the environment checker's random one)
+        # drives to the nearest frontier instead, and info["masked_action"] says so.
+        masked = int(action) >= len(self._goals)
         before = self._known_m2()
-        if int(action) < len(self._goals):
-            self._agent.target = self._goals[int(action)]
+        self._agent.target = None if masked else self._goals[int(action)]
         self._explorer.goal, self._explorer.path = None, []  # choose again, now
         command = self._command
         for inner in range(self.steps_per_action):
@@ -156,6 +176,7 @@ class ExplorationEnv(gym.Env):
         terminated = bool(command.finished)
         truncated = not terminated and self._world.steps >= self.max_steps
         info = self._info()
+        info["masked_action"] = masked
         if not terminated and not info["action_mask"].any():
             terminated = True  # nothing reachable is left to choose
         return self._observation(), float(reward), terminated, truncated, info

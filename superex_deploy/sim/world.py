@@ -184,12 +184,14 @@ class World:
         path = [self.frame.cell_of(x, y) for x, y in path_xy]
         if path[0] != self.pose_rc:
             raise ValueError(f"the commanded path starts at cell {path[0]}, the robot is at {self.pose_rc}")
+        steps = [max(abs(b[0] - a[0]), abs(b[1] - a[1])) for a, b in zip(path, path[1:])]
+        if any(step != 1 for step in steps):
+            raise ValueError("the commanded path must step between 8-connected neighbouring cells")
         free = 1
-        while free < len(path) and free <= self.cfg.step_cells and self.grid.is_free(path[free]) \
-                and max(abs(path[free][0] - path[free - 1][0]), abs(path[free][1] - path[free - 1][1])) == 1:
+        while free < len(path) and free <= self.cfg.step_cells and self.grid.is_free(path[free]):
             free += 1
         if free <= min(self.cfg.step_cells, len(path) - 1):
-            self.collisions += 1
+            self.collisions += 1  # the next cell is a wall or off the map
         pose, _, metres = advance(path[:free], self.cfg.step_cells, self.grid.resolution_m)
         self.pose_rc = (int(pose[0]), int(pose[1]))
         self.driven_m += metres
