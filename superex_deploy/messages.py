@@ -27,7 +27,13 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command"]
+__all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command", "grid_angles"]
+
+
+def grid_angles(yaw: float, robot_angles: np.ndarray) -> np.ndarray:
+    """float64 grid angles (towards ``+row``, see :mod:`superex_deploy.geometry`) of rays at ``robot_angles``
+    (counter-clockwise from the heading) from a robot with map-frame heading ``yaw``: negated after adding."""
+    return -(yaw + np.asarray(robot_angles, np.float64))
 
 
 def _finite(name: str, value) -> float:
@@ -95,6 +101,24 @@ class MapFrame:
         edges); it may lie outside the grid."""
         return (self.shape[0] - 1 - int(math.floor((y - self.origin_xy[1]) / self.resolution_m)),
                 int(math.floor((x - self.origin_xy[0]) / self.resolution_m)))
+
+    def locate(self, x: float, y: float) -> tuple[tuple[float, float], tuple[int, int]]:
+        """Where a sensor at the map-frame point ``(x, y)`` sits on the grid: its continuous ``(y down, x right)``
+        position in cells, kept inside its cell, and the cell :meth:`cell_of` gives.
+
+        Cells include their lower map-frame edges; the grid's ``y`` axis points down, so a point on a cell's lower
+        edge has the grid position of the cell below: it is moved just inside (one ulp), so that rays start in the
+        cell the point belongs to.
+
+        Raises:
+            ValueError: the point lies outside the grid.
+        """
+        cell = self.cell_of(x, y)
+        if not self.contains(cell):
+            raise ValueError(f"pose ({x}, {y}) m lies outside the map (cell {cell}, grid {self.shape}, origin "
+                             f"{self.origin_xy} m)")
+        gy, gx = self.grid_yx(x, y)
+        return (min(gy, float(np.nextafter(cell[0] + 1.0, 0.0))), gx), cell
 
     def centre_xy(self, rc) -> tuple[float, float]:
         """Map-frame position (metres) of the centre of cell ``rc = (row, col)``."""

@@ -259,6 +259,7 @@ class Explorer:
         schedule = cfg.prediction
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="superex-predict") if schedule.asynchronous else None
         self._pending: Optional[Future] = None
+        self._no_evidence: Optional[np.ndarray] = None
         self._pending_step = -1
         planner.reset()
         if nlos is not None:
@@ -276,7 +277,10 @@ class Explorer:
         if self.nlos is None:
             return None
         if self.nlos.evidence is None:
-            return np.zeros(self.frame.shape, np.float32)
+            if self._no_evidence is None:  # made once: read-only zeros until the first frame
+                self._no_evidence = np.zeros(self.frame.shape, np.float32)
+                self._no_evidence.flags.writeable = False
+            return self._no_evidence
         return self.nlos.evidence
 
     def predict(self) -> Prediction:
@@ -331,11 +335,7 @@ class Explorer:
         return None if self._prediction is None else self._prediction.value
 
     def _pose_cell(self, obs: Observation) -> tuple[int, int]:
-        cell = self.frame.cell_of(obs.pose.x, obs.pose.y)
-        if not self.frame.contains(cell):
-            raise ValueError(f"pose ({obs.pose.x}, {obs.pose.y}) m lies outside the map (cell {cell}, grid "
-                             f"{self.frame.shape}, origin {self.frame.origin_xy} m)")
-        return cell
+        return self.frame.locate(obs.pose.x, obs.pose.y)[1]
 
     def step(self, obs: Observation) -> Command:
         """Integrate one observation and return where to go.

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from superex_deploy.geometry import mark_ranges
-from superex_deploy.messages import LaserScan, MapFrame, Pose2D
+from superex_deploy.messages import LaserScan, MapFrame, Pose2D, grid_angles
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
 __all__ = ["Mapper"]
@@ -52,19 +52,12 @@ class Mapper:
         """
         if tuple(frame.shape) != self.shape:
             raise ValueError(f"the map frame has shape {frame.shape}, the map {self.shape}")
-        if not frame.contains(frame.cell_of(pose.x, pose.y)):
-            raise ValueError(f"pose ({pose.x}, {pose.y}) m lies outside the map (grid {self.shape}, origin "
-                             f"{frame.origin_xy} m)")
-        origin = frame.grid_yx(pose.x, pose.y)
-        # A pose on the grid's lower edge belongs to the bottom row (cells include their lower edges); the grid's
-        # y axis points down, so it would start the rays just outside: start them just inside.
-        origin = (min(origin[0], float(np.nextafter(self.shape[0], 0))), origin[1])
+        origin, _ = frame.locate(pose.x, pose.y)
         resolution = frame.resolution_m
         ranges = scan.ranges.astype(np.float64)
         valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
         returned = valid & (ranges <= scan.range_max)
-        # Map-frame angles (counter-clockwise) to grid angles (towards +row): negate after adding the heading.
-        angles = -(pose.yaw + scan.angles())
+        angles = grid_angles(pose.yaw, scan.angles())
         self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
                               scan.range_max / resolution)
 

@@ -12,7 +12,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.messages import MapFrame, Pose2D, SpadFrame
+from superex_deploy.messages import MapFrame, Pose2D, SpadFrame, grid_angles
 from superex_deploy.onboard.nlos import NlosConfig, back_project, carve, estimate_los, process_scan
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
@@ -35,12 +35,8 @@ def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor:
     if not np.isclose(frame.bin_width_s, sensor.bin_width_s, rtol=1e-9, atol=0.0):
         raise ValueError(f"the SPAD frame's bins are {frame.bin_width_s:.9g} s wide, the sensor model's "
                          f"{sensor.bin_width_s:.9g} s")
-    origin = map_frame.grid_yx(pose.x, pose.y)
-    cell = (int(np.floor(origin[0])), int(np.floor(origin[1])))
-    if not map_frame.contains(cell):
-        raise ValueError(f"pose ({pose.x}, {pose.y}) m lies outside the map")
-    # Robot-frame angles, counter-clockwise, to grid angles (towards +row): negate after adding the heading.
-    angles = -(pose.yaw + frame.angles)
+    origin, cell = map_frame.locate(pose.x, pose.y)
+    angles = grid_angles(pose.yaw, frame.angles)
     stored = SparseHistograms(np.asarray(frame.row_start), np.asarray(frame.bins), np.asarray(frame.counts),
                               frame.n_bins)
     return SpadScan(angles=angles, origin_yx=origin, pose_rc=cell, bin_path_m=sensor.bin_path_m,

@@ -17,7 +17,7 @@ from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.onboard.motion import advance
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
+from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.spad import simulate_scan
 
@@ -146,10 +146,10 @@ class World:
     def observe(self) -> Observation:
         """Scan from the robot's cell: the line-of-sight ranges and, with a SPAD sensor, its frame."""
         pose = self.pose
-        origin = self.frame.grid_yx(pose.x, pose.y)
+        origin, _ = self.frame.locate(pose.x, pose.y)
         resolution = self.grid.resolution_m
-        # Map-frame angles (counter-clockwise) to grid angles (towards +row).
-        hits = cast_rays(self.grid.occupied, origin, -(pose.yaw + self._scan_angles), self._range_max / resolution)
+        hits = cast_rays(self.grid.occupied, origin, grid_angles(pose.yaw, self._scan_angles),
+                         self._range_max / resolution)
         scan = laser_scan_from_distances(hits.distance_cells, hits.hit_mask, resolution, 0.0, self._angle_increment,
                                          self._range_max)
         spad = None
