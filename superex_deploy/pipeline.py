@@ -7,11 +7,19 @@ no ground truth; :func:`make_sensing` and the oracle belong to simulations.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "make_predictor", "make_sensing", "make_processing"]
+from superex_deploy.onboard.explorer import PredictionSchedule
+from superex_deploy.onboard.inference import SessionConfig
+from superex_deploy.onboard.prediction_reuse import PredictionReuse
+from superex_deploy.onboard.spad_processing import NlosSkips
+
+__all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "DEFAULT_PROFILE", "resolve_profile",
+           "check_profile",
+           "make_predictor", "make_sensing", "make_processing"]
 
 PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp", "evidence")
 """Predictor names: ``observed`` (unknown = free), ``oracle`` (the truth; simulation only), ``lama_los`` / ``lama_bp``
@@ -20,15 +28,83 @@ EVIDENCE_PREDICTORS = ("lama_bp", "evidence")
 """Predictors that read the SPAD evidence (they need SPAD sensing and the Pix2Pix filter)."""
 
 
+@dataclass(frozen=True)
+class RealtimeProfile:
+    """How the onboard pipeline trades accuracy for run time (issue #16; ``scripts/bench_realtime.py`` measures
+    each knob). The default instance is the unskipped pipeline: the whole ensemble on the whole map, inside the
+    step whose planner asks, every SPAD frame processed in full.
+
+    Attributes:
+        schedule: when the predictor runs (:class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
+        reuse: what is kept of the last prediction (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
+        nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
+        max_members: LaMa ensemble members run (None: all; see ``LamaEnsemble.with_members``).
+        agreement_stop: stop the ensemble after two members that agree within this (None: never).
+        session: ONNX Runtime settings of the learned models (an asynchronous predictor is best given one
+            intra-op thread and no spinning, so that it leaves a core to the control loop).
+    """
+
+    schedule: PredictionSchedule = field(default_factory=PredictionSchedule)
+    reuse: PredictionReuse = field(default_factory=PredictionReuse)
+    nlos_skips: NlosSkips = field(default_factory=NlosSkips)
+    max_members: Optional[int] = None
+    agreement_stop: Optional[float] = None
+    session: SessionConfig = field(default_factory=SessionConfig)
+
+
+PROFILES: dict[str, RealtimeProfile] = {
+    "full": RealtimeProfile(),
+    "realtime": RealtimeProfile(
+        schedule=PredictionSchedule(asynchronous=True, every_steps=2, apply_after_steps=2, wait_first=True),
+        reuse=PredictionReuse(crop_margin_m=6.4), max_members=1,
+        session=SessionConfig(intra_op_threads=1, allow_spinning=False)),
+}
+"""Named profiles: ``full`` (the unskipped pipeline, what the paper table measured) and ``realtime`` (chosen on the
+held-out train floors with ``scripts/bench_realtime.py``: the lowest p99 step time of the settings measured; the
+predictor runs in the explorer's worker thread on one ONNX Runtime thread, every 2 steps, on a crop around what
+changed with 6.4 m of context, one ensemble member, applied 2 steps later; the first step waits for its own
+prediction)."""
+
+DEFAULT_PROFILE = "realtime"
+"""The profile ``superex explore`` and ``superex benchmark`` use unless told otherwise."""
+
+
+def resolve_profile(profile_name: Optional[str], planner, predictor: str) -> str:
+    """The profile a run uses: ``profile_name`` if given, else :data:`DEFAULT_PROFILE` where the planner can use it
+    and ``full`` where it cannot (a planner that reads the ensemble's variance with a one-member default)."""
+    if profile_name is not None:
+        return profile_name
+    default = PROFILES[DEFAULT_PROFILE]
+    if default.max_members == 1 and predictor in ("lama_los", "lama_bp") and planner.reads_variance:
+        return "full"
+    return DEFAULT_PROFILE
+
+
+def check_profile(profile_name: str, planner, predictor: str) -> RealtimeProfile:
+    """The profile called ``profile_name``, checked against the planner (a Planner instance) and predictor name.
+
+    Raises:
+        ValueError: an unknown profile; a profile that runs one ensemble member with a learned predictor and a
+            planner that reads the ensemble's variance (it would read zeros everywhere).
+    """
+    if profile_name not in PROFILES:
+        raise ValueError(f"unknown profile {profile_name!r}; choose one of {', '.join(PROFILES)}")
+    profile = PROFILES[profile_name]
+    if profile.max_members == 1 and predictor in ("lama_los", "lama_bp") and planner.reads_variance:
+        raise ValueError(f"the {profile_name} profile runs one LaMa member, so the variance the {planner.name} planner "
+                         f"reads would be zero everywhere: use --profile full")
+    return profile
+
+
 @lru_cache(maxsize=8)
-def _load_model(kind: str, directory: str):
+def _load_model(kind: str, directory: str, session: SessionConfig = SessionConfig()):
     """A learned model, loaded once per process (its ONNX Runtime sessions hold no state between calls): the
     benchmark and data-generation workers run many episodes each."""
     from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, Pix2PixFilter
 
     if kind == "pix2pix":
-        return Pix2PixFilter.from_manifest(directory)
-    return LamaEnsemble.from_manifest(ModelKind(kind), directory)
+        return Pix2PixFilter.from_manifest(directory, session)
+    return LamaEnsemble.from_manifest(ModelKind(kind), directory, session)
 
 
 def _models_dir(models) -> str:
@@ -41,8 +117,9 @@ def _pix2pix_filter(models=None):
     return _load_model("pix2pix", _models_dir(models)).filter_map
 
 
-def make_predictor(name: str, grid=None, models=None):
-    """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only.
+def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile = RealtimeProfile()):
+    """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only;
+    ``profile`` sets the ensemble's members and sessions.
 
     Raises:
         ValueError: an unknown name, ``oracle`` without a grid, models that are missing or do not match.
@@ -60,13 +137,14 @@ def make_predictor(name: str, grid=None, models=None):
 
         return OraclePredictor(grid)
     if name in ("lama_los", "lama_bp"):
-        return _load_model(name, _models_dir(models))
+        return _load_model(name, _models_dir(models), profile.session).with_members(profile.max_members,
+                                                                                    profile.agreement_stop)
     raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
 
 
-def make_sensing(predictor: str, spad: bool, seed: int, models=None):
+def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: RealtimeProfile = RealtimeProfile()):
     """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` and ``evidence`` get the Pix2Pix
-    filter's evidence.
+    filter's evidence; the processing leaves out what ``profile.nlos_skips`` says.
 
     Raises:
         ValueError: ``lama_bp`` or ``evidence`` without ``spad`` (they read the SPAD evidence).
@@ -80,10 +158,10 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None):
     bp_filter = None
     if predictor in EVIDENCE_PREDICTORS:
         bp_filter = _pix2pix_filter(models)
-    return SpadSensing(seed=seed, bp_filter=bp_filter)
+    return SpadSensing(seed=seed, bp_filter=bp_filter, skips=profile.nlos_skips)
 
 
-def make_processing(predictor: str, sensor=None, nlos=None, models=None):
+def make_processing(predictor: str, sensor=None, nlos=None, models=None, skips: Optional[NlosSkips] = None):
     """The onboard :class:`~superex_deploy.onboard.spad_processing.SpadProcessing` for ``predictor``: with the
     Pix2Pix filter for the evidence predictors, the Laplacian filter otherwise.
 
@@ -92,10 +170,12 @@ def make_processing(predictor: str, sensor=None, nlos=None, models=None):
         sensor: the sensor model (:class:`~superex_deploy.spad_types.SpadConfig`; default: the simulator's).
         nlos: the processing parameters (:class:`~superex_deploy.onboard.nlos.NlosConfig`; default).
         models: folder of exported models (default: the repository's ``exported/``).
+        skips: work the processing may leave out (default: none).
     """
     from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard.spad_processing import SpadProcessing
     from superex_deploy.spad_types import SpadConfig
 
     bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None
-    return SpadProcessing(sensor=sensor or SpadConfig(), nlos=nlos or NlosConfig(), bp_filter=bp_filter)
+    return SpadProcessing(sensor=sensor or SpadConfig(), nlos=nlos or NlosConfig(), bp_filter=bp_filter,
+                          skips=skips or NlosSkips())

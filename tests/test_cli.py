@@ -3,6 +3,7 @@ import json
 import pytest
 
 from superex_deploy.cli import main
+from superex_deploy.pipeline import DEFAULT_PROFILE
 
 
 def test_scan_writes_figure_and_summary(tmp_path, capsys):
@@ -38,7 +39,7 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
                  "--steps", "20", "--jobs", "2", "--out", str(straight)]) == 0
     other = json.loads((straight / "results.json").read_text())
     assert other["planner_options"] == {"distance": "euclidean"}
-    assert ", distance=euclidean;" in (straight / "results.md").read_text()
+    assert f", distance=euclidean, profile {DEFAULT_PROFILE};" in (straight / "results.md").read_text()
     goals = lambda run: [e["goals"] for e in run["episodes"] if e["planner"] == "mapex"]  # noqa: E731
     assert goals(other) != goals(results)
 
@@ -61,7 +62,8 @@ def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
     assert all(e["predictor"] == "lama_bp" for e in results["episodes"])
     # SPAD carving proves cells free beyond line of sight in at least one scenario.
     assert any(e["final_coverage_with_carving"] > e["final_coverage"] for e in results["episodes"])
-    assert (out / "results.md").read_text().startswith("Predictor: lama_bp, SPAD sensing;")
+    # MapEx reads the ensemble's variance: the one-member default does not apply to it.
+    assert (out / "results.md").read_text().startswith("Predictor: lama_bp, SPAD sensing, profile full;")
 
 
 def test_explore_with_spad_reports_carved_coverage(tmp_path):

@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from superex_deploy.commands.explore import add_planner_option, planner_options
+from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spad", action="store_true",
                         help="simulate the SPAD LiDAR every step: NLOS carving and back-projection evidence")
     parser.add_argument("--steps", type=int, default=1000)
+    add_profile_option(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
     parser.add_argument("--out", required=True, type=Path)
@@ -41,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "settings must be the same)")
     parser.add_argument("--suite", choices=("paper",), default=None,
                         help="paper: the paper's rows (see --rows), IoU every 10 steps up to 35 %% coverage, "
-                             "paired against MapEx on LaMa-LOS; --planners / --predictor / --spad are ignored")
+                             "paired against MapEx on LaMa-LOS, always with the full profile (the table measures models and "
+                             "planners); --planners / --predictor / --spad / --profile are ignored")
     parser.add_argument("--rows", default="all",
                         help="with --suite paper: comma-separated row names, or 'all'")
 
@@ -50,19 +52,21 @@ def run_scenario(task: tuple) -> dict:
     """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings).
 
     ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
-    config overrides])``; the overrides default to an IoU evaluation every 50 steps."""
-    from superex_deploy.pipeline import make_predictor, make_sensing
+    config overrides[, profile name]])``; the overrides default to an IoU evaluation every 50 steps, the profile to
+    ``full`` (the paper suite's)."""
+    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
 
     map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
     iou_cfg = task[9] if len(task) > 9 else {"iou_every": 50}
+    profile = PROFILES[task[10] if len(task) > 10 else "full"]
     grid = load_map(map_name)
-    result = run_episode(grid, start, make_planner(planner_name, **options), make_predictor(predictor_name, grid),
-                         steps=steps,
-                         seed=seed, cfg=ExplorationConfig(**iou_cfg),
-                         nlos=make_sensing(predictor_name, spad, seed))
+    result = run_episode(grid, start, make_planner(planner_name, **options),
+                         make_predictor(predictor_name, grid, profile=profile), steps=steps, seed=seed,
+                         cfg=ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse, **iou_cfg),
+                         nlos=make_sensing(predictor_name, spad, seed, profile=profile))
     summary = result.to_json()
     summary["start_index"] = start_index
     summary.pop("poses")
@@ -139,13 +143,18 @@ def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     options = planner_options(args.planner_option)
-    for planner in planners:  # a bad option fails here, not in a worker
-        make_planner(planner, **options)
-    tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed)
-             for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
+    from superex_deploy.pipeline import check_profile, resolve_profile
+
+    profiles = {}
+    for planner in planners:  # a bad option or profile fails here, not in a worker
+        instance = make_planner(planner, **options)
+        profiles[planner] = resolve_profile(args.profile, instance, args.predictor)
+        check_profile(profiles[planner], instance, args.predictor)
+    tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed, {"iou_every": 50},
+              profiles[planner]) for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
-                "spad": args.spad, "steps": args.steps, "seed": args.seed}
+                "spad": args.spad, "steps": args.steps, "seed": args.seed, "profiles": profiles}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:
@@ -163,7 +172,9 @@ def run(args: argparse.Namespace) -> int:
     settings = "".join(f", {k}={v}" for k, v in options.items())
     write_atomically(
         args.out / "results.md",
-        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}; {len(names)} maps, "
+        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}, profile "
+        f"{', '.join(sorted(set(profiles.values())))}; "
+        f"{len(names)} maps, "
         f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
         f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "
         f"coverage_auc: mean coverage over the steps.\n\n"

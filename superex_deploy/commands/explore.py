@@ -7,7 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.pipeline import PREDICTORS, make_predictor, make_sensing
+from superex_deploy.pipeline import (DEFAULT_PROFILE, PREDICTORS, PROFILES, check_profile, make_predictor,
+                                     make_sensing, resolve_profile)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +33,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
                              "`superex replay FILE` reruns the explorer on it)")
+    add_profile_option(parser)
     parser.add_argument("--out", required=True, type=Path)
+
+
+def add_profile_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", choices=tuple(PROFILES), default=None,
+                        help="real-time settings of the onboard pipeline (superex_deploy.pipeline.PROFILES): "
+                             "'full' runs everything inside each step, 'realtime' the measured asynchronous, cropped, "
+                             f"one-member prediction (benchmarks/realtime). Default: {DEFAULT_PROFILE}, or full for "
+                             "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
 
 
 def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
@@ -43,7 +53,7 @@ def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
             "seed": args.seed, "spad": nlos is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
             "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
-            "explorer": asdict(explorer_cfg)}
+            "explorer": asdict(explorer_cfg), "profile": args.profile}
 
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:
@@ -107,9 +117,11 @@ def run(args: argparse.Namespace) -> int:
     start = resolve_start(grid, args.start, args.pose)
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
-    nlos = make_sensing(args.predictor, args.spad, args.seed, args.models)
-    predictor = make_predictor(args.predictor, grid, args.models)
-    cfg = ExplorationConfig()
+    args.profile = resolve_profile(args.profile, planner, args.predictor)
+    profile = check_profile(args.profile, planner, args.predictor)
+    nlos = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
+    predictor = make_predictor(args.predictor, grid, args.models, profile)
+    cfg = ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse)
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
@@ -121,8 +133,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     record = None
     if args.record is not None:
-        explorer_cfg = ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells,
-                                      prediction=cfg.prediction)
+        explorer_cfg = cfg.explorer()
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
                                  recording_metadata(grid, args, options, nlos, explorer_cfg))
     recorder = GifRecorder(every=args.gif_every)
@@ -146,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
             record.abort()
         raise
     metrics = result.to_json()
+    metrics["profile"] = args.profile
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
     recorder.save(args.out / "episode.gif")

@@ -38,11 +38,11 @@ def build_explorer(metadata: dict, frame, models=None):
     """
     from dataclasses import fields
 
-    from superex_deploy.pipeline import make_predictor, make_processing
+    from superex_deploy.pipeline import PROFILES, make_predictor, make_processing
     from superex_deploy.onboard.motion import MotionConfig
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionSchedule
+    from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
 
     try:
@@ -53,12 +53,18 @@ def build_explorer(metadata: dict, frame, models=None):
     if predictor_name == "oracle":
         raise ValueError("the recording used the oracle predictor, which reads the ground truth: it cannot be replayed")
     models = models or metadata.get("models")
+    profile_name = metadata.get("profile", "full")
+    if profile_name not in PROFILES:
+        raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
+                         f"({', '.join(PROFILES)})")
+    profile = PROFILES[profile_name]
     planner = make_planner(planner_name, **options)
-    predictor = make_predictor(predictor_name, None, models)
+    predictor = make_predictor(predictor_name, None, models, profile)
     try:
         explorer_fields = dict(metadata["explorer"])
         schedule = PredictionSchedule(**explorer_fields.pop("prediction", {}))
-        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule,
+        reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
+        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
         nlos = None
         if metadata.get("spad"):
@@ -66,7 +72,7 @@ def build_explorer(metadata: dict, frame, models=None):
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
-            nlos = make_processing(predictor_name, sensor, nlos_cfg, models)
+            nlos = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
     except (KeyError, TypeError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
     return Explorer(frame, planner, predictor, nlos=nlos, cfg=cfg, seed=seed)

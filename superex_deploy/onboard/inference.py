@@ -23,6 +23,7 @@ This module never imports torch.
 
 from __future__ import annotations
 
+import copy
 import enum
 import hashlib
 import importlib.resources
@@ -482,6 +483,10 @@ class LamaEnsemble:
     simulation); only unknown cells carry the networks' predictions. The members are separate files (each with
     its own member index), so they run one after the other, each on all ``intra_op_threads``.
 
+    Two settings trade members for time (:meth:`with_members`): ``max_members`` runs only the first members, and
+    ``agreement_stop`` stops after the first two when they agree: their mean absolute difference over the
+    unknown cells is at most that (wall probability). The variance is then the two members' (one member: zero).
+
     Args:
         paths: the members' ``.onnx`` files (all of one kind).
         expected_sha256: one hex sha256 per file, or None (not checked; :meth:`from_manifest` passes them).
@@ -492,7 +497,12 @@ class LamaEnsemble:
         kind: LAMA_BP or LAMA_LOS.
         name: ``"lama_bp"`` or ``"lama_los"`` (the predictor's name in episode logs).
         size_multiple, min_size: padding targets (cells).
+        max_members: members run per prediction (None: all).
+        agreement_stop: see above (None: never stop early).
+        members_run: how many members the latest prediction ran.
     """
+
+    accepts_crops = True  # a fully convolutional network: any sub-map is a valid input
 
     def __init__(self, paths: Sequence[PathLike], expected_sha256: Optional[Sequence[str]] = None,
                  session: SessionConfig = SessionConfig(), keep_observed: bool = True):
@@ -519,6 +529,28 @@ class LamaEnsemble:
                     self.size_multiple, self.min_size):
                 raise ValueError(f"ensemble members {first.path} and {member.path} need different input sizes")
         self.keep_observed = bool(keep_observed)
+        self.max_members: Optional[int] = None
+        self.agreement_stop: Optional[float] = None
+        self.members_run = 0
+
+    def with_members(self, max_members: Optional[int] = None, agreement_stop: Optional[float] = None
+                     ) -> "LamaEnsemble":
+        """This ensemble (sharing its sessions) running at most ``max_members`` members, stopping after two that
+        agree within ``agreement_stop`` (see the class docstring).
+
+        Raises:
+            ValueError: ``max_members`` outside 1..members, ``agreement_stop`` not in [0, 1].
+        """
+        if max_members is not None and (isinstance(max_members, bool) or int(max_members) != max_members
+                                        or not 1 <= max_members <= len(self._members)):
+            raise ValueError(f"max_members must be an integer in 1..{len(self._members)} or None, got {max_members!r}")
+        if agreement_stop is not None and not (np.isfinite(agreement_stop) and 0.0 <= agreement_stop <= 1.0):
+            raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {agreement_stop!r}")
+        view = copy.copy(self)
+        view.max_members = None if max_members is None else int(max_members)
+        view.agreement_stop = None if agreement_stop is None else float(agreement_stop)
+        view.members_run = 0
+        return view
 
     @classmethod
     def from_manifest(cls, kind: ModelKind, directory: PathLike = DEFAULT_MODEL_DIR,
@@ -540,18 +572,27 @@ class LamaEnsemble:
         return tuple(max(-(-int(n) // m) * m, self.min_size) for n in shape)  # type: ignore[return-value]
 
     def predict_members(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> np.ndarray:
-        """Each member's wall probability: float32 ``[M, H, W]`` in [0, 1] (before ``keep_observed``)."""
+        """Each member's wall probability: float32 ``[M, H, W]`` in [0, 1] (before ``keep_observed``); ``M`` is the
+        members run (see ``max_members`` and ``agreement_stop``)."""
         encoded = encode_map(observed, extra, self.kind)
         height, width = observed.shape
         rows, cols = self.padded_shape((height, width))
         padded = np.zeros((1, encoded.shape[1], rows, cols), np.float32)
         padded[:, MODEL_CHANNELS[self.kind].index("unknown")] = 1.0  # the padding is unknown space
         padded[:, :, :height, :width] = encoded
-        out = np.empty((len(self._members), height, width), np.float32)
-        for i, member in enumerate(self._members):
+        members = self._members if self.max_members is None else self._members[:self.max_members]
+        out = np.empty((len(members), height, width), np.float32)
+        unknown = observed == UNKNOWN
+        for i, member in enumerate(members):
             result = member.session.run([member.output_name], {member.input_name: padded})[0]
-            out[i] = result[0, 0, :height, :width]
-        return np.clip(out, 0.0, 1.0)
+            out[i] = np.clip(result[0, 0, :height, :width], 0.0, 1.0)
+            if i == 1 and self.agreement_stop is not None and len(members) > 2:
+                disagreement = float(np.abs(out[0] - out[1])[unknown].mean()) if unknown.any() else 0.0
+                if disagreement <= self.agreement_stop:
+                    out = out[:2]
+                    break
+        self.members_run = len(out)
+        return out
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
         """Mean and variance over the members (see the class docstring). ``observed`` int8 ``[H, W]``;

@@ -34,6 +34,7 @@ class ObservedAsPrediction:
     """
 
     name = "observed"
+    accepts_crops = True  # each cell's output depends on that cell alone
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
         observed = check_observed(observed)
@@ -50,6 +51,7 @@ class EvidenceAsPrediction:
     """
 
     name = "evidence"
+    accepts_crops = True
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
         observed = check_observed(observed)

@@ -13,10 +13,11 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.messages import MapFrame, Pose2D, SpadFrame, grid_angles
-from superex_deploy.onboard.nlos import NlosConfig, back_project, carve, estimate_los, process_scan
+from superex_deploy.onboard.nlos import (NlosConfig, back_project, carve, carve_radius_cap_m, estimate_los,
+                                          process_scan)
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
-__all__ = ["SpadProcessing", "scan_from_frame"]
+__all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame"]
 
 
 def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor: SpadConfig) -> SpadScan:
@@ -43,6 +44,27 @@ def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor:
                     resolution_m=map_frame.resolution_m, grid_shape=map_frame.shape, config=sensor, stored=stored)
 
 
+@dataclass(frozen=True)
+class NlosSkips:
+    """Work the SPAD processing may leave out (all off by default: every frame is processed in full).
+
+    Attributes:
+        without_unknown: skip a frame when no unknown cell lies within the reach of its light
+            (:meth:`SpadProcessing.reach_cells`: the sensor's range plus the carving cap, or the back-projection
+            window if larger): nothing could be carved, and the back-projection skips known cells, so the result
+            is exactly that of processing it.
+        when_still: skip a frame taken from the same cell with the same heading as the last processed one: it
+            repeats that frame's carving and evidence up to photon noise.
+        filter_without_votes: skip the Pix2Pix filter when the back-projection window holds no vote: its output
+            on an empty window is the network's bias (up to 0.86 wall probability with the committed model), not
+            evidence, and the running maximum would keep it.
+    """
+
+    without_unknown: bool = False
+    when_still: bool = False
+    filter_without_votes: bool = False
+
+
 @dataclass
 class SpadProcessing:
     """Turns each SPAD frame into carved free cells and the evidence the predictor reads.
@@ -57,12 +79,23 @@ class SpadProcessing:
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+        skips: work left out (:class:`NlosSkips`).
+        counts: frames seen, frames skipped (``no_unknown``, ``still``) and filters skipped (``no_votes``) since
+            :meth:`reset`.
     """
 
     sensor: SpadConfig = field(default_factory=SpadConfig)
     nlos: NlosConfig = field(default_factory=NlosConfig)
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
+    skips: NlosSkips = field(default_factory=NlosSkips)
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
+    _last_view: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
+    counts: dict = field(default_factory=lambda: dict.fromkeys(("frames", "no_unknown", "still", "no_votes"), 0),
+                         init=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.skips, NlosSkips):
+            raise ValueError(f"skips must be an NlosSkips, got {type(self.skips).__name__}")
 
     @property
     def evidence(self) -> Optional[np.ndarray]:
@@ -70,14 +103,41 @@ class SpadProcessing:
         return self._evidence
 
     def reset(self) -> None:
-        """Forget the evidence of an earlier episode."""
+        """Forget the evidence and the last frame of an earlier episode."""
         self._evidence = None
+        self._last_view = None
+        self.counts = dict.fromkeys(self.counts, 0)
+
+    def reach_cells(self, resolution_m: float) -> int:
+        """Half side (cells) of the square around the robot that a frame can carve or back-project into: carved
+        discs lie within the carving cap of wall points within the sensor's range; votes lie in the
+        back-projection window."""
+        carve_m = self.sensor.range_m + carve_radius_cap_m(self.sensor.n_secondary, resolution_m)
+        return max(int(np.ceil(carve_m / resolution_m)) + 1, int(np.ceil(self.nlos.window_m / resolution_m)))
+
+    def _skip(self, scan: SpadScan, known: np.ndarray) -> Optional[str]:
+        """Why this frame may be left out (a key of :attr:`counts`), or None."""
+        view = (tuple(int(v) for v in scan.pose_rc), float(scan.angles[0]) if len(scan.angles) else 0.0)
+        still = self._last_view == view
+        if self.skips.when_still and still:
+            return "still"
+        self._last_view = view
+        if self.skips.without_unknown:
+            reach, (r, c) = self.reach_cells(scan.resolution_m), view[0]
+            if known[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1].all():
+                return "no_unknown"
+        return None
 
     def process_scan(self, scan: SpadScan, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Carving and evidence of one scan (simulated or built by :func:`scan_from_frame`); ``known``: bool
         ``[H, W]`` cells the explorer already knows."""
         if self._evidence is None or self._evidence.shape != tuple(scan.grid_shape):
             self._evidence = np.zeros(scan.grid_shape, np.float32)
+        self.counts["frames"] += 1
+        reason = self._skip(scan, np.asarray(known))
+        if reason is not None:
+            self.counts[reason] += 1
+            return np.zeros(scan.grid_shape, bool), self._evidence
         if self.bp_filter is None:
             result = process_scan(scan, self.nlos, known=known)
             # Only the filtered window can raise the running maximum.
@@ -86,8 +146,11 @@ class SpadProcessing:
             return result.carved, self._evidence
         # The learned filter replaces the Laplacian one: do not compute that too.
         los = estimate_los(scan, self.nlos)
-        filtered = self.bp_filter(back_project(scan, los, self.nlos, known), scan.pose_rc)
-        np.maximum(self._evidence, filtered, out=self._evidence)
+        bp = back_project(scan, los, self.nlos, known)
+        if self.skips.filter_without_votes and not bp.any():
+            self.counts["no_votes"] += 1
+        else:
+            np.maximum(self._evidence, self.bp_filter(bp, scan.pose_rc), out=self._evidence)
         return carve(scan, los, self.nlos), self._evidence
 
     def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray

@@ -91,6 +91,9 @@ class Planner(ABC):
     """Chooses the next exploration goal. One subclass per method; stateless between calls unless documented."""
 
     name: ClassVar[str]
+    reads_variance: ClassVar[bool] = False
+    """Whether the planner reads ``Prediction.variance`` (the ensemble's spread): it then needs two members or
+    more."""
 
     @abstractmethod
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:

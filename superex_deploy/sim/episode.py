@@ -27,6 +27,7 @@ from superex_deploy.onboard.motion import MotionConfig
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
+from superex_deploy.onboard.prediction_reuse import PredictionReuse
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 
@@ -46,6 +47,8 @@ class ExplorationConfig:
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
         prediction: when the explorer runs its predictor (synchronously by default; see
             :class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
+        reuse: what the explorer keeps of its last prediction (nothing by default; see
+            :class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
@@ -57,12 +60,18 @@ class ExplorationConfig:
     iou_every: int = 25
     iou_dense_until: float = 1.0
     prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
+    reuse: PredictionReuse = field(default_factory=PredictionReuse)
 
     def __post_init__(self) -> None:
         if int(self.frontier_min_cells) < 1:
             raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
         if int(self.iou_every) < 0:
             raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
+
+    def explorer(self) -> ExplorerConfig:
+        """The onboard half of these parameters (what the explorer is built with)."""
+        return ExplorerConfig(motion=self.motion, frontier_min_cells=self.frontier_min_cells,
+                              prediction=self.prediction, reuse=self.reuse)
 
 
 @dataclass
@@ -188,8 +197,7 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, pre
                                               step_cells=cfg.motion.step_cells,
                                               seed=0 if nlos is None else nlos.seed))
     explorer = Explorer(world.frame, planner, predictor, nlos=None if nlos is None else nlos.processing(),
-                        cfg=ExplorerConfig(motion=cfg.motion, frontier_min_cells=cfg.frontier_min_cells,
-                                           prediction=cfg.prediction), seed=seed)
+                        cfg=cfg.explorer(), seed=seed)
     return world, explorer
 
 

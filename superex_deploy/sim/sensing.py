@@ -12,7 +12,7 @@ import numpy as np
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.nlos import NlosConfig
-from superex_deploy.onboard.spad_processing import SpadProcessing
+from superex_deploy.onboard.spad_processing import NlosSkips, SpadProcessing
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.sim.spad import simulate_scan
 
@@ -31,18 +31,21 @@ class SpadSensing:
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+        skips: work the processing may leave out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
     """
 
     spad: SpadConfig = field(default_factory=SpadConfig)
     nlos: NlosConfig = field(default_factory=NlosConfig)
     seed: int = 0
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
+    skips: NlosSkips = field(default_factory=NlosSkips)
     _processing: Optional[SpadProcessing] = field(default=None, init=False, repr=False)
     _rng: Optional[np.random.Generator] = field(default=None, init=False, repr=False)
 
     def processing(self) -> SpadProcessing:
         """A fresh onboard :class:`SpadProcessing` for one episode; :attr:`evidence` follows it."""
-        self._processing = SpadProcessing(sensor=self.spad, nlos=self.nlos, bp_filter=self.bp_filter)
+        self._processing = SpadProcessing(sensor=self.spad, nlos=self.nlos, bp_filter=self.bp_filter,
+                                          skips=self.skips)
         return self._processing
 
     @property

@@ -54,6 +54,7 @@ class MapexPlanner(Planner):
     """
 
     name = "mapex"
+    reads_variance = True
 
     def __init__(self, cfg: MapexConfig = MapexConfig()):
         self.cfg = cfg

@@ -224,6 +224,7 @@ class UpenPlanner(Planner):
     """
 
     name = "upen"
+    reads_variance = True
 
     def __init__(self, cfg: UpenConfig = UpenConfig()):
         self.cfg = cfg

@@ -1,0 +1,219 @@
+"""Predict only what changed: keep the last prediction, re-predict a crop around the cells that changed since.
+
+The LaMa ensemble over the whole largest eval map (442 x 1327 cells) takes ~0.9 s on 2 cores; a 128 x 128 crop
+~27 ms. Between two goal choices the map changes only around the robot, so :class:`ReusingPredictor` keeps the
+last prediction and the map it was made for, and on the next request
+
+1. counts the cells whose map state changed (and those whose evidence rose by more than
+   :attr:`PredictionReuse.evidence_change`); below :attr:`PredictionReuse.min_changed_cells` the last prediction,
+   merged with the current map (:func:`merge_with_map`), is returned without running the predictor;
+2. otherwise, with :attr:`PredictionReuse.crop_margin_m` set, predicts only the bounding box of the changed
+   cells grown by that margin on every side (the network's context), and writes the inner part of the result
+   (the box grown by half the margin) over the last prediction; cells outside keep the last prediction, merged
+   with the current map. Cells at least half a margin away from every change had the same surroundings within
+   the other half when the last prediction was made, which is why it stays a good answer there (LaMa's Fourier
+   units do see the whole input, so it is not the same answer: the run-time-vs-error benchmark measures what it
+   costs).
+
+Cells that no prediction ever covered (outside every crop so far) are taken as the map says, unknown = free, as
+:class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` does; they lie more than half a margin from
+every cell the robot has ever seen.
+
+Crops are used only with predictors that declare ``accepts_crops = True`` (the LaMa ensembles, the observed and
+evidence predictors: their output at a cell depends on the input around it); the oracle reads the whole true map
+and always gets the whole observed map.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, MapPredictor, Prediction
+
+__all__ = ["PredictionReuse", "ReusingPredictor", "merge_with_map", "changed_box"]
+
+
+@dataclass(frozen=True)
+class PredictionReuse:
+    """What the explorer keeps of its last prediction (the defaults keep nothing: every request runs the
+    predictor on the whole map).
+
+    Attributes:
+        min_changed_cells: run the predictor only when at least this many cells changed since the map of the
+            last prediction (0: always).
+        crop_margin_m: predict only the box around the changed cells grown by this many metres of context (None:
+            the whole map); see the module docstring.
+        evidence_change: an evidence cell (the filtered back-projection, in [0, 1]) counts as changed when it
+            rose by more than this since the last prediction.
+    """
+
+    min_changed_cells: int = 0
+    crop_margin_m: Optional[float] = None
+    evidence_change: float = 0.05
+
+    def __post_init__(self) -> None:
+        if isinstance(self.min_changed_cells, bool) or int(self.min_changed_cells) != self.min_changed_cells \
+                or self.min_changed_cells < 0:
+            raise ValueError(f"min_changed_cells must be an integer >= 0, got {self.min_changed_cells!r}")
+        if self.crop_margin_m is not None and not (np.isfinite(self.crop_margin_m) and self.crop_margin_m > 0):
+            raise ValueError(f"crop_margin_m must be a positive number of metres or None, got {self.crop_margin_m!r}")
+        if not (np.isfinite(self.evidence_change) and 0.0 <= self.evidence_change < 1.0):
+            raise ValueError(f"evidence_change must lie in [0, 1), got {self.evidence_change!r}")
+
+    @property
+    def reuses(self) -> bool:
+        """Whether anything is kept (else the explorer calls the predictor directly)."""
+        return self.min_changed_cells > 0 or self.crop_margin_m is not None
+
+
+def merge_with_map(prediction: Prediction, observed: np.ndarray) -> Prediction:
+    """A prediction made on an older map, brought up to date: cells known in ``observed`` (int8 ``[H, W]``) take
+    their observed value (wall probability 1 or 0, variance 0); unknown cells keep the prediction."""
+    unknown = observed == UNKNOWN
+    mean = np.where(unknown, prediction.mean, (observed == OCCUPIED).astype(np.float32)).astype(np.float32)
+    variance = np.where(unknown, prediction.variance, np.float32(0.0)).astype(np.float32)
+    return Prediction(mean=mean, variance=variance)
+
+
+def changed_box(changed: np.ndarray) -> Optional[tuple[int, int, int, int]]:
+    """``(top, left, bottom, right)`` (end-exclusive) of the True cells of bool ``[H, W]`` ``changed``; None if
+    there are none."""
+    rows = np.flatnonzero(changed.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(changed.any(axis=0))
+    return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
+
+
+def _grow(box: tuple[int, int, int, int], margin: int, shape: tuple[int, int], multiple: int = 1
+          ) -> tuple[int, int, int, int]:
+    """``box`` grown by ``margin`` cells on every side, clipped to ``shape``, then widened (inside the map) to
+    a multiple of ``multiple`` cells where the map allows: the network pads to that multiple anyway, so the
+    extra cells are free context."""
+    top, left = max(box[0] - margin, 0), max(box[1] - margin, 0)
+    bottom, right = min(box[2] + margin, shape[0]), min(box[3] + margin, shape[1])
+    if multiple > 1:
+        rows = min(-(-(bottom - top) // multiple) * multiple, shape[0])
+        cols = min(-(-(right - left) // multiple) * multiple, shape[1])
+        extra_rows, extra_cols = rows - (bottom - top), cols - (right - left)
+        top = max(top - extra_rows // 2, 0)
+        bottom = min(top + rows, shape[0])
+        top = bottom - rows
+        left = max(left - extra_cols // 2, 0)
+        right = min(left + cols, shape[1])
+        left = right - cols
+    return top, left, bottom, right
+
+
+class ReusingPredictor:
+    """A :class:`~superex_deploy.onboard.types.MapPredictor` wrapper that keeps its last prediction (see the
+    module docstring). Thread-safe: the asynchronous explorer calls it from its worker.
+
+    Args:
+        predictor: the wrapped predictor.
+        cfg: what to keep.
+        resolution_m: metres per cell (converts ``crop_margin_m``).
+
+    Attributes:
+        runs: predictor calls so far; ``reused``: requests answered from the last prediction alone;
+        predicted_cells: cells of all the (cropped) maps the predictor ran on.
+    """
+
+    def __init__(self, predictor: MapPredictor, cfg: PredictionReuse, resolution_m: float):
+        if not callable(getattr(predictor, "predict", None)):
+            raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
+        if not isinstance(cfg, PredictionReuse):
+            raise ValueError(f"cfg must be a PredictionReuse, got {type(cfg).__name__}")
+        if not (np.isfinite(resolution_m) and resolution_m > 0):
+            raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
+        self.predictor, self.cfg = predictor, cfg
+        self.name = getattr(predictor, "name", type(predictor).__name__)
+        self._crops = cfg.crop_margin_m is not None and bool(getattr(predictor, "accepts_crops", False))
+        self._margin = 0 if cfg.crop_margin_m is None else int(np.ceil(cfg.crop_margin_m / resolution_m))
+        self._multiple = int(getattr(predictor, "size_multiple", 1) or 1)
+        self._lock = threading.Lock()
+        self._base: Optional[Prediction] = None
+        self._base_observed: Optional[np.ndarray] = None
+        self._base_evidence: Optional[np.ndarray] = None
+        self.runs = self.reused = self.predicted_cells = 0
+
+    @property
+    def crops(self) -> bool:
+        """Whether this predictor predicts crops (a margin is set and the wrapped predictor accepts crops)."""
+        return self._crops
+
+    def reset(self) -> None:
+        """Forget the last prediction (a new episode)."""
+        with self._lock:
+            self._base = self._base_observed = self._base_evidence = None
+            self.runs = self.reused = self.predicted_cells = 0
+
+    def _changed(self, observed: np.ndarray, evidence: Optional[np.ndarray]) -> np.ndarray:
+        if self._base_observed is None:
+            changed = observed != UNKNOWN
+        else:
+            changed = observed != self._base_observed
+        if evidence is not None:
+            before = 0.0 if self._base_evidence is None else self._base_evidence
+            changed |= (evidence - before) > self.cfg.evidence_change
+        return changed
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None, commit: bool = True) -> Prediction:
+        """The prediction of ``observed`` (int8 ``[H, W]``) with evidence ``extra`` (float32 ``[H, W]`` or None).
+
+        Args:
+            commit: keep the result as the new last prediction (False: a look that leaves no trace, e.g. an
+                evaluation between the planner's requests).
+        """
+        observed = np.asarray(observed)
+        with self._lock:
+            if self._base is not None and self._base.mean.shape != observed.shape:
+                raise ValueError(f"observed has shape {observed.shape}, the last prediction {self._base.mean.shape}: "
+                                 "reset() between maps")
+            changed = self._changed(observed, extra)
+            n_changed = int(changed.sum())
+            if self._base is not None and n_changed < self.cfg.min_changed_cells:
+                if commit:
+                    self.reused += 1
+                return merge_with_map(self._base, observed)
+            box = changed_box(changed) if self._crops else None
+            if self._crops and box is None and self._base is not None:
+                # Nothing changed and a threshold of 0: the last prediction is still exact for this map.
+                if commit:
+                    self.reused += 1
+                return merge_with_map(self._base, observed)
+            if box is None:  # the whole map
+                prediction = self.predictor.predict(observed, extra)
+                cells = observed.size
+            else:
+                prediction, cells = self._predict_crop(observed, extra, box)
+            if commit:
+                self.runs += 1
+                self.predicted_cells += cells
+                self._base = prediction
+                self._base_observed = observed.copy()
+                self._base_evidence = None if extra is None else np.array(extra, np.float32, copy=True)
+            return prediction
+
+    def _predict_crop(self, observed: np.ndarray, extra: Optional[np.ndarray], box: tuple[int, int, int, int]
+                      ) -> tuple[Prediction, int]:
+        shape = observed.shape
+        outer = _grow(box, self._margin, shape, self._multiple)
+        inner = _grow(box, self._margin // 2, shape)
+        rows, cols = slice(outer[0], outer[2]), slice(outer[1], outer[3])
+        crop = self.predictor.predict(np.ascontiguousarray(observed[rows, cols]),
+                                      None if extra is None else np.ascontiguousarray(extra[rows, cols]))
+        if self._base is None:
+            mean = (observed == OCCUPIED).astype(np.float32)
+            variance = np.zeros(shape, np.float32)
+        else:
+            merged = merge_with_map(self._base, observed)
+            mean, variance = merged.mean, merged.variance
+        inside = slice(inner[0] - outer[0], inner[2] - outer[0]), slice(inner[1] - outer[1], inner[3] - outer[1])
+        mean[inner[0]:inner[2], inner[1]:inner[3]] = crop.mean[inside]
+        variance[inner[0]:inner[2], inner[1]:inner[3]] = crop.variance[inside]
+        return Prediction(mean=mean, variance=variance), (outer[2] - outer[0]) * (outer[3] - outer[1])

@@ -1,0 +1,63 @@
+"""The real-time profiles (#16): the default the CLI runs, its checks, and the reproducibility of its deterministic
+asynchronous mode end to end."""
+
+import json
+
+import pytest
+
+from superex_deploy.cli import main
+from superex_deploy.onboard.planners import make_planner
+from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, check_profile, make_predictor, resolve_profile
+
+
+def test_the_default_profile_is_the_measured_realtime_one():
+    assert DEFAULT_PROFILE == "realtime" and PROFILES["full"] == type(PROFILES["full"])()
+    realtime = PROFILES["realtime"]
+    assert realtime.schedule.asynchronous and realtime.schedule.every_steps >= 1  # deterministic
+    assert realtime.max_members == 1 and realtime.reuse.crop_margin_m == 6.4
+    ensemble = make_predictor("lama_bp", profile=realtime)
+    assert ensemble.max_members == 1 and make_predictor("lama_bp").max_members is None
+
+
+def test_a_one_member_profile_refuses_planners_that_read_the_variance():
+    assert check_profile("realtime", make_planner("superex"), "lama_bp") is PROFILES["realtime"]
+    assert check_profile("realtime", make_planner("mapex"), "observed") is PROFILES["realtime"]
+    assert check_profile("full", make_planner("mapex"), "lama_los") is PROFILES["full"]
+    for planner in ("mapex", "upen"):
+        with pytest.raises(ValueError, match=f"the realtime profile runs one LaMa member, so the variance the "
+                                             f"{planner} planner reads would be zero everywhere: use --profile full"):
+            check_profile("realtime", make_planner(planner), "lama_los")
+    with pytest.raises(ValueError, match="unknown profile 'fast'; choose one of full, realtime"):
+        check_profile("fast", make_planner("nearest"), "observed")
+
+
+def test_explore_refuses_a_profile_the_planner_cannot_use_and_defaults_around_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["explore", "--map", "50052750", "--planner", "mapex", "--predictor", "lama_los", "--steps", "3",
+            "--gif-every", "10"]
+    assert main(argv + ["--profile", "realtime", "--out", str(out)]) == 2
+    assert "use --profile full" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(argv + ["--out", str(out)]) == 0
+    assert json.loads((out / "metrics.json").read_text())["profile"] == "full"
+    assert resolve_profile(None, make_planner("superex"), "lama_bp") == DEFAULT_PROFILE
+    assert resolve_profile(None, make_planner("upen"), "lama_los") == "full"
+    assert resolve_profile(None, make_planner("upen"), "observed") == DEFAULT_PROFILE
+    assert resolve_profile("full", make_planner("superex"), "lama_bp") == "full"
+
+
+def test_the_realtime_pipeline_is_reproducible_and_replays(tmp_path):
+    """Two runs of the asynchronous default (prediction in a worker thread) choose the same goals, and a replay of
+    its recording too: the deterministic schedule makes the episode independent of the machine's timing."""
+    argv = ["explore", "--map", "50052750", "--start", "1", "--planner", "superex", "--predictor", "lama_bp", "--spad",
+            "--steps", "40", "--gif-every", "100"]
+    assert main(argv + ["--out", str(tmp_path / "a"), "--record", str(tmp_path / "a.mcap")]) == 0
+    assert main(argv + ["--out", str(tmp_path / "b")]) == 0
+    first = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    second = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert first["profile"] == "realtime"
+    assert first["goals"] == second["goals"] and len(first["goals"]["cells"]) >= 2
+    assert first["coverage_with_carving"] == second["coverage_with_carving"]
+    assert main(["replay", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "replay")]) == 0
+    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
+    assert replay["goals_match"] and replay["goals"] == first["goals"]
