@@ -40,8 +40,9 @@ class RealtimeProfile:
         nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
         max_members: LaMa ensemble members run (None: all; see ``LamaEnsemble.with_members``).
         agreement_stop: stop the ensemble after two members that agree within this (None: never).
-        session: ONNX Runtime settings of the learned models (an asynchronous predictor is best given one
-            intra-op thread and no spinning, so that it leaves a core to the control loop).
+        session: ONNX Runtime settings of the LaMa ensemble (an asynchronous predictor is best given one
+            intra-op thread and no spinning, so that it leaves a core to the control loop); the Pix2Pix filter runs
+            inside the step with the default settings.
     """
 
     schedule: PredictionSchedule = field(default_factory=PredictionSchedule)
@@ -50,6 +51,18 @@ class RealtimeProfile:
     max_members: Optional[int] = None
     agreement_stop: Optional[float] = None
     session: SessionConfig = field(default_factory=SessionConfig)
+
+    def __post_init__(self) -> None:
+        for name, kind in (("schedule", PredictionSchedule), ("reuse", PredictionReuse), ("nlos_skips", NlosSkips),
+                           ("session", SessionConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
+        if self.max_members is not None and (not isinstance(self.max_members, int) or isinstance(self.max_members, bool)
+                                             or self.max_members < 1):
+            raise ValueError(f"max_members must be an integer >= 1 or None, got {self.max_members!r}")
+        if self.agreement_stop is not None and not (isinstance(self.agreement_stop, (int, float))
+                                                    and 0.0 <= self.agreement_stop <= 1.0):
+            raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {self.agreement_stop!r}")
 
 
 PROFILES: dict[str, RealtimeProfile] = {

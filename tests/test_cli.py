@@ -31,6 +31,7 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
                  "--out", str(out)]) == 0
     results = json.loads((out / "results.json").read_text())
     assert len(results["episodes"]) == 8  # 4 start poses x 2 planners
+    assert {e["profile"] for e in results["episodes"]} == {DEFAULT_PROFILE}
     assert "| mapex | 4 |" in (out / "results.md").read_text()
     assert (out / "coverage.png").exists() and (out / "iou_vs_coverage.png").exists()
     # A planner option reaches every episode: MapEx's straight-line divisor changes its goals.

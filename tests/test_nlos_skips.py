@@ -171,3 +171,24 @@ def test_carving_stays_sound_and_evidence_finite_with_every_skip_on():
 def test_skips_must_be_an_nlos_skips():
     with pytest.raises(ValueError, match="skips must be an NlosSkips, got dict"):
         SpadProcessing(skips={"when_still": True})
+    with pytest.raises(ValueError, match="when_still must be True or False, got 'no'"):
+        NlosSkips(when_still="no")
+
+
+def test_with_a_biased_filter_the_no_unknown_skip_also_leaves_out_the_bias():
+    """A learned filter answers an empty window with its bias; processing a frame with nothing unknown in reach
+    would put that bias into the evidence, the skip does not (as filter_without_votes would not)."""
+    walls = np.ones((200, 200), bool)
+    walls[70:130, 70:130] = False
+    grid = OccupancyGrid(walls, ~walls, RES, "room")
+    scan = simulate_scan(grid, (100, 100), SENSOR)
+    known = np.ones(grid.shape, bool)
+
+    def biased(bp, pose_rc):
+        return np.full(bp.shape, np.float32(0.3))
+
+    full = SpadProcessing(sensor=SENSOR, bp_filter=biased)
+    skipped = SpadProcessing(sensor=SENSOR, bp_filter=biased, skips=NlosSkips(without_unknown=True))
+    _, with_bias = full.process_scan(scan, known)
+    _, without = skipped.process_scan(scan, known)
+    assert with_bias.min() == np.float32(0.3) and not without.any()

@@ -142,6 +142,15 @@ def test_bad_settings_and_inputs():
         PredictionReuse(crop_margin_m=0)
     with pytest.raises(ValueError, match=r"evidence_change must lie in \[0, 1\), got 1.5"):
         PredictionReuse(evidence_change=1.5)
+    with pytest.raises(ValueError, match=r"evidence_change must lie in \[0, 1\), got None"):
+        PredictionReuse(evidence_change=None)
+    with pytest.raises(ValueError, match=r"min_changed_cells must be an integer >= 0, got 2.0"):
+        PredictionReuse(min_changed_cells=2.0)
+    with pytest.raises(ValueError, match=r"crop_margin_m must be a positive number of metres or None, got True"):
+        PredictionReuse(crop_margin_m=True)
+    with pytest.raises(ValueError, match=r"wait_first must be True or False, got 'no'"):
+        PredictionSchedule(True, 2, 2, wait_first="no")
+    assert ReusingPredictor(Recording(), PredictionReuse(crop_margin_m=1.1), 0.1)._margin == 11
     with pytest.raises(ValueError, match="cfg must be a PredictionReuse, got dict"):
         ReusingPredictor(Recording(), {}, 0.1)
     reusing = ReusingPredictor(Recording(), PredictionReuse(min_changed_cells=3), 0.1)
@@ -171,10 +180,21 @@ def _goals(cfg, predictor=None, planner="mapex", iou_every=0):
 def test_crops_of_a_cellwise_predictor_change_nothing():
     """The observed predictor's output at a cell depends on that cell alone, so predicting crops must give the
     very episode the whole-map predictions give."""
+    class Shapes(ObservedAsPrediction):
+        def __init__(self):
+            self.shapes = []
+
+        def predict(self, observed, extra=None):
+            self.shapes.append(observed.shape)
+            return super().predict(observed, extra)
+
     full = _goals((PredictionSchedule(), PredictionReuse()))
-    cropped = _goals((PredictionSchedule(), PredictionReuse(crop_margin_m=0.5)))
+    shapes = Shapes()
+    cropped = _goals((PredictionSchedule(), PredictionReuse(crop_margin_m=0.5)), shapes)
     assert full.goals == cropped.goals and len(full.goals) >= 4
     np.testing.assert_array_equal(full.coverage, cropped.coverage)
+    # The planner was served crops, not the whole 80 x 160 map.
+    assert len(shapes.shapes) >= 4 and all(rows * cols < 80 * 160 for rows, cols in shapes.shapes)
 
 
 def test_an_evaluation_between_requests_does_not_change_the_episode():
@@ -194,7 +214,8 @@ def test_an_evaluation_between_requests_does_not_change_the_episode():
     assert quiet.goals == evaluated.goals and len(quiet.iou) == 0 and len(evaluated.iou) >= 100
 
 
-@pytest.mark.parametrize("every,after,wait_first", [(5, 3, False), (4, 4, False), (2, 1, True), (1, 1, False)])
+@pytest.mark.parametrize("every,after,wait_first", [(5, 3, False), (4, 4, False), (2, 1, True), (1, 1, False),
+                                                    (2, 2, True)])
 def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(every, after, wait_first):
     """Step t plans with the prediction of step k * every for the largest k with k * every + after <= t (with
     ``wait_first``, the first step's own prediction until then)."""

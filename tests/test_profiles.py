@@ -7,7 +7,8 @@ import pytest
 
 from superex_deploy.cli import main
 from superex_deploy.onboard.planners import make_planner
-from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, check_profile, make_predictor, resolve_profile
+from superex_deploy.pipeline import (DEFAULT_PROFILE, PROFILES, RealtimeProfile, check_profile, make_predictor,
+                                     resolve_profile)
 
 
 def test_the_default_profile_is_the_measured_realtime_one():
@@ -29,6 +30,10 @@ def test_a_one_member_profile_refuses_planners_that_read_the_variance():
             check_profile("realtime", make_planner(planner), "lama_los")
     with pytest.raises(ValueError, match="unknown profile 'fast'; choose one of full, realtime"):
         check_profile("fast", make_planner("nearest"), "observed")
+    with pytest.raises(ValueError, match="max_members must be an integer >= 1 or None, got 0"):
+        RealtimeProfile(max_members=0)
+    with pytest.raises(ValueError, match="schedule must be a PredictionSchedule, got dict"):
+        RealtimeProfile(schedule={})
 
 
 def test_explore_refuses_a_profile_the_planner_cannot_use_and_defaults_around_it(tmp_path, capsys):
@@ -61,3 +66,26 @@ def test_the_realtime_pipeline_is_reproducible_and_replays(tmp_path):
     assert main(["replay", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
     assert replay["goals_match"] and replay["goals"] == first["goals"]
+
+
+def test_a_replay_refuses_a_profile_defined_differently_since(tmp_path, monkeypatch, capsys):
+    from dataclasses import replace
+
+    record = tmp_path / "a.mcap"
+    assert main(["explore", "--map", "50052750", "--planner", "nearest", "--steps", "5", "--gif-every", "10",
+                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    monkeypatch.setitem(PROFILES, "realtime", replace(PROFILES["realtime"], max_members=2))
+    assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 2
+    assert "the recording's profile 'realtime' was defined differently" in capsys.readouterr().err
+    assert not (tmp_path / "replay" / "metrics.json").exists()
+
+
+def test_a_benchmark_runs_every_planner_on_one_profile(tmp_path):
+    """MapEx cannot use the one-member default with a LaMa predictor, so the whole run falls back to full: the
+    planners are compared on the same pipeline."""
+    out = tmp_path / "bench"
+    assert main(["benchmark", "--maps", "50052750", "--planners", "nearest,mapex", "--predictor", "lama_los",
+                 "--steps", "6", "--jobs", "2", "--out", str(out)]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert {e["profile"] for e in results["episodes"]} == {"full"}
+    assert json.loads((out / "settings.json").read_text())["profile"] == "full"

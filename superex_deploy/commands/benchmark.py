@@ -69,6 +69,7 @@ def run_scenario(task: tuple) -> dict:
                          nlos=make_sensing(predictor_name, spad, seed, profile=profile))
     summary = result.to_json()
     summary["start_index"] = start_index
+    summary["profile"] = task[10] if len(task) > 10 else "full"
     summary.pop("poses")
     summary.pop("timings_s")
     return summary
@@ -143,18 +144,23 @@ def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     options = planner_options(args.planner_option)
-    from superex_deploy.pipeline import check_profile, resolve_profile
+    from superex_deploy.pipeline import PROFILES, check_profile, resolve_profile
 
-    profiles = {}
-    for planner in planners:  # a bad option or profile fails here, not in a worker
-        instance = make_planner(planner, **options)
-        profiles[planner] = resolve_profile(args.profile, instance, args.predictor)
-        check_profile(profiles[planner], instance, args.predictor)
+    from dataclasses import asdict
+
+    instances = [make_planner(planner, **options) for planner in planners]  # a bad option fails here
+    # One profile for the whole run, so that the planners are compared on the same pipeline: the default where every
+    # planner can use it, else full.
+    resolved = {resolve_profile(args.profile, instance, args.predictor) for instance in instances}
+    profile_name = resolved.pop() if len(resolved) == 1 else "full"
+    for instance in instances:
+        check_profile(profile_name, instance, args.predictor)
     tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed, {"iou_every": 50},
-              profiles[planner]) for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
+              profile_name) for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
-                "spad": args.spad, "steps": args.steps, "seed": args.seed, "profiles": profiles}
+                "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
+                "profile_settings": json.loads(json.dumps(asdict(PROFILES[profile_name]), default=str))}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:
@@ -172,8 +178,7 @@ def run(args: argparse.Namespace) -> int:
     settings = "".join(f", {k}={v}" for k, v in options.items())
     write_atomically(
         args.out / "results.md",
-        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}, profile "
-        f"{', '.join(sorted(set(profiles.values())))}; "
+        f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}, profile {profile_name}; "
         f"{len(names)} maps, "
         f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
         f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "

@@ -45,6 +45,13 @@ def add_profile_option(parser: argparse.ArgumentParser) -> None:
                              "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
 
 
+def profile_settings(name: str) -> dict:
+    """The profile's values as JSON (recorded beside its name: a later version may define the name differently)."""
+    from dataclasses import asdict
+
+    return json.loads(json.dumps(asdict(PROFILES[name]), default=str))
+
+
 def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
     """What a replay needs to rebuild the explorer of this run (JSON values)."""
     from dataclasses import asdict
@@ -53,7 +60,8 @@ def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
             "seed": args.seed, "spad": nlos is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
             "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
-            "explorer": asdict(explorer_cfg), "profile": args.profile}
+            "explorer": asdict(explorer_cfg), "profile": args.profile,
+            "profile_settings": profile_settings(args.profile)}
 
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:

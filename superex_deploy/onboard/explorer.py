@@ -77,6 +77,9 @@ class PredictionSchedule:
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        for name in ("asynchronous", "wait_first"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.every_steps and not 1 <= self.apply_after_steps <= self.every_steps:
             raise ValueError(f"apply_after_steps must lie in 1..every_steps = {self.every_steps}, got "
                              f"{self.apply_after_steps}")

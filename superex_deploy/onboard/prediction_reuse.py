@@ -16,8 +16,9 @@ last prediction and the map it was made for, and on the next request
    costs).
 
 Cells that no prediction ever covered (outside every crop so far) are taken as the map says, unknown = free, as
-:class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` does; they lie more than half a margin from
-every cell the robot has ever seen.
+:class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` does; they lie more than half a margin from every
+cell known when the last prediction was made (cells seen since, while fewer than ``min_changed_cells`` changed,
+are not predicted until the threshold is reached).
 
 Crops are used only with predictors that declare ``accepts_crops = True`` (the LaMa ensembles, the observed and
 evidence predictors: their output at a cell depends on the input around it); the oracle reads the whole true map
@@ -56,18 +57,24 @@ class PredictionReuse:
     evidence_change: float = 0.05
 
     def __post_init__(self) -> None:
-        if isinstance(self.min_changed_cells, bool) or int(self.min_changed_cells) != self.min_changed_cells \
+        if not isinstance(self.min_changed_cells, (int, np.integer)) or isinstance(self.min_changed_cells, bool) \
                 or self.min_changed_cells < 0:
             raise ValueError(f"min_changed_cells must be an integer >= 0, got {self.min_changed_cells!r}")
-        if self.crop_margin_m is not None and not (np.isfinite(self.crop_margin_m) and self.crop_margin_m > 0):
+        if self.crop_margin_m is not None and not (_is_number(self.crop_margin_m) and self.crop_margin_m > 0):
             raise ValueError(f"crop_margin_m must be a positive number of metres or None, got {self.crop_margin_m!r}")
-        if not (np.isfinite(self.evidence_change) and 0.0 <= self.evidence_change < 1.0):
+        if not (_is_number(self.evidence_change) and 0.0 <= self.evidence_change < 1.0):
             raise ValueError(f"evidence_change must lie in [0, 1), got {self.evidence_change!r}")
 
     @property
     def reuses(self) -> bool:
         """Whether anything is kept (else the explorer calls the predictor directly)."""
         return self.min_changed_cells > 0 or self.crop_margin_m is not None
+
+
+def _is_number(value) -> bool:
+    """A finite real number that is not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) \
+        and bool(np.isfinite(value))
 
 
 def merge_with_map(prediction: Prediction, observed: np.ndarray) -> Prediction:
@@ -133,7 +140,8 @@ class ReusingPredictor:
         self.predictor, self.cfg = predictor, cfg
         self.name = getattr(predictor, "name", type(predictor).__name__)
         self._crops = cfg.crop_margin_m is not None and bool(getattr(predictor, "accepts_crops", False))
-        self._margin = 0 if cfg.crop_margin_m is None else int(np.ceil(cfg.crop_margin_m / resolution_m))
+        # Rounded up, but not by floating-point noise (1.1 m at 0.1 m is 11 cells, not 12).
+        self._margin = 0 if cfg.crop_margin_m is None else int(np.ceil(cfg.crop_margin_m / resolution_m - 1e-9))
         self._multiple = int(getattr(predictor, "size_multiple", 1) or 1)
         self._lock = threading.Lock()
         self._base: Optional[Prediction] = None

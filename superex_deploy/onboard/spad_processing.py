@@ -51,8 +51,10 @@ class NlosSkips:
     Attributes:
         without_unknown: skip a frame when no unknown cell lies within the reach of its light
             (:meth:`SpadProcessing.reach_cells`: the sensor's range plus the carving cap, or the back-projection
-            window if larger): nothing could be carved, and the back-projection skips known cells, so the result
-            is exactly that of processing it.
+            window if larger): nothing unknown could be carved and the raw back-projection, which skips known
+            cells, is empty. Exact for the map (carved cells there are known already; :attr:`Mapper.carved` does
+            not get them again) and for the Laplacian evidence; with a learned filter it also leaves out the
+            filter's output on that empty window, as ``filter_without_votes`` does.
         when_still: skip a frame taken from the same cell with the same heading as the last processed one: it
             repeats that frame's carving and evidence up to photon noise.
         filter_without_votes: skip the Pix2Pix filter when the back-projection window holds no vote: its output
@@ -63,6 +65,11 @@ class NlosSkips:
     without_unknown: bool = False
     when_still: bool = False
     filter_without_votes: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("without_unknown", "when_still", "filter_without_votes"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
 @dataclass
