@@ -28,7 +28,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -169,7 +169,7 @@ def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path) ->
     folder.mkdir(parents=True, exist_ok=True)
     places = _error_scenarios(split)
     for name in names:
-        setting = {"steps": steps, "profile": json.loads(json.dumps(asdict(SETTINGS[name]), default=str))}
+        setting = {"steps": steps, "profile": SETTINGS[name].to_json()}
         recorded = folder / f"{name}.setting.json"
         if recorded.is_file() and json.loads(recorded.read_text()) != setting:
             raise ValueError(f"{recorded} holds a run of other settings; move it away")
@@ -290,7 +290,7 @@ def report(out: Path) -> None:
     (out / "realtime.md").write_text(text)
     (out / "realtime.json").write_text(json.dumps({
         "timing": timing, "error": error, "default": DEFAULT_PROFILE,
-        "settings": {n: json.loads(json.dumps(asdict(p), default=str)) for n, p in SETTINGS.items()}}, indent=1))
+        "settings": {n: p.to_json() for n, p in SETTINGS.items()}}, indent=1))
     _pareto(out, timing, error)
     print(text)
 

@@ -7,13 +7,14 @@ no ground truth; :func:`make_sensing` and the oracle belong to simulations.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
 from superex_deploy.onboard.explorer import PredictionSchedule
-from superex_deploy.onboard.inference import SessionConfig
+from superex_deploy.onboard.inference import SessionConfig, check_member_options
 from superex_deploy.onboard.prediction_reuse import PredictionReuse
 from superex_deploy.onboard.spad_processing import NlosSkips
 
@@ -57,12 +58,12 @@ class RealtimeProfile:
                            ("session", SessionConfig)):
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
-        if self.max_members is not None and (not isinstance(self.max_members, int) or isinstance(self.max_members, bool)
-                                             or self.max_members < 1):
-            raise ValueError(f"max_members must be an integer >= 1 or None, got {self.max_members!r}")
-        if self.agreement_stop is not None and not (isinstance(self.agreement_stop, (int, float))
-                                                    and 0.0 <= self.agreement_stop <= 1.0):
-            raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {self.agreement_stop!r}")
+        check_member_options(self.max_members, self.agreement_stop)
+
+    def to_json(self) -> dict:
+        """The profile's values as JSON (recorded beside its name in settings and recordings: a later version may
+        define the name differently)."""
+        return json.loads(json.dumps(asdict(self), default=str))
 
 
 PROFILES: dict[str, RealtimeProfile] = {

@@ -146,8 +146,6 @@ def run(args: argparse.Namespace) -> int:
     options = planner_options(args.planner_option)
     from superex_deploy.pipeline import PROFILES, check_profile, resolve_profile
 
-    from dataclasses import asdict
-
     instances = [make_planner(planner, **options) for planner in planners]  # a bad option fails here
     # One profile for the whole run, so that the planners are compared on the same pipeline: the default where every
     # planner can use it, else full.
@@ -160,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
                 "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
-                "profile_settings": json.loads(json.dumps(asdict(PROFILES[profile_name]), default=str))}
+                "profile_settings": PROFILES[profile_name].to_json()}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:

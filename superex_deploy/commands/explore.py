@@ -45,13 +45,6 @@ def add_profile_option(parser: argparse.ArgumentParser) -> None:
                              "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
 
 
-def profile_settings(name: str) -> dict:
-    """The profile's values as JSON (recorded beside its name: a later version may define the name differently)."""
-    from dataclasses import asdict
-
-    return json.loads(json.dumps(asdict(PROFILES[name]), default=str))
-
-
 def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
     """What a replay needs to rebuild the explorer of this run (JSON values)."""
     from dataclasses import asdict
@@ -61,7 +54,7 @@ def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
             "models": None if args.models is None else str(Path(args.models).resolve()),
             "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
             "explorer": asdict(explorer_cfg), "profile": args.profile,
-            "profile_settings": profile_settings(args.profile)}
+            "profile_settings": PROFILES[args.profile].to_json()}
 
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:
@@ -112,7 +105,6 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.messages import MapFrame
-    from superex_deploy.onboard import ExplorerConfig
     from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder, save_episode_figure
     from superex_deploy.sim.episode import ExplorationConfig, run_episode

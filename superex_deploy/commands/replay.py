@@ -58,11 +58,9 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
                          f"({', '.join(PROFILES)})")
     profile = PROFILES[profile_name]
-    from superex_deploy.commands.explore import profile_settings
-
-    if "profile_settings" in metadata and metadata["profile_settings"] != profile_settings(profile_name):
+    if "profile_settings" in metadata and metadata["profile_settings"] != profile.to_json():
         raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
-                         f"({metadata['profile_settings']}) than in this version ({profile_settings(profile_name)}): "
+                         f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
                          "a replay would not rebuild its explorer")
     planner = make_planner(planner_name, **options)
     predictor = make_predictor(predictor_name, None, models, profile)

@@ -36,7 +36,7 @@ from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, Frontier, MapPredictor, Planner, PlanningContext, Prediction
 from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing

@@ -40,7 +40,8 @@ from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry",
-           "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble"]
+           "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble",
+           "check_member_options"]
 
 PathLike = Union[str, Path]
 
@@ -473,6 +474,23 @@ class Pix2PixFilter:
         return _paste_window(self.filter_windows(window), pose_rc, bp.shape)
 
 
+def check_member_options(max_members: Optional[int], agreement_stop: Optional[float],
+                         members: Optional[int] = None) -> None:
+    """Validate :meth:`LamaEnsemble.with_members`'s options (``members``: the ensemble's size, None: not known yet).
+
+    Raises:
+        ValueError: ``max_members`` not an integer in 1..members (or >= 1), ``agreement_stop`` not in [0, 1].
+    """
+    if max_members is not None and (not isinstance(max_members, (int, np.integer)) or isinstance(max_members, bool)
+                                    or max_members < 1 or (members is not None and max_members > members)):
+        allowed = f"in 1..{members}" if members is not None else ">= 1"
+        raise ValueError(f"max_members must be an integer {allowed} or None, got {max_members!r}")
+    if agreement_stop is not None and not (isinstance(agreement_stop, (int, float, np.floating))
+                                           and not isinstance(agreement_stop, bool)
+                                           and 0.0 <= agreement_stop <= 1.0):
+        raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {agreement_stop!r}")
+
+
 class LamaEnsemble:
     """An ensemble of LaMa map predictors: a :class:`~superex_deploy.onboard.types.MapPredictor`.
 
@@ -541,11 +559,7 @@ class LamaEnsemble:
         Raises:
             ValueError: ``max_members`` outside 1..members, ``agreement_stop`` not in [0, 1].
         """
-        if max_members is not None and (isinstance(max_members, bool) or int(max_members) != max_members
-                                        or not 1 <= max_members <= len(self._members)):
-            raise ValueError(f"max_members must be an integer in 1..{len(self._members)} or None, got {max_members!r}")
-        if agreement_stop is not None and not (np.isfinite(agreement_stop) and 0.0 <= agreement_stop <= 1.0):
-            raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {agreement_stop!r}")
+        check_member_options(max_members, agreement_stop, len(self._members))
         view = copy.copy(self)
         view.max_members = None if max_members is None else int(max_members)
         view.agreement_stop = None if agreement_stop is None else float(agreement_stop)

@@ -184,16 +184,12 @@ class ReusingPredictor:
                                  "reset() between maps")
             changed = self._changed(observed, extra)
             n_changed = int(changed.sum())
-            if self._base is not None and n_changed < self.cfg.min_changed_cells:
+            # Too little changed; with crops, nothing changed also means the last prediction is exact for this map.
+            if self._base is not None and (n_changed < self.cfg.min_changed_cells or (self._crops and not n_changed)):
                 if commit:
                     self.reused += 1
                 return merge_with_map(self._base, observed)
             box = changed_box(changed) if self._crops else None
-            if self._crops and box is None and self._base is not None:
-                # Nothing changed and a threshold of 0: the last prediction is still exact for this map.
-                if commit:
-                    self.reused += 1
-                return merge_with_map(self._base, observed)
             if box is None:  # the whole map
                 prediction = self.predictor.predict(observed, extra)
                 cells = observed.size
