@@ -40,7 +40,8 @@ from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
 from superex_deploy.maps import list_maps, load_map, start_poses
-from superex_deploy.onboard.nlos import NlosConfig, process_scan, wall_iou
+from superex_deploy.onboard.nlos import NlosConfig, process_scan
+from superex_deploy.sim.metrics import wall_iou
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig
 from superex_deploy.sim.spad import prepare_scene, simulate_scan

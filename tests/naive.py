@@ -189,7 +189,7 @@ def naive_simulate_histograms(scene, pose_rc, cfg):
 
 
 def naive_los_and_first_late_bins(histograms, threshold, guard):
-    """(los_bin, first_late) per ray (nlos._los_and_first_late_bins): the direct return is the strongest of the
+    """(los_bin, first_late) per ray (nlos.los._los_and_first_late_bins): the direct return is the strongest of the
     guard bins from the first detection (count > threshold), the first late bin the first detection from
     los_bin + guard on; -1 where none."""
     los_bin = np.full(len(histograms), -1)
@@ -206,7 +206,7 @@ def naive_los_and_first_late_bins(histograms, threshold, guard):
 
 
 def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
-    """numpy eigh of the covariance of the points within radius of each point (nlos._hit_normals)."""
+    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals)."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
     for u, p in enumerate(points):
@@ -224,7 +224,7 @@ def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_res
 
 
 def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_limit):
-    """Test every cell of the grid against every wall point's carve sector (nlos._carve_sectors)."""
+    """Test every cell of the grid against every wall point's carve sector (nlos.carving._carve_sectors)."""
     out = np.zeros(shape, bool)
     for (ay, ax), (ny, nx), radius in zip(apex, normals, radius_cells):
         if not radius > strip_cells:
@@ -270,8 +270,8 @@ def naive_back_projection(histograms, los_bin, ray_wall, d1_m, apex, normals, gu
 
 
 def naive_draw_rings(apex, normals, votes, window, known):
-    """Every window cell tested against every (wall point, radius) ring (nlos._draw_rings); a cell at distance
-    rho (cells) from the apex lies on ring floor(rho + 0.5)."""
+    """Every window cell tested against every (wall point, radius) ring (nlos.back_projection._draw_rings); a
+    cell at distance rho (cells) from the apex lies on ring floor(rho + 0.5)."""
     bp = np.zeros(known.shape)
     r_lo, r_hi, c_lo, c_hi = window
     for u, q in zip(*np.nonzero(votes)):

@@ -7,9 +7,12 @@ from scipy import ndimage, stats
 
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.nlos import (
-    RING_PAD, NlosConfig, _accumulate_votes, _carve_sectors, _draw_rings, _hit_normals, _late_threshold,
-    _los_and_first_late_bins, _window, back_project, carve, carve_radius_cap_m, estimate_los,
-    laplacian_filter, process_scan, wall_iou, wall_iou_tolerant)
+    NlosConfig, back_project, carve, carve_radius_cap_m, estimate_los, laplacian_filter, process_scan)
+from superex_deploy.onboard.nlos.back_projection import RING_PAD, _accumulate_votes, _draw_rings, _window
+from superex_deploy.onboard.nlos.carving import _carve_sectors
+from superex_deploy.onboard.nlos.los import _late_threshold, _los_and_first_late_bins
+from superex_deploy.onboard.nlos.normals import _hit_normals
+from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SpadConfig, SpadNoise, SparseHistograms
 from superex_deploy.sim.spad import simulate_scan

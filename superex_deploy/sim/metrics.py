@@ -194,3 +194,36 @@ def iou_by_coverage(results: list[dict], bin_edges: Sequence[float] = tuple(np.l
         out[planner] = [float(iou[bins == b].mean()) if np.any(bins == b) else float("nan")
                         for b in range(len(edges) - 1)]
     return out
+
+
+def wall_iou(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two bool wall masks of equal shape; 1.0 when both are empty."""
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    if pred.dtype != np.bool_ or truth.dtype != np.bool_ or pred.shape != truth.shape:
+        raise ValueError(f"pred and truth must be bool arrays of one shape, got {pred.dtype} {pred.shape} and "
+                         f"{truth.dtype} {truth.shape}")
+    union = np.count_nonzero(pred | truth)
+    return 1.0 if union == 0 else np.count_nonzero(pred & truth) / union
+
+
+def wall_iou_tolerant(pred: np.ndarray, truth: np.ndarray, tolerance_cells: float) -> float:
+    """IoU that forgives misplacement by up to ``tolerance_cells`` (Euclidean, cell centres): a predicted cell
+    counts as correct within that distance of a true one, a true cell as missed only beyond that distance of
+    every prediction. ``|P & dilate(T)| / (|P| + |T - dilate(P)|)``; equals :func:`wall_iou` at tolerance 0
+    and 1.0 when both masks are empty."""
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    if pred.dtype != np.bool_ or truth.dtype != np.bool_ or pred.shape != truth.shape or pred.ndim != 2:
+        raise ValueError(f"pred and truth must be 2-D bool arrays of one shape, got {pred.dtype} {pred.shape} "
+                         f"and {truth.dtype} {truth.shape}")
+    if not (np.isfinite(tolerance_cells) and tolerance_cells >= 0.0):
+        raise ValueError(f"tolerance_cells must be finite and >= 0, got {tolerance_cells}")
+    reach = int(np.floor(tolerance_cells))
+    offsets = np.arange(-reach, reach + 1)
+    disc = offsets[:, None] ** 2 + offsets[None, :] ** 2 <= tolerance_cells ** 2
+    near_truth = ndimage.binary_dilation(truth, structure=disc)
+    near_pred = ndimage.binary_dilation(pred, structure=disc)
+    denominator = np.count_nonzero(pred) + np.count_nonzero(truth & ~near_pred)
+    return 1.0 if denominator == 0 else np.count_nonzero(pred & near_truth) / denominator
+
+
+__all__ += ["wall_iou", "wall_iou_tolerant"]
