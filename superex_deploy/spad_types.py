@@ -1,22 +1,19 @@
 """The SPAD LiDAR's sensor model and its histograms: what the simulator writes and the onboard processing reads.
 
-Shared by both sides: no ground truth here (a :class:`SpadScan` from the simulator carries its
-:class:`~superex_deploy.sim.spad.SpadTruth` in :attr:`SpadScan.truth`; a measured one carries None).
+Shared by both sides: no ground truth here (a :class:`SpadScan` from the simulator carries the simulator's truth in
+:attr:`SpadScan.truth`, described by :class:`ScanTruth`; a measured one carries None).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Optional, Union
+from typing import Optional, Protocol, Union
 
 import numba
 import numpy as np
 
-if TYPE_CHECKING:  # the simulator's truth type, for annotations only: this module never imports the simulator
-    from superex_deploy.sim.spad import SpadTruth
-
-__all__ = ["SpadNoise", "SpadConfig", "SparseHistograms", "SpadScan", "SPEED_OF_LIGHT", "PLANCK"]
+__all__ = ["SpadNoise", "SpadConfig", "SparseHistograms", "ScanTruth", "SpadScan", "SPEED_OF_LIGHT", "PLANCK"]
 
 SPEED_OF_LIGHT = 299_792_458.0  # m/s
 PLANCK = 6.626_070_15e-34  # J s
@@ -201,13 +198,38 @@ class SparseHistograms:
         return cls(row_start, bins, counts, histograms.shape[1])
 
 
+class ScanTruth(Protocol):
+    """What the simulator's ground truth of a scan carries (the simulator's own type provides more; labels and tests
+    read it, the NLOS processing never does)."""
+
+    @property
+    def h1_rc(self) -> np.ndarray:
+        """int32 ``[n_rays, 2]`` first wall cell of each primary ray, -1 where none within range."""
+        ...
+
+    @property
+    def d1_m(self) -> np.ndarray:
+        """float64 ``[n_rays]`` distance to ``h1`` (metres; NaN where no hit)."""
+        ...
+
+    @property
+    def h2_rc(self) -> np.ndarray:
+        """int32 ``[M, 2]``: the cell every three-bounce path reflected from (its secondary hit)."""
+        ...
+
+    @property
+    def h2_counts(self) -> np.ndarray:
+        """float64 ``[M]``: expected photons of every three-bounce path (aligned with :attr:`h2_rc`)."""
+        ...
+
+
 @dataclass(frozen=True, eq=False)
 class SpadScan:
     """One SPAD scan.
 
-    The counts are held in the form they were made in: sparse for the noise-free model (what
-    :func:`simulate_scan` writes), dense for noisy scans, whose background fills every bin. :attr:`histograms`
-    and :attr:`sparse` give either form, converting once on first access.
+    The counts are held in the form they were made in: sparse for the noise-free model (what the simulator
+    writes), dense for noisy scans, whose background fills every bin. :attr:`histograms` and :attr:`sparse` give
+    either form, converting once on first access.
 
     Attributes:
         angles: float64 ``[n_rays]`` ray angles (radians; ``superex_deploy.geometry`` convention).
@@ -218,8 +240,8 @@ class SpadScan:
         grid_shape: ``(rows, cols)`` of the map the scan was taken in.
         config: the sensor configuration.
         stored: the counts as made: :class:`SparseHistograms`, or float32 ``[n_rays, n_bins]``.
-        truth: simulation-only ground truth; None for a measured scan (the onboard explorer builds its scans
-            from :class:`~superex_deploy.messages.SpadFrame` messages, which carry none).
+        truth: the simulator's truth (see :class:`ScanTruth`), None on measured scans (the onboard explorer
+            builds its scans from :class:`~superex_deploy.messages.SpadFrame` messages, which carry none).
     """
 
     angles: np.ndarray
@@ -230,7 +252,7 @@ class SpadScan:
     grid_shape: tuple[int, int]
     config: SpadConfig
     stored: Union[SparseHistograms, np.ndarray]
-    truth: Optional["SpadTruth"] = None
+    truth: Optional[ScanTruth] = None
 
     @property
     def n_bins(self) -> int:

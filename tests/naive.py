@@ -119,7 +119,7 @@ def naive_group_by_cell(hit_rc, n_cols):
 
 
 def naive_sort_paths(path_m, gain):
-    """spad._sort_paths: (path_m, gain) reordered by a stable sort of path_m."""
+    """spad.fans._sort_paths: (path_m, gain) reordered by a stable sort of path_m."""
     order = np.argsort(path_m, kind="stable")
     return path_m[order], gain[order]
 

@@ -3,9 +3,12 @@ import pytest
 
 from superex_deploy.geometry import cast_rays, ray_angles
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.sim import spad
+from superex_deploy.sim.spad import fans as spad_fans, simulate as spad_simulate
 from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms
-from superex_deploy.sim.spad import BLOCK_CELLS, FAN_OFFSET_CELLS, _cast_primaries, _sort_paths, _thin_wall_normals, _trace_fans, _trace_first_hit_blocks, prepare_scene, simulate_scan
+from superex_deploy.sim.spad import BLOCK_CELLS, FAN_OFFSET_CELLS, prepare_scene, simulate_scan
+from superex_deploy.sim.spad.fans import _sort_paths, _trace_fans
+from superex_deploy.sim.spad.scene import _thin_wall_normals
+from superex_deploy.sim.spad.tracer import _cast_primaries, _trace_first_hit_blocks
 from tests.naive import naive_first_hit, naive_simulate_histograms, naive_sort_paths, naive_thin_wall_normals
 
 RES = 0.1
@@ -255,13 +258,13 @@ def test_fan_cache_restarts_within_its_size_and_earlier_truth_stays_valid(monkey
     prepare_scene(grid).clear_fan_caches()
     # Room for a few more fans than one scan has: the cache restarts along the walk.
     n_fans = max(len(scan.truth.fan_rows) for scan in fresh)
-    monkeypatch.setattr(spad, "MAX_CACHED_FAN_BYTES", (n_fans + 3) * (cfg.n_secondary * 5 * 8 + 8))
+    monkeypatch.setattr(spad_fans, "MAX_CACHED_FAN_BYTES", (n_fans + 3) * (cfg.n_secondary * 5 * 8 + 8))
     scans = [simulate_scan(grid, pose, cfg) for pose in walk]
     cache = prepare_scene(grid).fan_cache(cfg.n_secondary, cfg.range_m / RES)
     assert cache.restarts >= 2 and cache.reused > 0
     # A cache smaller than one scan restarts at every scan that needs a new fan and still gives the same scans.
     prepare_scene(grid).clear_fan_caches()
-    monkeypatch.setattr(spad, "MAX_CACHED_FAN_BYTES", n_fans // 3 * (cfg.n_secondary * 5 * 8 + 8))
+    monkeypatch.setattr(spad_fans, "MAX_CACHED_FAN_BYTES", n_fans // 3 * (cfg.n_secondary * 5 * 8 + 8))
     for pose, reference in zip(walk, fresh):
         _assert_same_scan(simulate_scan(grid, pose, cfg), reference)
     for scan, reference in zip(scans, fresh):  # truth read after later scans restarted the cache
@@ -320,7 +323,7 @@ def test_scans_do_not_depend_on_how_the_work_is_split(monkeypatch):
     cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
     scans = {}
     for n_parts in (1, 2, 7, 300):  # 300: more parts than rays, most of them empty
-        monkeypatch.setattr(spad, "_thread_parts", lambda n_parts=n_parts: n_parts)
+        monkeypatch.setattr(spad_simulate, "_thread_parts", lambda n_parts=n_parts: n_parts)
         prepare_scene(grid).clear_fan_caches()
         scans[n_parts] = [simulate_scan(grid, pose, cfg) for pose in walk]
     for n_parts in (2, 7, 300):

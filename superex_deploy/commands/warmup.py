@@ -24,11 +24,11 @@ def numba_cache_is_warm() -> bool:
     """Whether numba's on-disk cache holds the SPAD simulator's and the NLOS processing's kernels (the slowest to
     compile) for this Python."""
     from superex_deploy.onboard.nlos import back_projection, carving, filters, los, normals
-    from superex_deploy.sim import spad
+    from superex_deploy.sim.spad import fans, histograms, scene, tracer
 
     tag = f"py{sys.version_info.major}{sys.version_info.minor}"
     return all(any((Path(module.__file__).parent / "__pycache__").glob(f"{Path(module.__file__).stem}.*{tag}.nbi"))
-               for module in (spad, los, normals, carving, back_projection, filters))
+               for module in (scene, tracer, fans, histograms, los, normals, carving, back_projection, filters))
 
 
 def warm_up(models=None) -> float:
