@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Optional
 
 from superex_deploy.onboard.explorer import PredictionSchedule
-from superex_deploy.onboard.inference import SessionConfig, check_member_options
+from superex_deploy.onboard.inference.lama import check_member_options
+from superex_deploy.onboard.inference.sessions import SessionConfig
 from superex_deploy.onboard.prediction_reuse import PredictionReuse
 from superex_deploy.onboard.spad_processing import NlosSkips
 
@@ -114,7 +115,9 @@ def check_profile(profile_name: str, planner, predictor: str) -> RealtimeProfile
 def _load_model(kind: str, directory: str, session: SessionConfig = SessionConfig()):
     """A learned model, loaded once per process (its ONNX Runtime sessions hold no state between calls): the
     benchmark and data-generation workers run many episodes each."""
-    from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, Pix2PixFilter
+    from superex_deploy.onboard.inference.lama import LamaEnsemble
+    from superex_deploy.onboard.inference.manifest import ModelKind
+    from superex_deploy.onboard.inference.pix2pix import Pix2PixFilter
 
     if kind == "pix2pix":
         return Pix2PixFilter.from_manifest(directory, session)
@@ -122,7 +125,7 @@ def _load_model(kind: str, directory: str, session: SessionConfig = SessionConfi
 
 
 def _models_dir(models) -> str:
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR
+    from superex_deploy.onboard.inference.manifest import DEFAULT_MODEL_DIR
 
     return str(Path(models or DEFAULT_MODEL_DIR).resolve())
 
