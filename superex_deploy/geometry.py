@@ -13,8 +13,8 @@ Conventions used throughout SuperEx
 The kernels are private ``_name`` functions compiled with ``numba.njit(cache=True)``; the public wrappers
 check dtypes, shapes and bounds and raise ``ValueError``. Two kernels are shared with other modules' kernels (the
 SPAD simulator, the NLOS processing, the planners' visibility) and so are public, unchecked, callable only from
-compiled code or with already-checked arguments: :func:`dda_start`, :func:`dda_step` and
-:func:`group_by_cell`. Slow references live
+compiled code or with already-checked arguments: :func:`dda_start`, :func:`dda_step`, :func:`group_by_cell` and
+:func:`minor_axis_2x2`. Slow references live
 in ``tests/naive.py``.
 """
 
@@ -26,7 +26,7 @@ import numba
 import numpy as np
 
 __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
-           "dda_start", "dda_step", "group_by_cell",
+           "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2",
            "RETURN_TOLERANCE_CELLS"]
 
 NO_HIT = -1
@@ -110,6 +110,28 @@ def dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c):
     if t_next_c <= t_next_r:
         return r, c + step_c, t_next_r, t_next_c + t_delta_c, t_next_c, 1
     return r + step_r, c, t_next_r + t_delta_r, t_next_c, t_next_r, 0
+
+
+@numba.njit(cache=True, inline="always")
+def minor_axis_2x2(cyy, cxx, cxy):
+    """Eigen-decomposition of the symmetric 2x2 matrix ``[[cyy, cxy], [cxy, cxx]]`` (a point set's covariance in
+    ``(y, x)`` order), for fitting a line to wall points: the minor axis is the line's normal.
+
+    Returns ``(half_trace, spread, vy, vx, norm)``: the eigenvalues are ``half_trace +- spread``; ``(vy, vx) / norm``
+    is the unit eigenvector of the smaller one (undefined where ``norm == 0``: an isotropic or empty spread). The
+    unnormalised vector is ``(minor - cxx, cxy)`` or ``(cxy, minor - cyy)``, whichever is longer, since
+    ``(A - minor I) v = 0`` is solved by either row's perpendicular and the longer one is the better conditioned.
+    """
+    half_trace = 0.5 * (cyy + cxx)
+    spread = np.sqrt(0.25 * (cyy - cxx) ** 2 + cxy * cxy)
+    minor = half_trace - spread
+    vy1, vx1 = minor - cxx, cxy
+    vy2, vx2 = cxy, minor - cyy
+    if vy1 * vy1 + vx1 * vx1 >= vy2 * vy2 + vx2 * vx2:
+        vy, vx = vy1, vx1
+    else:
+        vy, vx = vy2, vx2
+    return half_trace, spread, vy, vx, np.sqrt(vy * vy + vx * vx)
 
 
 @numba.njit(cache=True)

@@ -25,9 +25,17 @@ from pathlib import Path
 from contextlib import contextmanager
 from typing import Callable, Iterator, Optional, Sequence
 
-__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "LocalBackend", "RayBackend"]
+__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "LocalBackend", "RayBackend", "kernel_parts"]
 
 _PR_SET_PDEATHSIG = 1
+
+
+def kernel_parts(requested: int = 0) -> int:
+    """How many parts a threaded numba kernel splits its work into: ``requested`` when positive, else numba's
+    current thread count. The kernels' results never depend on it (each part writes its own rows or cells)."""
+    import numba
+
+    return int(requested) or numba.get_num_threads()
 
 
 def _single_threaded_worker() -> None:

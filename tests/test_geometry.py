@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from superex_deploy.geometry import group_by_cell, cast_rays, cell_centre, line_of_sight, mark_rays, ray_angles
+from superex_deploy.geometry import (group_by_cell, cast_rays, cell_centre, line_of_sight, mark_rays, minor_axis_2x2,
+                                     ray_angles)
 from tests.naive import naive_first_hit, naive_group_by_cell, naive_mark_rays
 
 
@@ -165,3 +166,25 @@ def test_line_of_sight_rejects_bad_input():
         line_of_sight(np.zeros((3, 3), bool), (0, 0), (3, 1))
     with pytest.raises(ValueError, match="outside the grid"):
         line_of_sight(np.zeros((3, 3), bool), (-1, 0), (1, 1))
+
+
+def test_minor_axis_2x2_matches_numpy_eigh():
+    """The shared 2x2 eigen-decomposition (wall normals in the SPAD simulator and the NLOS processing) against
+    numpy's symmetric eigensolver, on random covariances including nearly isotropic and axis-aligned ones."""
+    rng = np.random.default_rng(3)
+    matrices = [rng.normal(size=(2, 2)) for _ in range(300)]
+    covariances = [m @ m.T for m in matrices] + [np.diag([2.0, 1.0]), np.diag([1.0, 2.0]),
+                                                   np.array([[1.0, 1e-7], [1e-7, 1.0 + 1e-6]])]
+    for cov in covariances:
+        cyy, cxy, cxx = cov[0, 0], cov[0, 1], cov[1, 1]
+        half_trace, spread, vy, vx, norm = minor_axis_2x2(cyy, cxx, cxy)
+        values, vectors = np.linalg.eigh(cov)
+        np.testing.assert_allclose([half_trace - spread, half_trace + spread], values, rtol=1e-9, atol=1e-12)
+        assert norm > 0.0
+        unit = np.array([vy, vx]) / norm
+        assert abs(abs(unit @ vectors[:, 0]) - 1.0) < 1e-6  # the minor eigenvector, up to sign
+
+
+def test_minor_axis_2x2_isotropic_has_no_axis():
+    assert minor_axis_2x2(1.0, 1.0, 0.0)[4] == 0.0
+    assert minor_axis_2x2(0.0, 0.0, 0.0)[4] == 0.0

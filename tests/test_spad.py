@@ -323,7 +323,7 @@ def test_scans_do_not_depend_on_how_the_work_is_split(monkeypatch):
     cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)
     scans = {}
     for n_parts in (1, 2, 7, 300):  # 300: more parts than rays, most of them empty
-        monkeypatch.setattr(spad_simulate, "_thread_parts", lambda n_parts=n_parts: n_parts)
+        monkeypatch.setattr(spad_simulate, "kernel_parts", lambda requested=0, n_parts=n_parts: n_parts)
         prepare_scene(grid).clear_fan_caches()
         scans[n_parts] = [simulate_scan(grid, pose, cfg) for pose in walk]
     for n_parts in (2, 7, 300):

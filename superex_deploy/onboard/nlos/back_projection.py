@@ -17,7 +17,8 @@ from typing import Optional
 import numba
 import numpy as np
 
-from superex_deploy.onboard.nlos.config import ROW_BLOCK, GridPatch, LosEstimate, NlosConfig, _thread_parts
+from superex_deploy.parallel import kernel_parts
+from superex_deploy.onboard.nlos.config import ROW_BLOCK, GridPatch, LosEstimate, NlosConfig
 from superex_deploy.onboard.nlos.los import _late_threshold
 from superex_deploy.spad_types import SpadScan
 
@@ -221,7 +222,7 @@ def _back_projection_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, kn
     q_max = np.full(len(los.wall_cells), -1, np.int64)
     threshold, guard = _late_threshold(scan, cfg, n_bins)
     background = scan.config.noise.background_per_bin
-    n_parts = _thread_parts(cfg)
+    n_parts = kernel_parts(cfg.threads)
     detections = los.detections
     _accumulate_votes(detections.row_start, detections.bins, detections.counts, los.los_bin, los.ray_wall,
                       los.d1_m, guard, threshold, background, scan.bin_path_m, scan.resolution_m, votes, q_max,

@@ -33,7 +33,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from superex_deploy.onboard.nlos.config import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig, _thread_parts,
+from superex_deploy.parallel import kernel_parts
+from superex_deploy.onboard.nlos.config import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig,
                                                 carve_radius_cap_m)
 from superex_deploy.spad_types import SpadScan
 
@@ -161,7 +162,7 @@ def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig) -> GridPatc
     carved = np.zeros((bottom - top, right - left), bool)
     cos_limit = np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))
     _carve_sectors(los.wall_apex, los.wall_normal, radius_cells, cfg.wall_strip_cells, cos_limit, top, left, carved,
-                   _thread_parts(cfg))
+                   kernel_parts(cfg.threads))
     return GridPatch(carved, int(top), int(left), shape)
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-import numba
 import numpy as np
 
 from superex_deploy.spad_types import SpadScan, SparseHistograms
@@ -201,7 +200,3 @@ def _check_scan(scan: SpadScan) -> None:
         raise ValueError(f"scan histograms must be float32 [n_rays, n_bins] matching the angles, got {dtype} "
                          f"{shape}")
 
-
-def _thread_parts(cfg: NlosConfig) -> int:
-    """How many parts the parallel kernels split their work into (``cfg.threads``, 0: numba's threads)."""
-    return int(cfg.threads) or numba.get_num_threads()

@@ -8,7 +8,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from superex_deploy.onboard.nlos.config import NlosConfig, _thread_parts
+from superex_deploy.geometry import minor_axis_2x2
+from superex_deploy.parallel import kernel_parts
+from superex_deploy.onboard.nlos.config import NlosConfig
 from superex_deploy.spad_types import SpadScan
 
 
@@ -69,19 +71,11 @@ def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, inte
             cyy += (points[v, 0] - my) ** 2
             cxx += (points[v, 1] - mx) ** 2
             cxy += (points[v, 0] - my) * (points[v, 1] - mx)
-        half_trace = 0.5 * (cyy + cxx)
-        spread = np.sqrt(0.25 * (cyy - cxx) ** 2 + cxy * cxy)
+        half_trace, spread, vy, vx, norm = minor_axis_2x2(cyy, cxx, cxy)
         major = half_trace + spread
         minor = half_trace - spread
         if major <= 0.0 or minor > max_minor_ratio * major:
             continue
-        vy1, vx1 = minor - cxx, cxy
-        vy2, vx2 = cxy, minor - cyy
-        if vy1 * vy1 + vx1 * vx1 >= vy2 * vy2 + vx2 * vx2:
-            vy, vx = vy1, vx1
-        else:
-            vy, vx = vy2, vx2
-        norm = np.sqrt(vy * vy + vx * vx)
         if norm == 0.0:
             continue
         vy /= norm
@@ -152,6 +146,6 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
     points = wall_cells + 0.5
     _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
                  cfg.normal_max_residual_cells, cfg.normal_max_gap_cells, cfg.normal_interior_cells, normals,
-                 reliable, _thread_parts(cfg))
+                 reliable, kernel_parts(cfg.threads))
     _face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, reliable, apex)
     return normals, reliable, apex

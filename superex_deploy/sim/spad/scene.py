@@ -13,6 +13,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from superex_deploy.geometry import minor_axis_2x2
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.sim.spad import fans
 from superex_deploy.sim.spad.fans import FanCache
@@ -52,20 +53,10 @@ def _thin_wall_normals(occupied, weak, normals):
             cyy = syy / n - my * my
             cxx = sxx / n - mx * mx
             cxy = sxy / n - my * mx
-            # Eigen-decomposition of [[cyy, cxy], [cxy, cxx]]; the minor axis is the wall's normal.
-            half_trace = 0.5 * (cyy + cxx)
-            spread = np.sqrt(0.25 * (cyy - cxx) ** 2 + cxy * cxy)
+            # The minor axis of the points' covariance is the wall's normal.
+            half_trace, spread, vy, vx, norm = minor_axis_2x2(cyy, cxx, cxy)
             if spread < 1e-9 or half_trace < 1e-9:
                 continue
-            minor = half_trace - spread
-            # (A - minor I) v = 0 -> v = (cxy, minor - cyy) or (minor - cxx, cxy), whichever is larger.
-            vy1, vx1 = minor - cxx, cxy
-            vy2, vx2 = cxy, minor - cyy
-            if vy1 * vy1 + vx1 * vx1 >= vy2 * vy2 + vx2 * vx2:
-                vy, vx = vy1, vx1
-            else:
-                vy, vx = vy2, vx2
-            norm = np.sqrt(vy * vy + vx * vx)
             normals[r, c, 0] = vy / norm
             normals[r, c, 1] = vx / norm
 

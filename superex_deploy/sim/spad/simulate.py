@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
-import numba
 import numpy as np
 
+from superex_deploy.parallel import kernel_parts
 from superex_deploy.geometry import cell_centre, group_by_cell, ray_angles
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.sim.spad.fans import _fan_rows, _trace_fans
@@ -24,12 +24,6 @@ __all__ = ["MIN_DISTANCE_CELLS", "simulate_scan"]
 MIN_DISTANCE_CELLS = 0.5
 """``d1`` and ``d2`` are floored at this many cells, so eq. (2) stays finite for a robot touching a wall."""
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
-
-
-def _thread_parts() -> int:
-    """How many parts the parallel kernels split a scan's work into: numba's thread count (the results do not
-    depend on it)."""
-    return numba.get_num_threads()
 
 
 def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
@@ -65,7 +59,7 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     distance = np.empty(cfg.n_rays)
     entry_axis = np.empty(cfg.n_rays, np.int8)
     direction = np.empty((cfg.n_rays, 2))
-    n_parts = _thread_parts()
+    n_parts = kernel_parts()
     _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
                     entry_axis, direction, n_parts)
     hit_fan, fan_cells, first_ray = group_by_cell(hit_rc, grid.shape[1])
