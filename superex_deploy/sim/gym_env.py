@@ -18,8 +18,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.explorer import _near_visited, _reached
 from superex_deploy.onboard.motion import planning_map
 from superex_deploy.onboard.planners import NearestFrontier
 from superex_deploy.onboard.prediction import ObservedAsPrediction
@@ -119,13 +117,9 @@ class ExplorationEnv(gym.Env):
     def _action_mask(self) -> np.ndarray:
         observed = self._explorer.observed
         plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
-        not_free = observed != FREE
-        pose = self._world.pose_rc
-        reach = self._cfg.motion.goal_reached_m / self.grid.resolution_m
         # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
         # visited before would be dropped at once, wasting the action.
-        regions = [f for f in find_frontiers(observed, 1) if not _near_visited(f.cell_rc, self._explorer.visited_goals)
-                   and not _reached(not_free, pose, f.cell_rc, reach)]
+        regions = self._explorer.frontier_candidates(self._world.pose_rc)
         reachable = [(plan.travel_cost[f.cell_rc], f.cell_rc) for f in regions if np.isfinite(plan.travel_cost[f.cell_rc])]
         reachable.sort()
         self._goals = [cell for _, cell in reachable[:self.max_frontiers]]
@@ -161,7 +155,7 @@ class ExplorationEnv(gym.Env):
         masked = int(action) >= len(self._goals)
         before = self._known_m2()
         self._agent.target = None if masked else self._goals[int(action)]
-        self._explorer.goal, self._explorer.path = None, []  # choose again, now
+        self._explorer.drop_goal()  # choose again, now
         command = self._command
         for inner in range(self.steps_per_action):
             if self._world.steps >= self.max_steps:
