@@ -32,7 +32,6 @@ LAYERS = (
 KNOWN_VIOLATIONS_UNTIL_22_LANDS = frozenset({
     ("superex_deploy.spad_types", "superex_deploy.sim.spad"),  # base -> sim (TYPE_CHECKING), and a circle
     ("superex_deploy.commands.benchmark", "superex_deploy.commands.paper_benchmark"),  # a circle
-    ("superex_deploy.sim.gym_env", "superex_deploy.pipeline"),  # sim -> pipeline
 })
 
 

@@ -59,8 +59,8 @@ class ExplorationEnv(gym.Env):
 
     Args:
         map: bundled map name (or an image / ROS YAML path).
-        predictor: None, or a predictor name of :func:`superex_deploy.commands.explore.make_predictor` (adds a
-            channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
+        predictor: None, or a predictor name of :func:`superex_deploy.onboard.predictors.make_onboard_predictor`
+            (adds a channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
         crop_cells: side of the square observation around the robot (cells).
         max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
         steps_per_action: simulator steps per action at most.
@@ -77,9 +77,7 @@ class ExplorationEnv(gym.Env):
 
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
-        from superex_deploy.pipeline import make_predictor
-
-        from superex_deploy.pipeline import EVIDENCE_PREDICTORS
+        from superex_deploy.onboard.predictors import EVIDENCE_PREDICTORS, make_onboard_predictor
 
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
@@ -91,7 +89,7 @@ class ExplorationEnv(gym.Env):
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         self.grid = load_map(map)
-        self._predictor = make_predictor(predictor, self.grid) if predictor is not None else None
+        self._predictor = make_onboard_predictor(predictor) if predictor is not None else None
         self.crop_cells, self.max_frontiers = int(crop_cells), int(max_frontiers)
         self.steps_per_action, self.max_steps = int(steps_per_action), int(max_steps)
         channels = 3 + (self._predictor is not None)
