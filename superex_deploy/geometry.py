@@ -29,7 +29,6 @@ __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "li
            "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2",
            "RETURN_TOLERANCE_CELLS"]
 
-NO_HIT = -1
 RETURN_TOLERANCE_CELLS = 1e-6
 """A measured return marks the cell that holds the point this far (cells) beyond the measured range: a return on a
 cell boundary is the face of the cell behind it (the wall), and a range rounded to float32 (``sensor_msgs/LaserScan``)

@@ -1,34 +1,27 @@
 """One place that assembles the pipeline from names: the map predictor, the simulated SPAD sensing and the
-onboard SPAD processing (used by the CLI, the benchmarks, the replay, the Gymnasium environment and the scripts).
+onboard SPAD processing (used by the CLI, the benchmarks, the replay and the scripts).
 
-The onboard pieces it builds (:func:`make_predictor` for every predictor but ``oracle``, :func:`make_processing`) read
-no ground truth; :func:`make_sensing` and the oracle belong to simulations.
+The onboard pieces it builds read no ground truth: :func:`make_predictor` for every predictor but ``oracle`` (those
+come from :mod:`superex_deploy.onboard.predictors`) and :func:`make_processing`; :func:`make_sensing` and the oracle
+belong to simulations.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
-from functools import lru_cache
-from pathlib import Path
 from typing import Optional
 
 from superex_deploy.onboard.explorer import PredictionSchedule
-from superex_deploy.onboard.inference.lama import check_member_options
-from superex_deploy.onboard.inference.sessions import SessionConfig
+from superex_deploy.onboard.inference import SessionConfig, check_member_options
+from superex_deploy.onboard.predictors import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
+                                               models_dir)
 from superex_deploy.onboard.prediction_reuse import PredictionReuse
 from superex_deploy.onboard.spad_processing import NlosSkips
 
 __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "DEFAULT_PROFILE", "resolve_profile",
            "check_profile",
            "make_predictor", "make_sensing", "make_processing"]
-
-PREDICTORS = ("observed", "oracle", "lama_los", "lama_bp", "evidence")
-"""Predictor names: ``observed`` (unknown = free), ``oracle`` (the truth; simulation only), ``lama_los`` / ``lama_bp``
-(the learned ensembles), ``evidence`` (the Pix2Pix evidence alone)."""
-EVIDENCE_PREDICTORS = ("lama_bp", "evidence")
-"""Predictors that read the SPAD evidence (they need SPAD sensing and the Pix2Pix filter)."""
-
 
 @dataclass(frozen=True)
 class RealtimeProfile:
@@ -111,52 +104,24 @@ def check_profile(profile_name: str, planner, predictor: str) -> RealtimeProfile
     return profile
 
 
-@lru_cache(maxsize=8)
-def _load_model(kind: str, directory: str, session: SessionConfig = SessionConfig()):
-    """A learned model, loaded once per process (its ONNX Runtime sessions hold no state between calls): the
-    benchmark and data-generation workers run many episodes each."""
-    from superex_deploy.onboard.inference.lama import LamaEnsemble
-    from superex_deploy.onboard.inference.manifest import ModelKind
-    from superex_deploy.onboard.inference.pix2pix import Pix2PixFilter
-
-    if kind == "pix2pix":
-        return Pix2PixFilter.from_manifest(directory, session)
-    return LamaEnsemble.from_manifest(ModelKind(kind), directory, session)
-
-
-def _models_dir(models) -> str:
-    from superex_deploy.onboard.inference.manifest import DEFAULT_MODEL_DIR
-
-    return str(Path(models or DEFAULT_MODEL_DIR).resolve())
-
-
 def _pix2pix_filter(models=None):
-    return _load_model("pix2pix", _models_dir(models)).filter_map
+    return load_model("pix2pix", models_dir(models)).filter_map
 
 
 def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile = RealtimeProfile()):
     """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only;
-    ``profile`` sets the ensemble's members and sessions.
+    ``profile`` sets the ensemble's members and sessions. Every predictor but ``oracle`` is the robot's own
+    (:func:`~superex_deploy.onboard.predictors.make_onboard_predictor`).
 
     Raises:
         ValueError: an unknown name, ``oracle`` without a grid, models that are missing or do not match.
     """
-    from superex_deploy.onboard.prediction import EvidenceAsPrediction, ObservedAsPrediction
-
-    if name == "observed":
-        return ObservedAsPrediction()
-    if name == "evidence":
-        return EvidenceAsPrediction()
-    if name == "oracle":
-        if grid is None:
-            raise ValueError("the oracle predictor reads the ground truth: it needs the grid (simulation only)")
+    if name == "oracle" and grid is not None:
         from superex_deploy.sim.oracle import OraclePredictor
 
         return OraclePredictor(grid)
-    if name in ("lama_los", "lama_bp"):
-        return _load_model(name, _models_dir(models), profile.session).with_members(profile.max_members,
-                                                                                    profile.agreement_stop)
-    raise ValueError(f"unknown predictor {name!r}; choose one of {', '.join(PREDICTORS)}")
+    # The oracle without a grid and unknown names are refused there.
+    return make_onboard_predictor(name, models, profile.session, profile.max_members, profile.agreement_stop)
 
 
 def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: RealtimeProfile = RealtimeProfile()):

@@ -46,7 +46,7 @@ from superex_train.training import CHECKPOINT_NAME, build_generator, load_checkp
 
 __all__ = ["Exporter", "ExportConfig", "WallProbabilityModel", "ExportRecord", "INPUT_NAMES", "OUTPUT_NAME",
            "export_generator", "export_checkpoint", "export_models", "write_manifest", "model_file_name",
-           "untrained_generator", "export_untrained"]
+           "untrained_generator"]
 
 PathLike = Union[str, Path]
 
@@ -427,22 +427,3 @@ def untrained_generator(kind: ModelKind, model_config: Union[Pix2PixConfig, Lama
         generator = LamaGenerator(lama)
     batches = [torch.cat(dummy_inputs(generator, kind, seed + i)[:1] * 2) for i in range(2)]
     return calibrate_batchnorm(generator, batches)
-
-
-def export_untrained(out_dir: PathLike, members: int = 3, pix2pix_config: Optional[Pix2PixConfig] = None,
-                     lama_config: Optional[LamaConfig] = None, seed: int = 0,
-                     cfg: ExportConfig = ExportConfig()) -> list[ExportRecord]:
-    """Export a complete untrained model folder: Pix2Pix and ``members`` members of each LaMa ensemble (member
-    ``m`` seeded ``seed + m``), with its manifest. Their ``training_data_sha256`` reads ``untrained, seed N``."""
-    if members < 1:
-        raise ValueError(f"members must be >= 1, got {members}")
-    out_dir = Path(out_dir)
-    records = [export_generator(untrained_generator(ModelKind.PIX2PIX, pix2pix_config, seed), ModelKind.PIX2PIX,
-                                out_dir / model_file_name(ModelKind.PIX2PIX, 0), 0, f"untrained, seed {seed}", cfg)]
-    for kind in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
-        for member in range(members):
-            generator = untrained_generator(kind, lama_config, seed + member)
-            records.append(export_generator(generator, kind, out_dir / model_file_name(kind, member), member,
-                                            f"untrained, seed {seed + member}", cfg))
-    write_manifest(out_dir, records)
-    return records

@@ -244,7 +244,7 @@ class Explorer:
         mapper: the explorer's map (:class:`~superex_deploy.onboard.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
         frontiers: the latest step's frontier regions.
-        goal: the locked goal cell, or None.
+        goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
         path: cells from the robot to the goal.
         steps: observations processed so far.
         reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
@@ -298,6 +298,29 @@ class Explorer:
     def visited_goals(self) -> frozenset:
         """Goal cells reached so far whose frontier did not resolve (they are not offered again)."""
         return frozenset(self._visited)
+
+    def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
+        """The latest map's frontier regions, of every size, that :meth:`step` would offer a planner with the robot
+        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`_reached`) and whose goal cell
+        is no goal reached before nor next to one (:func:`_near_visited`), in ``find_frontiers`` order; ``()``
+        before the first observation. :meth:`step` offers the regions of ``cfg.frontier_min_cells`` cells or more
+        first, the smaller ones only when those give no goal. For a goal chosen outside the explorer (a learning
+        agent): a goal among these is one the explorer does not let go of at once.
+
+        Raises:
+            ValueError: a cell outside the map.
+        """
+        pose = (int(pose_rc[0]), int(pose_rc[1]))
+        if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
+            raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
+        not_free = self.observed != FREE
+        return tuple(f for f in find_frontiers(self.observed, 1) if not _near_visited(f.cell_rc, self._visited)
+                     and not _reached(not_free, pose, f.cell_rc, self._reach_cells))
+
+    def drop_goal(self) -> None:
+        """Let go of the locked goal and its path: the next :meth:`step` asks the planner again (the goal does not
+        count as reached). For a goal chosen outside the explorer: give the choice to the planner, then call this."""
+        self.goal, self.path = None, []
 
     @property
     def evidence(self) -> Optional[np.ndarray]:

@@ -37,8 +37,7 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, OCCUPIED
 
-__all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear",
-           "advance"]
+__all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear"]
 
 
 @dataclass(frozen=True)
@@ -353,21 +352,3 @@ def path_is_clear(observed: np.ndarray, path, radius_cells: float) -> bool:
                 return False
     return True
 
-
-def advance(path: list[tuple[int, int]], step_cells: int, resolution_m: float
-            ) -> tuple[tuple[int, int], list[tuple[int, int]], float]:
-    """Move along a path.
-
-    Args:
-        path: cells from the robot's cell (``path[0]``) to the goal, 8-connected.
-        step_cells: cells to advance (fewer if the path ends sooner).
-        resolution_m: metres per cell.
-
-    Returns:
-        ``(new cell, remaining path starting at the new cell, metres driven)``.
-    """
-    if not path:
-        raise ValueError("cannot advance along an empty path")
-    steps = min(int(step_cells), len(path) - 1)
-    driven = sum(float(np.hypot(b[0] - a[0], b[1] - a[1])) for a, b in zip(path[:steps], path[1:steps + 1]))
-    return path[steps], path[steps:], driven * float(resolution_m)

@@ -18,8 +18,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.explorer import _near_visited, _reached
 from superex_deploy.onboard.motion import planning_map
 from superex_deploy.onboard.planners import NearestFrontier
 from superex_deploy.onboard.prediction import ObservedAsPrediction
@@ -61,8 +59,8 @@ class ExplorationEnv(gym.Env):
 
     Args:
         map: bundled map name (or an image / ROS YAML path).
-        predictor: None, or a predictor name of :func:`superex_deploy.commands.explore.make_predictor` (adds a
-            channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
+        predictor: None, or a predictor name of :func:`superex_deploy.onboard.predictors.make_onboard_predictor`
+            (adds a channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
         crop_cells: side of the square observation around the robot (cells).
         max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
         steps_per_action: simulator steps per action at most.
@@ -79,9 +77,7 @@ class ExplorationEnv(gym.Env):
 
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
-        from superex_deploy.pipeline import make_predictor
-
-        from superex_deploy.pipeline import EVIDENCE_PREDICTORS
+        from superex_deploy.onboard.predictors import EVIDENCE_PREDICTORS, make_onboard_predictor
 
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
@@ -93,7 +89,7 @@ class ExplorationEnv(gym.Env):
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         self.grid = load_map(map)
-        self._predictor = make_predictor(predictor, self.grid) if predictor is not None else None
+        self._predictor = make_onboard_predictor(predictor) if predictor is not None else None
         self.crop_cells, self.max_frontiers = int(crop_cells), int(max_frontiers)
         self.steps_per_action, self.max_steps = int(steps_per_action), int(max_steps)
         channels = 3 + (self._predictor is not None)
@@ -119,13 +115,9 @@ class ExplorationEnv(gym.Env):
     def _action_mask(self) -> np.ndarray:
         observed = self._explorer.observed
         plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
-        not_free = observed != FREE
-        pose = self._world.pose_rc
-        reach = self._cfg.motion.goal_reached_m / self.grid.resolution_m
         # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
         # visited before would be dropped at once, wasting the action.
-        regions = [f for f in find_frontiers(observed, 1) if not _near_visited(f.cell_rc, self._explorer.visited_goals)
-                   and not _reached(not_free, pose, f.cell_rc, reach)]
+        regions = self._explorer.frontier_candidates(self._world.pose_rc)
         reachable = [(plan.travel_cost[f.cell_rc], f.cell_rc) for f in regions if np.isfinite(plan.travel_cost[f.cell_rc])]
         reachable.sort()
         self._goals = [cell for _, cell in reachable[:self.max_frontiers]]
@@ -161,7 +153,7 @@ class ExplorationEnv(gym.Env):
         masked = int(action) >= len(self._goals)
         before = self._known_m2()
         self._agent.target = None if masked else self._goals[int(action)]
-        self._explorer.goal, self._explorer.path = None, []  # choose again, now
+        self._explorer.drop_goal()  # choose again, now
         command = self._command
         for inner in range(self.steps_per_action):
             if self._world.steps >= self.max_steps:

@@ -16,7 +16,7 @@ from scipy import ndimage
 from superex_deploy.maps import OccupancyGrid
 
 __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
-           "results_markdown", "iou_by_coverage", "paired_differences"]
+           "results_markdown", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
 
@@ -179,21 +179,6 @@ def results_markdown(rows: list[dict]) -> str:
             cells.append(f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}")
         lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
-
-
-def iou_by_coverage(results: list[dict], bin_edges: Sequence[float] = tuple(np.linspace(0.0, 1.0, 11))
-                    ) -> dict[str, list[float]]:
-    """Mean map IoU per coverage bin for each planner (``nan`` for empty bins), from the IoU log of
-    :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts (coverage with carving)."""
-    edges = np.asarray(bin_edges, float)
-    out: dict[str, list[float]] = {}
-    for planner in sorted({r["planner"] for r in results}):
-        cov = np.concatenate([np.asarray(r["iou"]["coverage"], float) for r in results if r["planner"] == planner])
-        iou = np.concatenate([np.asarray(r["iou"]["iou"], float) for r in results if r["planner"] == planner])
-        bins = np.clip(np.digitize(cov, edges) - 1, 0, len(edges) - 2)
-        out[planner] = [float(iou[bins == b].mean()) if np.any(bins == b) else float("nan")
-                        for b in range(len(edges) - 1)]
-    return out
 
 
 def wall_iou(pred: np.ndarray, truth: np.ndarray) -> float:

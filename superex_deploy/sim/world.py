@@ -14,14 +14,13 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.sim.metrics import coverage as coverage_of
-from superex_deploy.onboard.motion import advance
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.spad import simulate_scan
 
-__all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances"]
+__all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "advance"]
 
 
 @dataclass(frozen=True)
@@ -94,6 +93,25 @@ def laser_scan_from_distances(distances_cells: np.ndarray, hit: np.ndarray, reso
     ranges[hit] = _float32_at_least(distances_cells[hit] * resolution_m)
     return LaserScan(angle_min=angle_min, angle_increment=angle_increment, range_min=0.0, range_max=range_max_m,
                      ranges=ranges)
+
+
+def advance(path: list[tuple[int, int]], step_cells: int, resolution_m: float
+            ) -> tuple[tuple[int, int], list[tuple[int, int]], float]:
+    """Move the simulated robot along a path (the world's kinematics: :meth:`World.apply` drives with it).
+
+    Args:
+        path: cells from the robot's cell (``path[0]``) to the goal, 8-connected.
+        step_cells: cells to advance (fewer if the path ends sooner).
+        resolution_m: metres per cell.
+
+    Returns:
+        ``(new cell, remaining path starting at the new cell, metres driven)``.
+    """
+    if not path:
+        raise ValueError("cannot advance along an empty path")
+    steps = min(int(step_cells), len(path) - 1)
+    driven = sum(float(np.hypot(b[0] - a[0], b[1] - a[1])) for a, b in zip(path[:steps], path[1:steps + 1]))
+    return path[steps], path[steps:], driven * float(resolution_m)
 
 
 class World:
