@@ -159,8 +159,15 @@ class LaserScan:
     """One line-of-sight scan (``sensor_msgs/LaserScan``), in the robot's frame.
 
     Ray ``i`` points at ``angle_min + i * angle_increment`` (radians, counter-clockwise from the robot's heading).
-    A range in ``[range_min, range_max]`` is a return: the sensor saw a surface at that distance. ``inf`` (or NaN,
-    or a value outside the limits) is no return: the ray saw nothing up to ``range_max``.
+    Ranges follow REP 117:
+
+    * in ``[range_min, range_max]``: a return, the sensor saw a surface at that distance;
+    * ``+inf`` or above ``range_max``: no return, the ray saw nothing up to ``range_max`` (free up to there);
+    * NaN (no measurement), ``-inf`` or below ``range_min`` (too close): an invalid reading, the ray says nothing
+      and is skipped.
+
+    Ranges are stored as float32: a float64 range beyond float32's span becomes ``+inf`` (no return) or ``-inf``
+    (invalid), as the rules above read it.
 
     Attributes:
         angle_min: angle of the first ray (radians).
@@ -200,7 +207,8 @@ class LaserScan:
                 raise ValueError(f"scan has {ranges.size} ranges, but its angles from {self.angle_min} to {angle_max} "
                                  f"rad at {self.angle_increment} rad need {expected}")
         object.__setattr__(self, "angle_max", derived)
-        ranges = ranges.astype(np.float32)
+        with np.errstate(over="ignore"):  # beyond float32: +-inf, read as above (no return / invalid)
+            ranges = ranges.astype(np.float32)
         ranges.flags.writeable = False
         object.__setattr__(self, "ranges", ranges)
 
@@ -332,12 +340,14 @@ class Command:
 
     Attributes:
         stamp_s: the observation's time stamp (seconds).
-        goal_xy: map-frame goal (metres), or None (no goal: exploration is finished).
+        goal_xy: map-frame goal (metres), or None (no goal: see ``finished``).
         goal_rc: the goal cell ``(row, col)``, or None.
         path_xy: float64 ``[N, 2]`` map-frame waypoints (metres) from the robot's cell to the goal (cell centres;
             empty without a goal).
         path_rc: int64 ``[N, 2]`` the same waypoints as cells.
-        finished: True when no reachable frontier is left.
+        finished: True when the explorer's map holds known cells and no reachable frontier is left: the
+            exploration is over. False while a goal is set, and also without a goal while the map is still empty
+            (no observation so far had a valid reading): the next observation may see something.
         new_goal: True when the goal was chosen at this step.
         prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
             the planner has not needed one yet.

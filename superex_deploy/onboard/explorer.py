@@ -3,7 +3,8 @@
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
 1. **scan**: the line-of-sight ranges are integrated into the explorer's own map (free along each ray, occupied at
-   its return; :func:`superex_deploy.geometry.mark_ranges`);
+   its return; :func:`superex_deploy.geometry.mark_ranges`; invalid readings, REP 117's NaN and too-close ranges,
+   are skipped: see :class:`~superex_deploy.messages.LaserScan`);
 2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.spad_processing.SpadProcessing`):
    carved free cells join the map, the back-projection evidence is kept for the predictor;
 3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
@@ -19,8 +20,10 @@ How the predictor runs is configured, not fixed (issue #16): inside the asking s
 when enough changed (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
 
 The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell; the robot
-drives along it and sends the next observation from wherever it stopped. Exploration is finished when no goal is
-left in any tier. The explorer is deterministic for a seed (the seed feeds only the planner's generator).
+drives along it and sends the next observation from wherever it stopped. Exploration is **finished** when the map
+holds known cells and no goal is left in any tier; while the map is still empty (every reading so far was invalid)
+a step answers no goal and not finished, since the next scan may see something. The explorer is deterministic for a
+seed (the seed feeds only the planner's generator).
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.types import FREE, OCCUPIED, Frontier, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import (FREE, OCCUPIED, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
+                                          Prediction)
 from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing
@@ -247,6 +251,7 @@ class Explorer:
         goal: the locked goal cell, or None.
         path: cells from the robot to the goal.
         steps: observations processed so far.
+        finished: whether the latest step found the exploration finished (see above).
         reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
     """
@@ -410,7 +415,10 @@ class Explorer:
             prediction = _LazyPrediction(self._predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
         self.steps += 1
-        new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+        if np.any(observed != UNKNOWN):
+            new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+        else:  # nothing measured yet (every reading invalid): no goal, and not finished
+            new_goal, self.finished = False, False
         timings["prediction"] += waited
         if self._worker is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t

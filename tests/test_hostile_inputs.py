@@ -1,0 +1,83 @@
+"""Issue #23, the rows of the hostile pass: every bad input gets one clear error where it enters, never a silent
+wrong result, a crash deep inside, or a warning."""
+
+
+import math
+import warnings
+
+import numpy as np
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+
+from superex_deploy.messages import LaserScan, MapFrame, Observation, Pose2D
+from superex_deploy.onboard import Explorer
+from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.onboard.planners import make_planner
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+
+FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
+RAYS = 72
+INCREMENT = 2 * math.pi / RAYS
+
+
+def _scan(ranges, range_min=0.1, range_max=5.0) -> LaserScan:
+    return LaserScan(0.0, INCREMENT, range_min, range_max, np.asarray(ranges, np.float64))
+
+
+def _observation(ranges, stamp=0.0, pose=Pose2D(10.0, 10.0)) -> Observation:
+    return Observation(stamp, pose, _scan(ranges))
+
+
+# Row 1: a scan with no valid reading leaves the map untouched and never reports `finished`.
+
+INVALID = st.one_of(st.just(math.nan), st.just(-math.inf), st.floats(-1e300, 0.0999, allow_nan=False))
+
+
+@FUZZ
+@given(ranges=st.lists(INVALID, min_size=RAYS, max_size=RAYS))
+@example(ranges=[math.nan] * RAYS)
+@example(ranges=[-math.inf] * RAYS)
+@example(ranges=[0.05] * RAYS)
+def test_a_scan_without_valid_readings_changes_nothing_and_is_not_finished(ranges):
+    explorer = Explorer(MapFrame((200, 200), 0.1), make_planner("nearest"), ObservedAsPrediction())
+    for step in range(3):
+        command = explorer.step(_observation(ranges, stamp=float(step)))
+        assert not command.finished and command.goal_rc is None and command.step == step
+        assert not explorer.mapper.known().any()
+    # The loop of the README goes on; the first valid scan (no return on any ray: free up to 5 m) gives a goal.
+    command = explorer.step(_observation(np.full(RAYS, np.inf), stamp=3.0))
+    assert command.goal_rc is not None and not command.finished and explorer.mapper.known().any()
+
+
+def test_finished_means_a_known_map_without_a_reachable_frontier():
+    # A 2 m square frame seen whole by one dense scan of no returns: everything is known free, nothing is left.
+    explorer = Explorer(MapFrame((20, 20), 0.1), make_planner("nearest"), ObservedAsPrediction())
+    scan = LaserScan(0.0, 2 * math.pi / 1440, 0.1, 20.0, np.full(1440, np.inf, np.float32))
+    command = explorer.step(Observation(0.0, Pose2D(1.0, 1.0), scan))
+    assert command.finished and command.goal_rc is None and explorer.mapper.known().all()
+
+
+@FUZZ
+@given(value=ANY_FLOAT)
+@example(value=1e300)
+@example(value=-1e300)
+@example(value=3.4e38)
+def test_every_range_is_a_return_no_return_or_skipped_without_warnings(value):
+    """REP 117: [range_min, range_max] a return; +inf or above range_max no return (free up to range_max); NaN,
+    -inf or below range_min invalid (skipped). float64 ranges beyond float32 become +-inf, without a warning."""
+    frame, pose = MapFrame((120, 120), 0.1), Pose2D(6.0, 6.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scan = _scan(np.full(RAYS, value), range_min=0.1, range_max=5.0)
+        mapper = Mapper(frame.shape)
+        mapper.integrate_scan(frame, pose, scan)
+    stored = float(scan.ranges[0])
+    if math.isnan(stored) or stored < scan.range_min:
+        assert not mapper.known().any()
+        return
+    returned = stored <= scan.range_max
+    equivalent = Mapper(frame.shape)
+    equivalent.integrate_scan(frame, pose, _scan(np.full(RAYS, stored if returned else np.inf)))
+    assert np.array_equal(mapper.known(), equivalent.known()) and mapper.known().any()
+    assert mapper.seen_wall.any() == returned
