@@ -3,9 +3,11 @@ wrong result, a crash deep inside, or a warning."""
 
 
 import math
+import threading
 import warnings
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -14,6 +16,7 @@ from superex_deploy.onboard import Explorer
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.types import Planner
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
@@ -81,3 +84,43 @@ def test_every_range_is_a_return_no_return_or_skipped_without_warnings(value):
     equivalent.integrate_scan(frame, pose, _scan(np.full(RAYS, stored if returned else np.inf)))
     assert np.array_equal(mapper.known(), equivalent.known()) and mapper.known().any()
     assert mapper.seen_wall.any() == returned
+
+
+# Row 12: one caller at a time.
+
+class _BlockingPlanner(Planner):
+    """The nearest-frontier choice, held inside the step until the test lets it go."""
+
+    name = "blocking"
+
+    def __init__(self):
+        self.entered, self.release = threading.Event(), threading.Event()
+
+    def choose_goal(self, ctx):
+        self.entered.set()
+        assert self.release.wait(30), "the test never released the step"
+        return make_planner("nearest").choose_goal(ctx)
+
+
+def test_a_second_concurrent_step_raises_instead_of_repeating_a_step_number():
+    planner = _BlockingPlanner()
+    explorer = Explorer(MapFrame((200, 200), 0.1), planner, ObservedAsPrediction())
+    results: list = []
+    first = threading.Thread(target=lambda: results.append(explorer.step(_observation(np.full(RAYS, np.inf)))))
+    first.start()
+    try:
+        assert planner.entered.wait(60)  # the first step is inside the planner now
+        with pytest.raises(RuntimeError, match="one caller at a time"):
+            explorer.step(_observation(np.full(RAYS, np.inf), stamp=1.0))
+    finally:
+        planner.release.set()
+        first.join(60)
+    assert [c.step for c in results] == [0] and explorer.steps == 1
+    assert explorer.step(_observation(np.full(RAYS, np.inf), stamp=2.0)).step == 1  # the lock was released
+
+
+def test_a_step_that_raises_releases_the_lock():
+    explorer = Explorer(MapFrame((200, 200), 0.1), make_planner("nearest"), ObservedAsPrediction())
+    with pytest.raises(ValueError, match="outside the map"):
+        explorer.step(_observation(np.full(RAYS, np.inf), pose=Pose2D(100.0, 100.0)))
+    assert explorer.step(_observation(np.full(RAYS, np.inf))).step == 0

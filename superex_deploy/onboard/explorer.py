@@ -28,6 +28,7 @@ seed (the seed feeds only the planner's generator).
 
 from __future__ import annotations
 
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -233,7 +234,9 @@ class Explorer:
     """Chooses where to go next from the robot's measurements alone.
 
     Build one per episode; feed it one :class:`~superex_deploy.messages.Observation` per step and drive along the
-    :class:`~superex_deploy.messages.Command` it returns.
+    :class:`~superex_deploy.messages.Command` it returns, until one says ``finished`` (the map holds known cells and
+    no reachable frontier is left; no goal while the map is still empty is not finished). One caller at a time: a
+    :meth:`step` called while another runs (another thread) raises ``RuntimeError`` instead of interleaving them.
 
     Args:
         frame: the grid the explorer keeps its map in (shape, resolution, origin).
@@ -281,6 +284,7 @@ class Explorer:
         self.path: list[tuple[int, int]] = []
         self.steps = 0
         self.finished = False
+        self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
         self._reach_cells = cfg.motion.goal_reached_m / frame.resolution_m
         self._radius_cells = cfg.motion.robot_radius_m / frame.resolution_m
@@ -377,15 +381,25 @@ class Explorer:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
 
     def step(self, obs: Observation) -> Command:
-        """Integrate one observation and return where to go.
+        """Integrate one observation and return where to go (``finished``: see :class:`Explorer`).
 
         Raises:
             ValueError: not an Observation, a pose outside the map, a SPAD frame that does not match the sensor
                 model.
-            RuntimeError: the planner returned a goal that no path reaches (a planner bug).
+            RuntimeError: another call of ``step`` is running (one caller at a time), the explorer was closed, or
+                the planner returned a goal that no path reaches (a planner bug).
         """
         if not isinstance(obs, Observation):
             raise ValueError(f"step() takes an Observation, got {type(obs).__name__}")
+        if not self._stepping.acquire(blocking=False):
+            raise RuntimeError("Explorer.step() is already running (called from another thread): an explorer takes "
+                               "one caller at a time; serialise the calls or use one explorer per thread")
+        try:
+            return self._step(obs)
+        finally:
+            self._stepping.release()
+
+    def _step(self, obs: Observation) -> Command:
         if getattr(self, "_closed", False):
             raise RuntimeError("this explorer was closed")
         pose = self._pose_cell(obs)
