@@ -124,3 +124,62 @@ def test_a_step_that_raises_releases_the_lock():
     with pytest.raises(ValueError, match="outside the map"):
         explorer.step(_observation(np.full(RAYS, np.inf), pose=Pose2D(100.0, 100.0)))
     assert explorer.step(_observation(np.full(RAYS, np.inf))).step == 0
+
+
+# Rows 3, 4, 5: planner options are checked when the planner is built.
+
+@pytest.mark.parametrize("planner, field, value", [
+    ("mapex", "visibility", 3), ("hector", "visibility", "none"), ("upen", "rrt_samples", math.inf),
+    ("superex", "n_rays", math.inf), ("hector", "wall_threshold", -3), ("hector", "wall_threshold", math.nan),
+    ("hector", "wall_threshold", "x"), ("mapex", "min_distance_cells", math.inf),
+    ("upen", "min_goal_distance_m", math.inf), ("upen", "rrt_samples", 10 ** 400), ("upen", "expand_cells", "x"),
+    ("hector", "info_gain_weight", None), ("superex", "rollout_cell_m", 1e12), ("superex", "gain", ["path"]),
+    ("mapex", "distance", 3), ("superex", "candidates", True), ("upen", "reach_horizon", 2.5),
+])
+def test_a_bad_planner_option_is_refused_when_the_planner_is_built(planner, field, value):
+    with pytest.raises(ValueError, match=f"bad configuration for planner '{planner}': {field}"):
+        make_planner(planner, **{field: value})
+
+
+NUMERIC_FIELDS = [("hector", "info_gain_weight"), ("hector", "wall_threshold"), ("mapex", "min_distance_cells"),
+                  ("upen", "rrt_samples"), ("upen", "expand_cells"), ("upen", "reach_horizon"),
+                  ("upen", "min_goal_distance_m"), ("superex", "wall_threshold"), ("superex", "sense_every_m"),
+                  ("superex", "range_m"), ("superex", "n_rays"), ("superex", "drop_resolved_m"),
+                  ("superex", "candidates"), ("superex", "rollout_goals"), ("superex", "horizon_m"),
+                  ("superex", "rollout_cell_m"), ("superex", "rollout_frontier_cells"), ("superex", "tour_frontiers")]
+OPTION_VALUE = st.one_of(ANY_FLOAT, st.integers(-10 ** 20, 10 ** 20), st.booleans(), st.none(), st.text(max_size=5),
+                         st.lists(st.integers(), max_size=2))
+
+
+@FUZZ
+@given(case=st.sampled_from(NUMERIC_FIELDS), value=OPTION_VALUE)
+def test_numeric_planner_options_are_finite_numbers_of_their_type_or_refused(case, value):
+    planner_name, field = case
+    try:
+        planner = make_planner(planner_name, **{field: value})
+    except ValueError as error:
+        assert field in str(error)
+        return
+    stored = getattr(planner.cfg, field)
+    if stored is None:
+        assert field == "drop_resolved_m" and value is None
+        return
+    assert type(stored) in (int, float) and math.isfinite(stored) and float(stored) == float(value)
+
+
+@pytest.mark.parametrize("text", ["x", "nan", "inf", "-inf", "none", "1e400"])
+@pytest.mark.parametrize("planner, field", [("hector", "wall_threshold"), ("mapex", "min_distance_cells"),
+                                            ("upen", "rrt_samples"), ("superex", "n_rays"),
+                                            ("mapex", "visibility")])
+def test_command_line_option_strings_give_one_clear_error(planner, field, text):
+    from superex_deploy.commands.explore import planner_options
+
+    with pytest.raises(ValueError, match=f"{field} must"):
+        make_planner(planner, **planner_options([f"{field}={text}"]))
+
+
+def test_a_planner_refuses_a_config_of_another_planner():
+    from superex_deploy.onboard.planners import MapexConfig, UpenPlanner
+
+    with pytest.raises(ValueError, match="cfg must be a UpenConfig"):
+        UpenPlanner(MapexConfig())
