@@ -1,17 +1,20 @@
 """Issue #23, the rows of the hostile pass: every bad input gets one clear error where it enters, never a silent
 wrong result, a crash deep inside, or a warning."""
 
-
 import math
+import struct
 import threading
 import warnings
+import zlib
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from superex_deploy.messages import LaserScan, MapFrame, Observation, Pose2D
+from superex_deploy.maps import OccupancyGrid, load_map
+from superex_deploy.messages import (MAX_ABS_YAW, MAX_MAP_CELLS, MAX_STAMP_S, Command, LaserScan, MapFrame,
+                                     Observation, Pose2D, max_map_cells)
 from superex_deploy.onboard import Explorer
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.planners import make_planner
@@ -183,3 +186,173 @@ def test_a_planner_refuses_a_config_of_another_planner():
 
     with pytest.raises(ValueError, match="cfg must be a UpenConfig"):
         UpenPlanner(MapexConfig())
+
+
+# Rows 6, 7: one limit on map size, checked before anything is allocated.
+
+def _png_header(width: int, height: int) -> bytes:
+    """A grey 8-bit PNG that declares ``width`` x ``height`` pixels and holds one short row of data: only a reader
+    that decodes the pixels finds out."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\x00" * 16)) + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("side", [8000, 10000, 14000])  # below PIL's warning, between warning and error, above
+def test_a_huge_map_image_is_refused_from_its_header(tmp_path, side):
+    path = tmp_path / "huge.png"
+    path.write_bytes(_png_header(side, side))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="SUPEREX_MAX_MAP_CELLS"):
+            load_map(path)
+
+
+def test_the_map_size_limit_is_one_setting(tmp_path, monkeypatch):
+    from PIL import Image
+
+    Image.fromarray(np.full((30, 40), 255, np.uint8)).save(tmp_path / "room.png")
+    assert max_map_cells() == MAX_MAP_CELLS
+    monkeypatch.setenv("SUPEREX_MAX_MAP_CELLS", "1000")
+    with pytest.raises(ValueError, match="30 x 40 = 1,200 cells, more than the limit of 1,000"):
+        load_map(tmp_path / "room.png")
+    with pytest.raises(ValueError, match="limit of 1,000"):
+        MapFrame((30, 40), 0.1)
+    with pytest.raises(ValueError, match="limit of 1,000"):
+        OccupancyGrid(np.zeros((30, 40), bool), np.ones((30, 40), bool), 0.1, "room")
+    monkeypatch.setenv("SUPEREX_MAX_MAP_CELLS", "1200")
+    assert load_map(tmp_path / "room.png").shape == (30, 40)
+    monkeypatch.setenv("SUPEREX_MAX_MAP_CELLS", "lots")
+    with pytest.raises(ValueError, match="SUPEREX_MAX_MAP_CELLS must be a positive integer"):
+        MapFrame((3, 4), 0.1)
+
+
+def test_a_map_yaml_finer_than_a_millimetre_is_refused(tmp_path):
+    import yaml
+    from PIL import Image
+
+    Image.fromarray(np.full((40, 50), 255, np.uint8)).save(tmp_path / "ok.png")
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump({"image": "ok.png", "resolution": 1e-4}))
+    with pytest.raises(ValueError, match="map YAML .* resolution of 0.0001 m per cell, finer than the limit"):
+        load_map(tmp_path / "map.yaml")
+    with pytest.raises(ValueError, match="finer than the limit"):
+        MapFrame((40, 50), 1e-4)
+
+
+@FUZZ
+@given(rows=st.one_of(st.integers(-5, 10 ** 7), st.floats()), cols=st.one_of(st.integers(-5, 10 ** 7), st.floats()))
+@example(rows=200000, cols=200000)
+@example(rows=math.inf, cols=3)
+def test_a_map_frame_of_any_shape_is_built_or_refused(rows, cols):
+    try:
+        frame = MapFrame((rows, cols), 0.1)
+    except ValueError:
+        return
+    assert frame.shape[0] * frame.shape[1] <= max_map_cells()
+
+
+def _record(path, metadata, frame=MapFrame((20, 20), 0.1), steps=1):
+    from superex_deploy.recording import EpisodeRecorder
+
+    with EpisodeRecorder(path, frame, metadata) as recorder:
+        for step in range(steps):
+            observation = Observation(float(step), Pose2D(1.0, 1.0, 7.0), _scan(np.full(RAYS, 1.0)))
+            recorder.write(observation, Command(float(step), None, None, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
+                                                False, False, step=step), np.zeros((20, 20), np.int8))
+
+
+def test_a_recording_with_a_huge_map_frame_is_refused(tmp_path):
+    from superex_deploy.recording import read_recording
+
+    path = tmp_path / "huge.mcap"
+    _record(path, {"frame": {"shape": [200000, 200000], "resolution_m": 0.1, "origin_xy": [0.0, 0.0]}})
+    with pytest.raises(ValueError, match="map frame .* more than the limit of"):
+        read_recording(path)
+
+
+# Row 10: the metadata of a recording has fixed types.
+
+@pytest.mark.parametrize("key, value", [("planner_options", [1, 2]), ("planner_options", "x"), ("seed", "3"),
+                                        ("seed", True), ("planner", 3), ("explorer", []), ("frame", None)])
+def test_recording_metadata_of_the_wrong_type_is_refused(tmp_path, monkeypatch, key, value, capsys):
+    import superex_deploy.recording as recording
+    from superex_deploy.cli import main
+
+    path = tmp_path / "bad.mcap"
+    with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
+        _record(path, {key: value})  # the writer refuses it
+    monkeypatch.setattr(recording, "check_metadata", lambda metadata, where: metadata)
+    _record(path, {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}, key: value})
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
+        recording.read_recording(path)
+    assert main(["replay", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert f"metadata value '{key}' must be" in capsys.readouterr().err
+
+
+# Rows 11, 15: stamps and headings, one rule for the messages, the recorder and the mapper.
+
+@FUZZ
+@given(stamp=st.one_of(ANY_FLOAT, st.integers(-10, 2 ** 40)))
+@example(stamp=-1.0)
+@example(stamp=1e12)
+@example(stamp=MAX_STAMP_S)
+@example(stamp=0.0)
+def test_a_stamp_is_a_ros_time_or_refused_and_every_accepted_one_records(tmp_path, stamp):
+    from superex_deploy.recording import read_recording
+
+    try:
+        observation = Observation(stamp, Pose2D(1.0, 1.0), _scan(np.full(RAYS, 1.0)))
+    except ValueError as error:
+        assert "stamp_s must" in str(error)
+        assert not (isinstance(stamp, (int, float)) and 0 <= stamp <= MAX_STAMP_S and math.isfinite(stamp))
+        return
+    assert 0.0 <= observation.stamp_s <= MAX_STAMP_S
+    from superex_deploy.recording import EpisodeRecorder
+
+    path = tmp_path / "stamp.mcap"
+    with EpisodeRecorder(path, MapFrame((20, 20), 0.1), {}) as recorder:
+        recorder.write(observation, Command(observation.stamp_s, None, None, np.zeros((0, 2)),
+                                            np.zeros((0, 2), np.int64), False, False), np.zeros((20, 20), np.int8))
+    recording = read_recording(path)
+    assert recording.error is None and abs(recording.steps[0].observation.stamp_s - observation.stamp_s) < 1e-6
+
+
+def test_the_recorder_refuses_a_bad_map_stamp(tmp_path):
+    from superex_deploy.recording import EpisodeRecorder
+
+    with EpisodeRecorder(tmp_path / "x.mcap", MapFrame((20, 20), 0.1), {}) as recorder:
+        with pytest.raises(ValueError, match="stamp_s must lie in"):
+            recorder.write_map(np.zeros((20, 20), np.int8), -1.0, 0)
+
+
+@FUZZ
+@given(yaw=ANY_FLOAT)
+@example(yaw=1e18)
+@example(yaw=-math.pi)
+@example(yaw=math.pi)
+@example(yaw=3 * math.pi)
+@example(yaw=MAX_ABS_YAW)
+def test_a_yaw_is_normalised_or_refused(yaw):
+    try:
+        pose = Pose2D(0.0, 0.0, yaw)
+    except ValueError as error:
+        assert "pose.yaw must" in str(error) and not (math.isfinite(yaw) and abs(yaw) <= MAX_ABS_YAW)
+        return
+    assert -math.pi < pose.yaw <= math.pi
+    if -math.pi < yaw <= math.pi:
+        assert pose.yaw == yaw  # kept bit for bit
+    # The same direction, to the precision the input carried.
+    tolerance = 1e-15 * max(1.0, abs(yaw)) * 4
+    assert abs(math.cos(pose.yaw) - math.cos(yaw)) <= tolerance and abs(math.sin(pose.yaw) - math.sin(yaw)) <= tolerance
+
+
+def test_a_normalised_yaw_is_what_is_recorded_and_replayed(tmp_path):
+    from superex_deploy.recording import read_recording
+
+    path = tmp_path / "yaw.mcap"
+    _record(path, {})
+    observation = read_recording(path).steps[0].observation
+    assert observation.pose.yaw == Pose2D(0.0, 0.0, 7.0).yaw == math.remainder(7.0, math.tau)
