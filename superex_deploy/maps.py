@@ -3,17 +3,24 @@
 Bundled maps (``superex_deploy/data/kth``, see its README for provenance and attribution) are 0.1 m/cell,
 8-bit grey PNGs with 0 = wall and 255 = free, plus a ``NAME_valid.png`` mask of the area inside the building
 that coverage is measured against.
+
+Every map is held to the limits of :func:`superex_deploy.messages.check_map_size` (at most
+:func:`~superex_deploy.messages.max_map_cells` cells, ``SUPEREX_MAX_MAP_CELLS`` to change it; no resolution finer
+than 1 mm): an image file is measured by its header, before its pixels are decoded.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal, Union
 
 import numpy as np
+
+from superex_deploy.messages import check_map_size, max_map_cells
 
 __all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start", "DATA_DIR"]
 
@@ -31,6 +38,10 @@ class OccupancyGrid:
         valid: bool ``[H, W]``, True inside the area an exploration can cover (coverage is measured on it).
         resolution_m: metres per cell (> 0).
         name: a human-readable name (the bundled map's name or the file stem).
+
+    Raises:
+        ValueError: arrays of another type or shape, a bad resolution, a map beyond the size limits
+            (:func:`superex_deploy.messages.check_map_size`).
     """
 
     occupied: np.ndarray
@@ -50,6 +61,7 @@ class OccupancyGrid:
         resolution = float(self.resolution_m)
         if not (np.isfinite(resolution) and resolution > 0.0):
             raise ValueError(f"resolution_m must be positive and finite, got {self.resolution_m}")
+        check_map_size(occupied.shape, resolution, f"map {self.name!r}")
         # Read-only contiguous copies: a grid is shared by simulators, mappers and caches keyed on it.
         for field_name, array in (("occupied", occupied), ("valid", valid)):
             array = np.ascontiguousarray(array).copy()
@@ -113,13 +125,26 @@ def map_building(name: str) -> int:
     return int(_manifest()[_split_of(name)][name]["building"])
 
 
-def _read_image(path: Path) -> np.ndarray:
+def _read_image(path: Path, resolution_m: float, source: str) -> np.ndarray:
+    """The pixels of an image file, after checking its size (read from the header) against the map limits."""
     from PIL import Image, UnidentifiedImageError
 
+    limit = max_map_cells()
+    if Image.MAX_IMAGE_PIXELS is not None and Image.MAX_IMAGE_PIXELS < limit:
+        # PIL's decompression-bomb guard must not refuse what SUPEREX_MAX_MAP_CELLS allows: ours is the guard.
+        Image.MAX_IMAGE_PIXELS = limit
     try:
-        with Image.open(path) as image:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # refused below, with the limit named
+            image = Image.open(path)
+        with image:
+            width, height = image.size  # from the header: nothing is decoded yet
+            check_map_size((height, width), resolution_m, source)
             image = image.convert("L") if image.mode not in ("L", "I", "I;16", "F") else image
             pixels = np.asarray(image)
+    except Image.DecompressionBombError as error:  # PIL's guard: above twice our limit
+        raise ValueError(f"{source}: {error}; more than the limit of {limit:,} map cells (the environment variable "
+                         f"SUPEREX_MAX_MAP_CELLS raises it)") from None
     except (UnidentifiedImageError, OSError) as error:
         raise ValueError(f"cannot read image {path}: {error}") from None
     if pixels.ndim != 2 or min(pixels.shape) < 1:
@@ -135,13 +160,15 @@ def _normalised(pixels: np.ndarray) -> np.ndarray:
 
 
 def _grid_from_image(path: Path, resolution_m: float, occupied_thresh: float = 0.65, negate: bool = False,
-                     valid_path: Path | None = None, name: str | None = None) -> OccupancyGrid:
+                     valid_path: Path | None = None, name: str | None = None,
+                     source: str | None = None) -> OccupancyGrid:
     # ROS map_server semantics: occupancy probability p = (255 - v) / 255 (or v / 255 when negated).
-    brightness = _normalised(_read_image(path))
+    source = source or f"map image {path}"
+    brightness = _normalised(_read_image(path, resolution_m, source))
     occupancy = brightness if negate else 1.0 - brightness
     occupied = occupancy > occupied_thresh
     if valid_path is not None and valid_path.exists():
-        valid_pixels = _read_image(valid_path)
+        valid_pixels = _read_image(valid_path, resolution_m, f"valid mask {valid_path}")
         if valid_pixels.shape != occupied.shape:
             raise ValueError(f"valid mask {valid_path} has shape {valid_pixels.shape}, map has {occupied.shape}")
         valid = valid_pixels > 127
@@ -177,7 +204,8 @@ def _load_ros_yaml(path: Path) -> OccupancyGrid:
     if not (isinstance(negate, bool) or (isinstance(negate, (int, float)) and negate in (0, 1))):
         raise ValueError(f"map YAML {path}: negate must be 0 or 1, got {negate!r}")
     negate = bool(negate)
-    return _grid_from_image(image_path, resolution, occupied_thresh, negate, name=path.stem)
+    return _grid_from_image(image_path, resolution, occupied_thresh, negate, name=path.stem,
+                            source=f"map YAML {path} (image {image_path})")
 
 
 def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> OccupancyGrid:
@@ -194,7 +222,8 @@ def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> Occup
         The :class:`OccupancyGrid`.
 
     Raises:
-        ValueError: missing file, unreadable image, empty or 1-D image, resolution <= 0, malformed YAML.
+        ValueError: missing file, unreadable image, empty or 1-D image, resolution <= 0, malformed YAML, a map
+            beyond the size limits (:func:`superex_deploy.messages.check_map_size`; checked on the image header).
     """
     key = str(name_or_path)
     if not isinstance(name_or_path, Path) and key in set(_manifest()["eval"]) | set(_manifest()["train"]):

@@ -12,6 +12,21 @@ Cell ``(r, c)`` covers ``x in [ox + c res, ox + (c + 1) res)`` and ``y in [oy + 
 Internally the grid geometry (:mod:`superex_deploy.geometry`) uses continuous ``(y, x)`` in cells with ``y`` *down*
 and angles measured towards ``+row``; a map-frame heading ``phi`` is the grid angle ``-phi``.
 
+Limits
+------
+What enters here is refused with one ``ValueError`` before anything is allocated or integrated:
+
+* **Map size**: a grid of more than :func:`max_map_cells` cells (default :data:`MAX_MAP_CELLS`, 25 million: 5000 x
+  5000 cells, 500 m square at 0.1 m; the environment variable ``SUPEREX_MAX_MAP_CELLS`` raises or lowers it), or a
+  resolution finer than :data:`MIN_RESOLUTION_M` (1 mm: the planner's per-cell neighbourhoods, robot radius and
+  wall-cost range, are counted in cells, and at 0.1 mm the wall-cost disc alone holds 4e8 cells). The map loader
+  (:func:`superex_deploy.maps.load_map`) applies the same rule to an image's header before decoding its pixels.
+* **Time stamps** (:func:`check_stamp`): finite, ``>= 0`` and at most :data:`MAX_STAMP_S` (``2**31 - 1`` s: the
+  ``int32`` seconds of a ROS 2 ``builtin_interfaces/Time``, so that every observation can be recorded).
+* **Headings** (:class:`Pose2D`): finite and ``|yaw| <= MAX_ABS_YAW`` (1e6 rad; beyond, a float64 angle is
+  coarser than 1e-10 rad and its direction is noise), normalised to ``(-pi, pi]`` (a yaw already there is kept
+  bit for bit).
+
 Precision
 ---------
 Fields that ``sensor_msgs/LaserScan`` holds as ``float32`` (angles, range limits, ranges) are stored at float32
@@ -22,12 +37,26 @@ one the explorer saw.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-__all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command", "grid_angles"]
+__all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command", "grid_angles",
+           "MAX_MAP_CELLS", "MAX_MAP_CELLS_ENV", "MIN_RESOLUTION_M", "MAX_STAMP_S", "MAX_ABS_YAW", "max_map_cells",
+           "check_map_size", "check_stamp"]
+
+MAX_MAP_CELLS = 25_000_000
+"""Default limit on a map's cells (rows x cols); see :func:`max_map_cells`."""
+MAX_MAP_CELLS_ENV = "SUPEREX_MAX_MAP_CELLS"
+"""The environment variable that replaces :data:`MAX_MAP_CELLS` (a positive integer)."""
+MIN_RESOLUTION_M = 1e-3
+"""The finest map resolution accepted (metres per cell)."""
+MAX_STAMP_S = float(2 ** 31 - 1)
+"""The latest time stamp accepted (seconds): the largest ``int32`` seconds of a ROS 2 time."""
+MAX_ABS_YAW = 1e6
+"""The largest heading magnitude accepted (radians) before normalisation to ``(-pi, pi]``."""
 
 
 def grid_angles(yaw: float, robot_angles: np.ndarray) -> np.ndarray:
@@ -56,13 +85,79 @@ def _float32(name: str, value) -> float:
     return float(rounded)
 
 
+def max_map_cells() -> int:
+    """The limit on a map's cells: ``$SUPEREX_MAX_MAP_CELLS`` if set, else :data:`MAX_MAP_CELLS`.
+
+    Raises:
+        ValueError: the environment variable is set but not a positive integer.
+    """
+    text = os.environ.get(MAX_MAP_CELLS_ENV, "").strip()
+    if not text:
+        return MAX_MAP_CELLS
+    try:
+        limit = int(text)
+    except ValueError:
+        limit = 0
+    if limit < 1:
+        raise ValueError(f"{MAX_MAP_CELLS_ENV} must be a positive integer (a number of map cells), got {text!r}")
+    return limit
+
+
+def check_map_size(shape, resolution_m: float, what: str = "the map") -> None:
+    """Refuse a map of more than :func:`max_map_cells` cells or finer than :data:`MIN_RESOLUTION_M`.
+
+    Args:
+        shape: ``(rows, cols)`` (positive integers).
+        resolution_m: metres per cell (finite, > 0).
+        what: how the message names the map.
+
+    Raises:
+        ValueError: naming the limit and how to change it.
+    """
+    rows, cols = (int(n) for n in shape)
+    limit = max_map_cells()
+    if rows * cols > limit:
+        raise ValueError(f"{what} has {rows} x {cols} = {rows * cols:,} cells, more than the limit of {limit:,} "
+                         f"cells; set the environment variable {MAX_MAP_CELLS_ENV} to raise it (memory grows by "
+                         f"about 100 bytes per cell)")
+    if resolution_m < MIN_RESOLUTION_M:
+        raise ValueError(f"{what} has a resolution of {resolution_m} m per cell, finer than the limit of "
+                         f"{MIN_RESOLUTION_M} m: the planner's neighbourhoods (robot radius, wall-cost range) are "
+                         f"counted in cells and would not fit in memory")
+
+
+def check_stamp(name: str, value) -> float:
+    """A time stamp (seconds) as a float: finite, ``>= 0`` and at most :data:`MAX_STAMP_S`.
+
+    Raises:
+        ValueError: any other value.
+    """
+    value = _finite(name, value)
+    if not 0.0 <= value <= MAX_STAMP_S:
+        raise ValueError(f"{name} must lie in [0, {MAX_STAMP_S:.0f}] seconds (a ROS time: int32 seconds since "
+                         f"the epoch), got {value}")
+    return value
+
+
+def _heading(name: str, value) -> float:
+    """A yaw (radians) normalised to ``(-pi, pi]``; one there already is returned unchanged."""
+    value = _finite(name, value)
+    if -math.pi < value <= math.pi:
+        return value
+    if abs(value) > MAX_ABS_YAW:
+        raise ValueError(f"{name} must satisfy |yaw| <= {MAX_ABS_YAW:g} rad (beyond, a float64 angle has no "
+                         f"usable direction), got {value}")
+    value = math.remainder(value, math.tau)  # exact; in [-pi, pi]
+    return math.pi if value <= -math.pi else value
+
+
 @dataclass(frozen=True)
 class MapFrame:
     """The grid the explorer keeps its map in (``nav_msgs/MapMetaData``).
 
     Attributes:
-        shape: ``(rows, cols)`` of the grid.
-        resolution_m: metres per cell (> 0).
+        shape: ``(rows, cols)`` of the grid (at most :func:`max_map_cells` cells).
+        resolution_m: metres per cell (at least :data:`MIN_RESOLUTION_M`).
         origin_xy: map-frame position (metres) of the grid's lower-left corner.
     """
 
@@ -74,7 +169,7 @@ class MapFrame:
         try:
             shape = tuple(int(n) for n in self.shape)
             integral = all(int(n) == n for n in self.shape)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"shape must be a (rows, cols) pair of integers, got {self.shape!r}") from None
         if len(shape) != 2 or min(shape) < 1 or not integral:
             raise ValueError(f"shape must be a positive (rows, cols) pair of integers, got {self.shape!r}")
@@ -87,6 +182,7 @@ class MapFrame:
             raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}") from None
         if len(origin) != 2:
             raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}")
+        check_map_size(shape, resolution, "the map frame")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "resolution_m", resolution)
         object.__setattr__(self, "origin_xy", origin)
@@ -141,8 +237,9 @@ class Pose2D:
     """A planar pose in the map frame (``geometry_msgs/Pose2D``).
 
     Attributes:
-        x, y: position (metres).
-        yaw: heading (radians, counter-clockwise from ``+x``).
+        x, y: position (metres, finite).
+        yaw: heading (radians, counter-clockwise from ``+x``): finite with ``|yaw| <= MAX_ABS_YAW``, stored
+            normalised to ``(-pi, pi]`` (a heading already there is kept unchanged).
     """
 
     x: float
@@ -150,8 +247,9 @@ class Pose2D:
     yaw: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("x", "y", "yaw"):
+        for name in ("x", "y"):
             object.__setattr__(self, name, _finite(f"pose.{name}", getattr(self, name)))
+        object.__setattr__(self, "yaw", _heading("pose.yaw", self.yaw))
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,8 +257,15 @@ class LaserScan:
     """One line-of-sight scan (``sensor_msgs/LaserScan``), in the robot's frame.
 
     Ray ``i`` points at ``angle_min + i * angle_increment`` (radians, counter-clockwise from the robot's heading).
-    A range in ``[range_min, range_max]`` is a return: the sensor saw a surface at that distance. ``inf`` (or NaN,
-    or a value outside the limits) is no return: the ray saw nothing up to ``range_max``.
+    Ranges follow REP 117:
+
+    * in ``[range_min, range_max]``: a return, the sensor saw a surface at that distance;
+    * ``+inf`` or above ``range_max``: no return, the ray saw nothing up to ``range_max`` (free up to there);
+    * NaN (no measurement), ``-inf`` or below ``range_min`` (too close): an invalid reading, the ray says nothing
+      and is skipped.
+
+    Ranges are stored as float32: a float64 range beyond float32's span becomes ``+inf`` (no return) or ``-inf``
+    (invalid), as the rules above read it.
 
     Attributes:
         angle_min: angle of the first ray (radians).
@@ -200,7 +305,8 @@ class LaserScan:
                 raise ValueError(f"scan has {ranges.size} ranges, but its angles from {self.angle_min} to {angle_max} "
                                  f"rad at {self.angle_increment} rad need {expected}")
         object.__setattr__(self, "angle_max", derived)
-        ranges = ranges.astype(np.float32)
+        with np.errstate(over="ignore"):  # beyond float32: +-inf, read as above (no return / invalid)
+            ranges = ranges.astype(np.float32)
         ranges.flags.writeable = False
         object.__setattr__(self, "ranges", ranges)
 
@@ -305,7 +411,7 @@ class Observation:
     """What the robot measures at one step: everything :meth:`superex_deploy.onboard.Explorer.step` receives.
 
     Attributes:
-        stamp_s: time stamp (seconds).
+        stamp_s: time stamp (seconds; see :func:`check_stamp`: finite, in ``[0, MAX_STAMP_S]``).
         pose: the robot's pose in the map frame (where both scans were taken).
         scan: the line-of-sight scan.
         spad: the SPAD frame, or None (no NLOS sensing this step).
@@ -317,7 +423,7 @@ class Observation:
     spad: Optional[SpadFrame] = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "stamp_s", _finite("stamp_s", self.stamp_s))
+        object.__setattr__(self, "stamp_s", check_stamp("stamp_s", self.stamp_s))
         if not isinstance(self.pose, Pose2D):
             raise ValueError(f"pose must be a Pose2D, got {type(self.pose).__name__}")
         if not isinstance(self.scan, LaserScan):
@@ -332,12 +438,14 @@ class Command:
 
     Attributes:
         stamp_s: the observation's time stamp (seconds).
-        goal_xy: map-frame goal (metres), or None (no goal: exploration is finished).
+        goal_xy: map-frame goal (metres), or None (no goal: see ``finished``).
         goal_rc: the goal cell ``(row, col)``, or None.
         path_xy: float64 ``[N, 2]`` map-frame waypoints (metres) from the robot's cell to the goal (cell centres;
             empty without a goal).
         path_rc: int64 ``[N, 2]`` the same waypoints as cells.
-        finished: True when no reachable frontier is left.
+        finished: True when the explorer's map holds known cells and no reachable frontier is left: the
+            exploration is over. False while a goal is set, and also without a goal while the map is still empty
+            (no observation so far had a valid reading): the next observation may see something.
         new_goal: True when the goal was chosen at this step.
         prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
             the planner has not needed one yet.

@@ -16,13 +16,17 @@ topic         type                                content
 ============  ==================================  =====================================================================
 
 A metadata record ``superex.episode`` holds what a replay needs to rebuild the explorer (map frame, planner and its
-options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string. The SPAD
+options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string whose type is
+fixed (:data:`METADATA_TYPES`; checked when writing and when reading). The SPAD
 frame's arrays are little-endian byte blobs (``uint8[]``): the CDR encoders write numeric arrays element by element,
 and a frame holds ~160,000 non-zero bins.
 
 The file is written to ``PATH.part`` and renamed to ``PATH`` when the episode ends; an episode that fails leaves no
 file behind. :func:`read_recording` reads the messages in order and stops at the first broken one (a truncated
 file), saying which, and keeps every complete step before it.
+
+Time stamps are those of :class:`~superex_deploy.messages.Observation` (finite, in ``[0, 2**31 - 1]`` s), so every
+one fits the ``int32`` seconds of a ROS 2 time; yaws are already normalised to ``(-pi, pi]`` there.
 """
 
 from __future__ import annotations
@@ -37,13 +41,43 @@ from typing import Optional, Union
 
 import numpy as np
 
-from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
+from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, check_stamp
 
-__all__ = ["FORMAT_VERSION", "SPAD_FRAME_MSG", "EXPLORER_COMMAND_MSG", "EpisodeRecorder", "RecordedStep",
-           "Recording", "read_recording"]
+__all__ = ["FORMAT_VERSION", "SPAD_FRAME_MSG", "EXPLORER_COMMAND_MSG", "METADATA_TYPES", "EpisodeRecorder",
+           "RecordedStep", "Recording", "read_recording", "check_metadata"]
 
 FORMAT_VERSION = "1"
 METADATA_NAME = "superex.episode"
+METADATA_TYPES: dict = {"format_version": (str,), "frame": (dict,), "map": (str,), "planner": (str,),
+                        "planner_options": (dict, type(None)), "predictor": (str,), "seed": (int,), "spad": (bool,),
+                        "models": (str, type(None)), "sensor": (dict, type(None)), "nlos": (dict, type(None)),
+                        "explorer": (dict,), "profile": (str, type(None)), "profile_settings": (dict,)}
+"""The JSON type of each known ``superex.episode`` value (JSON objects are dicts; other keys are free)."""
+
+
+def check_metadata(metadata: dict, where: str) -> dict:
+    """Refuse metadata whose known values (:data:`METADATA_TYPES`) have another type.
+
+    Args:
+        metadata: the decoded values.
+        where: what the message names (the recording's path).
+
+    Returns:
+        ``metadata``.
+
+    Raises:
+        ValueError: naming the first value of the wrong type.
+    """
+    for key, types in METADATA_TYPES.items():
+        if key not in metadata:
+            continue
+        value = metadata[key]
+        if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+            names = " or ".join("null" if t is type(None) else {dict: "object", str: "string", int: "integer",
+                                                                  bool: "true/false"}[t] for t in types)
+            raise ValueError(f"{where}: the {METADATA_NAME!r} metadata value {key!r} must be {names}, got "
+                             f"{type(value).__name__} {value!r:.80}")
+    return metadata
 
 _SEPARATOR = "=" * 80 + "\n"
 _HEADER = """MSG: std_msgs/Header
@@ -205,9 +239,9 @@ class EpisodeRecorder:
         if int(map_every) < 1:
             raise ValueError(f"map_every must be >= 1, got {map_every}")
         self.frame, self.map_every = frame, int(map_every)
-        values = {"format_version": FORMAT_VERSION,
-                  "frame": {"shape": list(frame.shape), "resolution_m": frame.resolution_m,
-                            "origin_xy": list(frame.origin_xy)}, **metadata}
+        values = check_metadata({"format_version": FORMAT_VERSION,
+                                 "frame": {"shape": list(frame.shape), "resolution_m": frame.resolution_m,
+                                           "origin_xy": list(frame.origin_xy)}, **metadata}, f"--record {path}")
         try:
             encoded = {key: json.dumps(value) for key, value in values.items()}
         except TypeError as error:
@@ -272,6 +306,7 @@ class EpisodeRecorder:
         with the last recorded step unless told otherwise (once per step at most)."""
         if stamp_s is None or step is None:
             stamp_s, step = self._last
+        stamp_s = check_stamp("stamp_s", stamp_s)
         if step == self._last_map_step:
             return
         observed = np.asarray(observed)
@@ -341,9 +376,10 @@ def _metadata(data: bytes, path: Path) -> dict:
         for record in reader.iter_metadata():
             if record.name == METADATA_NAME:
                 try:
-                    return {key: json.loads(value) for key, value in record.metadata.items()}
+                    metadata = {key: json.loads(value) for key, value in record.metadata.items()}
                 except json.JSONDecodeError as error:
                     raise ValueError(f"{path}: the {METADATA_NAME!r} metadata is not JSON ({error})") from None
+                return check_metadata(metadata, str(path))
     except ValueError:
         raise
     except Exception:  # the metadata comes first: a file broken before it holds nothing usable
@@ -358,8 +394,9 @@ def read_recording(path: Union[str, Path]) -> Recording:
     record); :attr:`Recording.error` then names it, and :attr:`Recording.steps` holds every complete step before it.
 
     Raises:
-        ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, another format
-            version.
+        ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, metadata values of
+            the wrong type (:data:`METADATA_TYPES`), another format version, a map frame beyond the size limits
+            (:func:`superex_deploy.messages.check_map_size`).
     """
     from mcap.reader import NonSeekingReader
     from mcap_ros2.decoder import DecoderFactory

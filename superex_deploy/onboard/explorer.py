@@ -3,7 +3,8 @@
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
 1. **scan**: the line-of-sight ranges are integrated into the explorer's own map (free along each ray, occupied at
-   its return; :func:`superex_deploy.geometry.mark_ranges`);
+   its return; :func:`superex_deploy.geometry.mark_ranges`; invalid readings, REP 117's NaN and too-close ranges,
+   are skipped: see :class:`~superex_deploy.messages.LaserScan`);
 2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.spad_processing.SpadProcessing`):
    carved free cells join the map, the back-projection evidence is kept for the predictor;
 3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
@@ -19,12 +20,15 @@ How the predictor runs is configured, not fixed (issue #16): inside the asking s
 when enough changed (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
 
 The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell; the robot
-drives along it and sends the next observation from wherever it stopped. Exploration is finished when no goal is
-left in any tier. The explorer is deterministic for a seed (the seed feeds only the planner's generator).
+drives along it and sends the next observation from wherever it stopped. Exploration is **finished** when the map
+holds known cells and no goal is left in any tier; while the map is still empty (every reading so far was invalid)
+a step answers no goal and not finished, since the next scan may see something. The explorer is deterministic for a
+seed (the seed feeds only the planner's generator).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -36,7 +40,8 @@ from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.types import FREE, OCCUPIED, Frontier, MapPredictor, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import (FREE, OCCUPIED, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
+                                          Prediction)
 from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing
@@ -229,7 +234,9 @@ class Explorer:
     """Chooses where to go next from the robot's measurements alone.
 
     Build one per episode; feed it one :class:`~superex_deploy.messages.Observation` per step and drive along the
-    :class:`~superex_deploy.messages.Command` it returns.
+    :class:`~superex_deploy.messages.Command` it returns, until one says ``finished`` (the map holds known cells and
+    no reachable frontier is left; no goal while the map is still empty is not finished). One caller at a time: a
+    :meth:`step` called while another runs (another thread) raises ``RuntimeError`` instead of interleaving them.
 
     Args:
         frame: the grid the explorer keeps its map in (shape, resolution, origin).
@@ -247,6 +254,7 @@ class Explorer:
         goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
         path: cells from the robot to the goal.
         steps: observations processed so far.
+        finished: whether the latest step found the exploration finished (see above).
         reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
     """
@@ -276,6 +284,7 @@ class Explorer:
         self.path: list[tuple[int, int]] = []
         self.steps = 0
         self.finished = False
+        self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
         self._reach_cells = cfg.motion.goal_reached_m / frame.resolution_m
         self._radius_cells = cfg.motion.robot_radius_m / frame.resolution_m
@@ -395,15 +404,25 @@ class Explorer:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
 
     def step(self, obs: Observation) -> Command:
-        """Integrate one observation and return where to go.
+        """Integrate one observation and return where to go (``finished``: see :class:`Explorer`).
 
         Raises:
             ValueError: not an Observation, a pose outside the map, a SPAD frame that does not match the sensor
                 model.
-            RuntimeError: the planner returned a goal that no path reaches (a planner bug).
+            RuntimeError: another call of ``step`` is running (one caller at a time), the explorer was closed, or
+                the planner returned a goal that no path reaches (a planner bug).
         """
         if not isinstance(obs, Observation):
             raise ValueError(f"step() takes an Observation, got {type(obs).__name__}")
+        if not self._stepping.acquire(blocking=False):
+            raise RuntimeError("Explorer.step() is already running (called from another thread): an explorer takes "
+                               "one caller at a time; serialise the calls or use one explorer per thread")
+        try:
+            return self._step(obs)
+        finally:
+            self._stepping.release()
+
+    def _step(self, obs: Observation) -> Command:
         if getattr(self, "_closed", False):
             raise RuntimeError("this explorer was closed")
         pose = self._pose_cell(obs)
@@ -433,7 +452,10 @@ class Explorer:
             prediction = _LazyPrediction(self._predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
         self.steps += 1
-        new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+        if np.any(observed != UNKNOWN):
+            new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+        else:  # nothing measured yet (every reading invalid): no goal, and not finished
+            new_goal, self.finished = False, False
         timings["prediction"] += waited
         if self._worker is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t

@@ -44,8 +44,8 @@ class Mapper:
 
         A range in ``[range_min, range_max]`` is a return; ``+inf`` or a range above ``range_max`` is no return
         (free up to ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
-        close, or a dropout) and the ray is skipped. Angles are turned from the robot's frame (counter-clockwise
-        from its heading) into grid angles.
+        close, or a dropout) and the ray is skipped, so a scan without a valid reading leaves the map as it was.
+        Angles are turned from the robot's frame (counter-clockwise from its heading) into grid angles.
 
         Raises:
             ValueError: a frame of another shape, a pose outside the map.

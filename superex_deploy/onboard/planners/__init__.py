@@ -53,12 +53,18 @@ _CONFIGS = {HectorPlanner: HectorConfig, UpenPlanner: UpenConfig, MapexPlanner: 
 
 
 def make_planner(name: str, **config_overrides) -> Planner:
-    """Create a planner by name (``nearest``, ``hector``, ``upen``, ``mapex``), overriding its config fields.
+    """Create a planner by name (``nearest``, ``hector``, ``upen``, ``mapex``, ``superex``), overriding its config
+    fields.
+
+    Every override is checked here, by the config's own checks (type, finiteness, range:
+    :mod:`~superex_deploy.onboard.planners.config_checks`), so that a bad option stops a run before its episode
+    starts.
 
     Raises:
-        ValueError: an unknown name (the message lists the valid ones), or overrides the config does not take.
+        ValueError: an unknown name (the message lists the valid ones), overrides the config does not take, or a
+            bad value (the message names the field and what it takes).
     """
-    if name not in PLANNERS:
+    if not isinstance(name, str) or name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose one of {', '.join(sorted(PLANNERS))}")
     planner_class = PLANNERS[name]
     config_class = _CONFIGS.get(planner_class)
@@ -68,6 +74,6 @@ def make_planner(name: str, **config_overrides) -> Planner:
         return planner_class()
     try:
         config = replace(config_class(), **config_overrides)
-    except TypeError as error:
+    except (TypeError, ValueError) as error:
         raise ValueError(f"bad configuration for planner {name!r}: {error}") from None
     return planner_class(config)

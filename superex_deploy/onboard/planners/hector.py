@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.planners.config_checks import check_instance, check_real
 from superex_deploy.onboard.types import Planner, PlanningContext, Prediction
 from superex_deploy.onboard.visibility import (VisibilityConfig, best_frontier, connected_unknown_gains,
                                                reachable_frontiers, visible_gains)
@@ -23,8 +24,12 @@ class HectorConfig:
             or None for MapEx's code path, which skips the raycast and counts the whole predicted-free region
             connected to the frontier (:func:`connected_unknown_gains`).
         info_gain_weight: weight ``w`` of ``floor(w * (sqrt(max IG) - sqrt(IG)))`` against travel cost
-            (MapEx: 200).
-        wall_threshold: binarisation of the prediction for the connected region (MapEx: 0.5).
+            (MapEx: 200; finite, >= 0).
+        wall_threshold: binarisation of the prediction for the connected region (MapEx: 0.5; in ``[0, 1]``).
+
+    Raises:
+        ValueError: a field of another type or out of its range, named (see
+            :mod:`~superex_deploy.onboard.planners.config_checks`).
     """
 
     visibility: Optional[VisibilityConfig] = field(default_factory=VisibilityConfig)
@@ -32,8 +37,9 @@ class HectorConfig:
     wall_threshold: float = 0.5
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.info_gain_weight) and self.info_gain_weight >= 0):
-            raise ValueError(f"info_gain_weight must be finite and >= 0, got {self.info_gain_weight}")
+        check_instance("visibility", self.visibility, VisibilityConfig, allow_none=True)
+        object.__setattr__(self, "info_gain_weight", check_real("info_gain_weight", self.info_gain_weight, 0.0))
+        object.__setattr__(self, "wall_threshold", check_real("wall_threshold", self.wall_threshold, 0.0, 1.0))
 
 
 class HectorPlanner(Planner):
@@ -58,7 +64,7 @@ class HectorPlanner(Planner):
     name = "hector"
 
     def __init__(self, cfg: HectorConfig = HectorConfig()):
-        self.cfg = cfg
+        self.cfg = check_instance("cfg", cfg, HectorConfig)
 
     def information_gain(self, prediction: Prediction, observed: np.ndarray, cells_rc,
                          resolution_m: float) -> np.ndarray:

@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_real
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
 from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers, visible_gains
 
@@ -22,8 +23,12 @@ class MapexConfig:
         distance: the divisor: ``"travel"`` (default), the cost-to-go of the planning map (path length weighted
             by the wall-proximity cost), or ``"euclidean"``, the straight-line distance from the robot to the
             frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
-        min_distance_cells: floor on the divisor. Frontiers within the goal tolerance (1 m) are never offered,
-            so it only guards against a zero distance.
+        min_distance_cells: floor on the divisor (positive, finite). Frontiers within the goal tolerance (1 m)
+            are never offered, so it only guards against a zero distance.
+
+    Raises:
+        ValueError: a field of another type or out of its range, named (see
+            :mod:`~superex_deploy.onboard.planners.config_checks`).
     """
 
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
@@ -31,10 +36,10 @@ class MapexConfig:
     min_distance_cells: float = 1.0
 
     def __post_init__(self) -> None:
-        if not self.min_distance_cells > 0:
-            raise ValueError(f"min_distance_cells must be positive, got {self.min_distance_cells}")
-        if self.distance not in ("travel", "euclidean"):
-            raise ValueError(f"MapexConfig.distance must be 'travel' or 'euclidean', got {self.distance!r}")
+        check_instance("visibility", self.visibility, VisibilityConfig)
+        check_choice("distance", self.distance, ("travel", "euclidean"))
+        object.__setattr__(self, "min_distance_cells",
+                           check_real("min_distance_cells", self.min_distance_cells, 0.0, low_open=True))
 
 
 class MapexPlanner(Planner):
@@ -57,7 +62,7 @@ class MapexPlanner(Planner):
     reads_variance = True
 
     def __init__(self, cfg: MapexConfig = MapexConfig()):
-        self.cfg = cfg
+        self.cfg = check_instance("cfg", cfg, MapexConfig)
 
     def information(self, prediction: Prediction, observed: np.ndarray, cells_rc, resolution_m: float
                     ) -> np.ndarray:

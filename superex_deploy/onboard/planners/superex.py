@@ -30,11 +30,17 @@ import numpy as np
 
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
+from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
 from superex_deploy.onboard.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
                                                union_visible_unknown, visible_gains)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
+
+MAX_RAYS = 100_000
+"""The most rays a visibility cast takes (0.06 mm apart at 20 m): its arrays grow with them."""
+MAX_ROLLOUT_CELL_M = 10.0
+"""The largest rollout cell (metres): the rollout world is padded to a whole number of cells."""
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,13 @@ class SuperexConfig:
         rollout_cell_m: side of a rollout cell (metres; a whole number of map cells).
         rollout_frontier_cells: smallest frontier region (rollout cells) and gain a rollout goes for.
         tour_frontiers: frontiers in a tour (``choice="tour"``; at most 18 keeps the solver exact).
+
+    Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
+    ``[3, MAX_RAYS]``, ``rollout_cell_m`` at most :data:`MAX_ROLLOUT_CELL_M`.
+
+    Raises:
+        ValueError: a field of another type or out of its range, named (see
+            :mod:`~superex_deploy.onboard.planners.config_checks`).
     """
 
     gain: str = "path"
@@ -79,27 +92,23 @@ class SuperexConfig:
     tour_frontiers: int = 18
 
     def __post_init__(self) -> None:
-        if self.gain not in ("path", "goal"):
-            raise ValueError(f"gain must be 'path' or 'goal', got {self.gain!r}")
-        if self.choice not in ("greedy", "rollout", "tour"):
-            raise ValueError(f"choice must be 'greedy', 'rollout' or 'tour', got {self.choice!r}")
-        if not 0.0 < self.wall_threshold <= 1.0:
-            raise ValueError(f"wall_threshold must lie in (0, 1], got {self.wall_threshold}")
-        for name in ("sense_every_m", "range_m", "horizon_m", "rollout_cell_m"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
-        if self.drop_resolved_m is not None and not (np.isfinite(self.drop_resolved_m)
-                                                     and self.drop_resolved_m >= 0):
-            raise ValueError(f"drop_resolved_m must be None or finite and >= 0, got {self.drop_resolved_m}")
-        for name, low in (("n_rays", 3), ("candidates", 1), ("rollout_goals", 0), ("rollout_frontier_cells", 1),
+        check_choice("gain", self.gain, ("path", "goal"))
+        check_choice("choice", self.choice, ("greedy", "rollout", "tour"))
+        values = {"wall_threshold": check_real("wall_threshold", self.wall_threshold, 0.0, 1.0, low_open=True),
+                  "drop_resolved_m": check_real("drop_resolved_m", self.drop_resolved_m, 0.0, allow_none=True),
+                  "rollout_cell_m": check_real("rollout_cell_m", self.rollout_cell_m, 0.0, MAX_ROLLOUT_CELL_M,
+                                               low_open=True),
+                  "n_rays": check_int("n_rays", self.n_rays, 3, MAX_RAYS)}
+        for name in ("sense_every_m", "range_m", "horizon_m"):
+            values[name] = check_real(name, getattr(self, name), 0.0, low_open=True)
+        for name, low in (("candidates", 1), ("rollout_goals", 0), ("rollout_frontier_cells", 1),
                           ("tour_frontiers", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value}")
-        if self.tour_frontiers > 18:
+            values[name] = check_int(name, getattr(self, name), low)
+        if values["tour_frontiers"] > 18:
             raise ValueError(f"tour_frontiers must be at most 18 (the solver is exact up to 20 nodes), got "
                              f"{self.tour_frontiers}")
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
 
 
 @dataclass(frozen=True)
@@ -302,7 +311,7 @@ class SuperexPlanner(Planner):
     name = "superex"
 
     def __init__(self, cfg: SuperexConfig = SuperexConfig()):
-        self.cfg = cfg
+        self.cfg = check_instance("cfg", cfg, SuperexConfig)
         self._resolution_m = 0.1
 
     def keep_goal(self, observed: np.ndarray, pose_rc, goal_rc, steps_since_chosen: int) -> bool:

@@ -9,11 +9,16 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.onboard.planners.config_checks import check_instance, check_int, check_real
 from superex_deploy.onboard.types import OCCUPIED, Planner, PlanningContext
 from superex_deploy.onboard.planners.nearest import NearestFrontier
 from superex_deploy.onboard.visibility import check_cells, check_map
 
-__all__ = ["RandomTree", "grow_rrt", "UpenConfig", "UpenPlanner"]
+__all__ = ["RandomTree", "grow_rrt", "UpenConfig", "UpenPlanner", "MAX_RRT_SAMPLES"]
+
+MAX_RRT_SAMPLES = 1_000_000
+"""The most RRT samples a UPEN planner takes: its tree's arrays grow with them, its nearest-node search with
+their square (400 times MapEx's 2500)."""
 
 
 @numba.njit(cache=True)
@@ -175,11 +180,15 @@ class UpenConfig:
     """UPEN (Georgakis et al., ICRA 2022) as MapEx runs it (``upen_config`` of its ``base.yaml``).
 
     Attributes:
-        rrt_samples: RRT iterations (MapEx: 2500).
-        expand_cells: RRT step length in cells (MapEx: 5).
-        reach_horizon: the longest path scored, in RRT edges (MapEx: 50).
+        rrt_samples: RRT iterations (MapEx: 2500; an integer in ``[1, MAX_RRT_SAMPLES]``).
+        expand_cells: RRT step length in cells (MapEx: 5; positive, finite).
+        reach_horizon: the longest path scored, in RRT edges (MapEx: 50; an integer >= 1).
         min_goal_distance_m: a goal this close to the robot counts as reached already (MapEx's
-            ``cur_pose_dist_threshold_m``: 1 m).
+            ``cur_pose_dist_threshold_m``: 1 m; finite, >= 0).
+
+    Raises:
+        ValueError: a field of another type or out of its range, named (see
+            :mod:`~superex_deploy.onboard.planners.config_checks`).
     """
 
     rrt_samples: int = 2500
@@ -188,14 +197,11 @@ class UpenConfig:
     min_goal_distance_m: float = 1.0
 
     def __post_init__(self) -> None:
-        if int(self.rrt_samples) != self.rrt_samples or self.rrt_samples < 1:
-            raise ValueError(f"rrt_samples must be an integer >= 1, got {self.rrt_samples}")
-        if not (np.isfinite(self.expand_cells) and self.expand_cells > 0):
-            raise ValueError(f"expand_cells must be positive, got {self.expand_cells}")
-        if int(self.reach_horizon) != self.reach_horizon or self.reach_horizon < 1:
-            raise ValueError(f"reach_horizon must be an integer >= 1, got {self.reach_horizon}")
-        if not self.min_goal_distance_m >= 0:
-            raise ValueError(f"min_goal_distance_m must be >= 0, got {self.min_goal_distance_m}")
+        object.__setattr__(self, "rrt_samples", check_int("rrt_samples", self.rrt_samples, 1, MAX_RRT_SAMPLES))
+        object.__setattr__(self, "expand_cells", check_real("expand_cells", self.expand_cells, 0.0, low_open=True))
+        object.__setattr__(self, "reach_horizon", check_int("reach_horizon", self.reach_horizon, 1))
+        object.__setattr__(self, "min_goal_distance_m",
+                           check_real("min_goal_distance_m", self.min_goal_distance_m, 0.0))
 
 
 class UpenPlanner(Planner):
@@ -227,7 +233,7 @@ class UpenPlanner(Planner):
     reads_variance = True
 
     def __init__(self, cfg: UpenConfig = UpenConfig()):
-        self.cfg = cfg
+        self.cfg = check_instance("cfg", cfg, UpenConfig)
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         variance = ctx.predict().variance
