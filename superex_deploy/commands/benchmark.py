@@ -14,6 +14,8 @@ import os
 import sys
 from pathlib import Path
 
+from superex_deploy.benchmarking import run_scenario
+from superex_deploy.commands._options import make_backend
 from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
 
 
@@ -46,46 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "planners); --planners / --predictor / --spad / --profile are ignored")
     parser.add_argument("--rows", default="all",
                         help="with --suite paper: comma-separated row names, or 'all'")
-
-
-def run_scenario(task: tuple) -> dict:
-    """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings).
-
-    ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
-    config overrides[, profile name]])``; the overrides default to an IoU evaluation every 50 steps, the profile to
-    ``full`` (the paper suite's)."""
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.maps import load_map
-
-    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
-    iou_cfg = task[9] if len(task) > 9 else {"iou_every": 50}
-    profile = PROFILES[task[10] if len(task) > 10 else "full"]
-    grid = load_map(map_name)
-    result = run_episode(grid, start, make_planner(planner_name, **options),
-                         make_predictor(predictor_name, grid, profile=profile), steps=steps, seed=seed,
-                         cfg=ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse, **iou_cfg),
-                         nlos=make_sensing(predictor_name, spad, seed, profile=profile))
-    summary = result.to_json()
-    summary["start_index"] = start_index
-    summary["profile"] = task[10] if len(task) > 10 else "full"
-    summary.pop("poses")
-    summary.pop("timings_s")
-    return summary
-
-
-def make_backend(args: argparse.Namespace):
-    """The backend ``--backend`` / ``--address`` / ``--jobs`` name."""
-    from superex_deploy.parallel import LocalBackend, RayBackend
-
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-    if args.backend == "ray":
-        return RayBackend(address=args.address, num_cpus=None if args.address else args.jobs)
-    if args.address is not None:
-        raise ValueError("--address needs --backend ray")
-    return LocalBackend(args.jobs)
 
 
 def write_atomically(path: Path, text: str) -> None:

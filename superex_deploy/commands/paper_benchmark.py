@@ -33,7 +33,8 @@ def _rows(spec: str) -> list[str]:
 
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
-    from superex_deploy.commands.benchmark import make_backend, run_scenario
+    from superex_deploy.benchmarking import run_scenario
+    from superex_deploy.commands._options import make_backend
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 

@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
                                steps=args.steps, sample_every=args.sample_every, window_cells=args.window,
                                tile_cells=args.tile, tiles_per_sample=args.tiles_per_sample, jobs=args.jobs,
                                seed=args.seed)
-        from superex_deploy.commands.benchmark import make_backend
+        from superex_deploy.commands._options import make_backend
 
         backend = make_backend(args) if args.backend == "ray" else None  # local: cfg.jobs processes
         if args.what == "pix2pix":
