@@ -3,31 +3,63 @@
 
 from __future__ import annotations
 
-__all__ = ["run_scenario"]
+from dataclasses import dataclass, field
+
+__all__ = ["ScenarioTask", "run_scenario"]
 
 
-def run_scenario(task: tuple) -> dict:
-    """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings).
+@dataclass(frozen=True, kw_only=True)
+class ScenarioTask:
+    """One benchmark episode, by names (picklable: it travels to worker processes and Ray tasks).
 
-    ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
-    config overrides[, profile name]])``; the overrides default to an IoU evaluation every 50 steps, the profile to
-    ``full`` (the paper suite's)."""
+    Attributes:
+        map_name: bundled map name.
+        start_index: index of the start pose among the map's start poses (recorded in the summary).
+        start_rc: the start cell (row, col).
+        planner: planner name (``planners.make_planner``).
+        predictor: predictor name (:data:`superex_deploy.pipeline.PREDICTORS`).
+        spad: simulate the SPAD LiDAR every step.
+        steps: step budget.
+        seed: the planner's seed and the SPAD noise's.
+        planner_options: overrides of the planner's config (``--planner-option``).
+        iou_every, iou_dense_until: when the map IoU is evaluated (see
+            :class:`~superex_deploy.sim.episode.ExplorationConfig`); by default every 50 steps.
+        profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); by default ``full``
+            (the paper suite's).
+    """
+
+    map_name: str
+    start_index: int
+    start_rc: tuple[int, int]
+    planner: str
+    predictor: str
+    spad: bool
+    steps: int
+    seed: int
+    planner_options: dict = field(default_factory=dict)
+    iou_every: int = 50
+    iou_dense_until: float = 1.0
+    profile: str = "full"
+
+
+def run_scenario(task: ScenarioTask) -> dict:
+    """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings), with
+    the task's ``start_index`` and ``profile``."""
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
 
-    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
-    iou_cfg = task[9] if len(task) > 9 else {"iou_every": 50}
-    profile = PROFILES[task[10] if len(task) > 10 else "full"]
-    grid = load_map(map_name)
-    result = run_episode(grid, start, make_planner(planner_name, **options),
-                         make_predictor(predictor_name, grid, profile=profile), steps=steps, seed=seed,
-                         cfg=ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse, **iou_cfg),
-                         nlos=make_sensing(predictor_name, spad, seed, profile=profile))
+    profile = PROFILES[task.profile]
+    grid = load_map(task.map_name)
+    result = run_episode(grid, task.start_rc, make_planner(task.planner, **task.planner_options),
+                         make_predictor(task.predictor, grid, profile=profile), steps=task.steps, seed=task.seed,
+                         cfg=ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse,
+                                               iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
+                         nlos=make_sensing(task.predictor, task.spad, task.seed, profile=profile))
     summary = result.to_json()
-    summary["start_index"] = start_index
-    summary["profile"] = task[10] if len(task) > 10 else "full"
+    summary["start_index"] = task.start_index
+    summary["profile"] = task.profile
     summary.pop("poses")
     summary.pop("timings_s")
     return summary

@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from superex_deploy.benchmarking import run_scenario
+from superex_deploy.benchmarking import ScenarioTask, run_scenario
 from superex_deploy.commands._options import make_backend
 from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
 
@@ -115,9 +115,11 @@ def run(args: argparse.Namespace) -> int:
     profile_name = resolved.pop() if len(resolved) == 1 else "full"
     for instance in instances:
         check_profile(profile_name, instance, args.predictor)
-    tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed, {"iou_every": 50},
-              profile_name) for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
-    keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
+    tasks = [ScenarioTask(map_name=name, start_index=k, start_rc=pose, planner=planner, predictor=args.predictor,
+                          spad=args.spad, steps=args.steps, seed=args.seed, planner_options=options, iou_every=50,
+                          profile=profile_name)
+             for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
+    keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
                 "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
                 "profile_settings": PROFILES[profile_name].to_json()}

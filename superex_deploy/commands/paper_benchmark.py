@@ -33,15 +33,16 @@ def _rows(spec: str) -> list[str]:
 
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
-    from superex_deploy.benchmarking import run_scenario
+    from superex_deploy.benchmarking import ScenarioTask, run_scenario
     from superex_deploy.commands._options import make_backend
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
     row = PAPER_ROWS[name]
-    tasks = [(m, k, pose, row.planner, {}, row.predictor, row.spad, args.steps, args.seed, IOU_SCHEDULE)
+    tasks = [ScenarioTask(map_name=m, start_index=k, start_rc=pose, planner=row.planner, predictor=row.predictor,
+                          spad=row.spad, steps=args.steps, seed=args.seed, **IOU_SCHEDULE)
              for m in maps for k, pose in enumerate(start_poses(m))]
-    keys = [f"{m}/{k}" for m, k, *_ in tasks]
+    keys = [f"{task.map_name}/{task.start_index}" for task in tasks]
     recorded = rows_dir / f"{name}.setting.json"
     setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad}}
     if recorded.is_file() and json.loads(recorded.read_text()) != json.loads(json.dumps(setting)):
