@@ -18,7 +18,7 @@ from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start, start_poses
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
-from superex_deploy.onboard import Explorer, SpadProcessing
+from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
@@ -424,7 +424,7 @@ def _async_run(schedule, steps=60, planner="mapex"):
     predictor = _SlowThreadRecordingPredictor()
     commands = []
     result = run_episode(grid, start_poses("50052750")[1], make_planner(planner), predictor, steps=steps, seed=2,
-                         cfg=ExplorationConfig(iou_every=10, prediction=schedule),
+                         cfg=ExplorationConfig(iou_every=10, explorer=ExplorerConfig(prediction=schedule)),
                          on_observation=lambda o, c, e: commands.append(c))
     return result, commands, predictor
 

@@ -107,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder, save_episode_figure
+    from superex_deploy.onboard.explorer import ExplorerConfig
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
 
     if args.steps < 1:
@@ -121,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     profile = check_profile(args.profile, planner, args.predictor)
     nlos = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
     predictor = make_predictor(args.predictor, grid, args.models, profile)
-    cfg = ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse)
+    cfg = ExplorationConfig(explorer=ExplorerConfig(prediction=profile.schedule, reuse=profile.reuse))
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
@@ -133,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     record = None
     if args.record is not None:
-        explorer_cfg = cfg.explorer()
+        explorer_cfg = cfg.explorer
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
                                  recording_metadata(grid, args, options, nlos, explorer_cfg))
     recorder = GifRecorder(every=args.gif_every)

@@ -23,11 +23,9 @@ import numpy as np
 
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.sim.metrics import evaluation_area, map_iou
-from superex_deploy.onboard.motion import MotionConfig
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.prediction_reuse import PredictionReuse
+from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 
@@ -36,42 +34,30 @@ __all__ = ["STAGES", "ExplorationConfig", "EpisodeState", "EpisodeResult", "run_
 
 @dataclass(frozen=True)
 class ExplorationConfig:
-    """Episode parameters.
+    """Episode parameters: the world's sensors, the explorer's configuration, and when the metrics are evaluated.
 
     Attributes:
-        lidar: the line-of-sight LiDAR.
-        motion: robot radius, proximity cost, step length, goal tolerance.
-        frontier_min_cells: frontier regions with fewer cells are offered to the planner only when no larger
-            region gives a goal (MapEx drops them: 10). Dropping them outright stopped 2 of the 40 benchmark
-            episodes at their first step, in rooms whose open door, seen edge-on, showed fewer frontier cells.
+        lidar: the line-of-sight LiDAR (the world's).
+        explorer: what the explorer is built with (:class:`~superex_deploy.onboard.explorer.ExplorerConfig`:
+            motion, frontier size, prediction schedule and reuse); the world drives ``explorer.motion.step_cells``
+            cells per step.
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
-        prediction: when the explorer runs its predictor (synchronously by default; see
-            :class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
-        reuse: what the explorer keeps of its last prediction (nothing by default; see
-            :class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
-    motion: MotionConfig = field(default_factory=MotionConfig)
-    frontier_min_cells: int = 10
+    explorer: ExplorerConfig = field(default_factory=ExplorerConfig)
     iou_every: int = 25
     iou_dense_until: float = 1.0
-    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
-    reuse: PredictionReuse = field(default_factory=PredictionReuse)
 
     def __post_init__(self) -> None:
-        if int(self.frontier_min_cells) < 1:
-            raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
+        for name, kind in (("lidar", LidarConfig), ("explorer", ExplorerConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
         if int(self.iou_every) < 0:
             raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
-
-    def explorer(self) -> ExplorerConfig:
-        """The onboard half of these parameters (what the explorer is built with)."""
-        return ExplorerConfig(motion=self.motion, frontier_min_cells=self.frontier_min_cells,
-                              prediction=self.prediction, reuse=self.reuse)
 
 
 @dataclass
@@ -119,7 +105,8 @@ class EpisodeResult:
             carving) there.
         goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
         finished: True when the planner found no goal before the budget ran out.
-        config: the :class:`ExplorationConfig` as a dict.
+        config: the :class:`ExplorationConfig` as a dict (``lidar``, ``explorer``: ``motion``,
+            ``frontier_min_cells``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``).
         final_observed: int8 ``[H, W]`` observed map at the end.
         final_carved: bool ``[H, W]`` carved cells at the end.
         final_prediction: the last prediction computed (for the final figure), or None.
@@ -194,10 +181,10 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, pre
     """The two halves of an episode: the :class:`World` on ``grid`` with the robot at ``start_rc``, and a fresh
     :class:`Explorer` on the world's map frame (see :func:`run_episode` for the arguments)."""
     world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if nlos is None else nlos.spad,
-                                              step_cells=cfg.motion.step_cells,
+                                              step_cells=cfg.explorer.motion.step_cells,
                                               seed=0 if nlos is None else nlos.seed))
     explorer = Explorer(world.frame, planner, predictor, nlos=None if nlos is None else nlos.processing(),
-                        cfg=cfg.explorer(), seed=seed)
+                        cfg=cfg.explorer, seed=seed)
     return world, explorer
 
 

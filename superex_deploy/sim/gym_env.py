@@ -118,10 +118,10 @@ class ExplorationEnv(gym.Env):
 
     def _action_mask(self) -> np.ndarray:
         observed = self._explorer.observed
-        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
+        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.explorer.motion)
         not_free = observed != FREE
         pose = self._world.pose_rc
-        reach = self._cfg.motion.goal_reached_m / self.grid.resolution_m
+        reach = self._cfg.explorer.motion.goal_reached_m / self.grid.resolution_m
         # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
         # visited before would be dropped at once, wasting the action.
         regions = [f for f in find_frontiers(observed, 1) if not _near_visited(f.cell_rc, self._explorer.visited_goals)
