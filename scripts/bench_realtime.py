@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule  # noqa: E402
+from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
 from superex_deploy.onboard.inference import SessionConfig  # noqa: E402
 from superex_deploy.onboard.prediction_reuse import PredictionReuse  # noqa: E402
 from superex_deploy.onboard.spad_processing import NlosSkips  # noqa: E402
@@ -104,7 +104,7 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.pipeline import make_predictor, make_sensing
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import run_episode
 
     map_name, start_index, start, name, steps, mode = task
     grid = load_map(map_name)
@@ -113,7 +113,7 @@ def _episode(task: tuple) -> dict:
     else:
         planner, predictor_name, spad, profile = "superex", "lama_bp", True, SETTINGS[name]
     iou = {"iou_every": 10, "iou_dense_until": 0.35} if mode == "error" else {"iou_every": 0}
-    cfg = ExplorationConfig(explorer=ExplorerConfig(prediction=profile.schedule, reuse=profile.reuse), **iou)
+    cfg = profile.episode_config(**iou)
     counters: dict = {}
 
     def episode(n_steps: int, pace_hz: float = 0.0):

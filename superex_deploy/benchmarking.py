@@ -46,8 +46,7 @@ def run_scenario(task: ScenarioTask) -> dict:
     """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings), with
     the task's ``start_index`` and ``profile``."""
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.onboard.explorer import ExplorerConfig
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import run_episode
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
 
@@ -55,8 +54,7 @@ def run_scenario(task: ScenarioTask) -> dict:
     grid = load_map(task.map_name)
     result = run_episode(grid, task.start_rc, make_planner(task.planner, **task.planner_options),
                          make_predictor(task.predictor, grid, profile=profile), steps=task.steps, seed=task.seed,
-                         cfg=ExplorationConfig(explorer=ExplorerConfig(prediction=profile.schedule, reuse=profile.reuse),
-                                               iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
+                         cfg=profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
                          nlos=make_sensing(task.predictor, task.spad, task.seed, profile=profile))
     summary = result.to_json()
     summary["start_index"] = task.start_index

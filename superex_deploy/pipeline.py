@@ -13,7 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-from superex_deploy.onboard.explorer import PredictionSchedule
+from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.inference import SessionConfig, check_member_options
 from superex_deploy.onboard.prediction_reuse import PredictionReuse
 from superex_deploy.onboard.spad_processing import NlosSkips
@@ -59,6 +59,19 @@ class RealtimeProfile:
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
         check_member_options(self.max_members, self.agreement_stop)
+
+    def explorer_config(self) -> ExplorerConfig:
+        """The explorer's configuration under this profile: its prediction schedule and reuse, the defaults
+        otherwise (motion, frontier size)."""
+        return ExplorerConfig(prediction=self.schedule, reuse=self.reuse)
+
+    def episode_config(self, **episode):
+        """A simulated episode's :class:`~superex_deploy.sim.episode.ExplorationConfig` under this profile: the
+        explorer of :meth:`explorer_config`, and ``episode``'s fields (``lidar``, ``iou_every``,
+        ``iou_dense_until``) or their defaults."""
+        from superex_deploy.sim.episode import ExplorationConfig
+
+        return ExplorationConfig(explorer=self.explorer_config(), **episode)
 
     def to_json(self) -> dict:
         """The profile's values as JSON (recorded beside its name in settings and recordings: a later version may

@@ -107,8 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder, save_episode_figure
-    from superex_deploy.onboard.explorer import ExplorerConfig
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import run_episode
 
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
@@ -122,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     profile = check_profile(args.profile, planner, args.predictor)
     nlos = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
     predictor = make_predictor(args.predictor, grid, args.models, profile)
-    cfg = ExplorationConfig(explorer=ExplorerConfig(prediction=profile.schedule, reuse=profile.reuse))
+    cfg = profile.episode_config()
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
