@@ -124,14 +124,14 @@ def _episode(task: tuple) -> dict:
             if explorer.reusing is not None:
                 counters.update(runs=explorer.reusing.runs, reused=explorer.reusing.reused,
                                 predicted_cells=explorer.reusing.predicted_cells)
-            if explorer.nlos is not None:
-                counters["nlos"] = dict(explorer.nlos.counts)
+            if explorer.spad_processing is not None:
+                counters["nlos"] = dict(explorer.spad_processing.counts)
             if pace_hz:
                 tick[0] += 1.0 / pace_hz
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
         return run_episode(grid, start, make_planner(planner), make_predictor(predictor_name, grid, profile=profile),
-                           steps=n_steps, seed=0, cfg=cfg, nlos=make_sensing(predictor_name, spad, 0, profile=profile),
+                           steps=n_steps, seed=0, cfg=cfg, sensing=make_sensing(predictor_name, spad, 0, profile=profile),
                            on_observation=after_step)
 
     if mode != "error":

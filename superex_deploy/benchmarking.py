@@ -55,7 +55,7 @@ def run_scenario(task: ScenarioTask) -> dict:
     result = run_episode(grid, task.start_rc, make_planner(task.planner, **task.planner_options),
                          make_predictor(task.predictor, grid, profile=profile), steps=task.steps, seed=task.seed,
                          cfg=profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
-                         nlos=make_sensing(task.predictor, task.spad, task.seed, profile=profile))
+                         sensing=make_sensing(task.predictor, task.spad, task.seed, profile=profile))
     summary = result.to_json()
     summary["start_index"] = task.start_index
     summary["profile"] = task.profile

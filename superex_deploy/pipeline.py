@@ -188,14 +188,14 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: Re
     return SpadSensing(seed=seed, bp_filter=bp_filter, skips=profile.nlos_skips)
 
 
-def make_processing(predictor: str, sensor=None, nlos=None, models=None, skips: Optional[NlosSkips] = None):
+def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, skips: Optional[NlosSkips] = None):
     """The onboard :class:`~superex_deploy.onboard.spad_processing.SpadProcessing` for ``predictor``: with the
     Pix2Pix filter for the evidence predictors, the Laplacian filter otherwise.
 
     Args:
         predictor: a name of :data:`PREDICTORS`.
         sensor: the sensor model (:class:`~superex_deploy.spad_types.SpadConfig`; default: the simulator's).
-        nlos: the processing parameters (:class:`~superex_deploy.onboard.nlos.NlosConfig`; default).
+        nlos_cfg: the processing parameters (:class:`~superex_deploy.onboard.nlos.NlosConfig`; default).
         models: folder of exported models (default: the repository's ``exported/``).
         skips: work the processing may leave out (default: none).
     """
@@ -204,5 +204,5 @@ def make_processing(predictor: str, sensor=None, nlos=None, models=None, skips: 
     from superex_deploy.spad_types import SpadConfig
 
     bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None
-    return SpadProcessing(sensor=sensor or SpadConfig(), nlos=nlos or NlosConfig(), bp_filter=bp_filter,
+    return SpadProcessing(sensor=sensor or SpadConfig(), nlos_cfg=nlos_cfg or NlosConfig(), bp_filter=bp_filter,
                           skips=skips or NlosSkips())

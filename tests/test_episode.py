@@ -139,7 +139,7 @@ def test_the_onboard_nlos_processing_feeds_carving_and_evidence():
     grid = _two_rooms()
     hook = _CarveRightRoom(grid.shape)
     predictor = _CountingPredictor()
-    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, nlos=_SensingWith(hook),
+    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, sensing=_SensingWith(hook),
                          cfg=ExplorationConfig(iou_every=0))
     assert hook.calls == result.steps
     assert np.all(result.coverage_with_carving >= result.coverage)
@@ -204,10 +204,10 @@ def test_bad_inputs_raise_value_error():
         run_episode(grid, (5, 5), planner, object())
     with pytest.raises(ValueError, match="steps"):
         run_episode(grid, (5, 5), planner, predictor, steps=2.5)
-    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
-        run_episode(grid, (5, 5), planner, predictor, nlos="spad")
-    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
-        run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: (np.zeros((3, 3), bool), None))
+    with pytest.raises(ValueError, match="sensing must be a SpadSensing"):
+        run_episode(grid, (5, 5), planner, predictor, sensing="spad")
+    with pytest.raises(ValueError, match="sensing must be a SpadSensing"):
+        run_episode(grid, (5, 5), planner, predictor, sensing=lambda g, p, o: (np.zeros((3, 3), bool), None))
     with pytest.raises(ValueError, match="frontier_min_cells"):
         ExplorerConfig(frontier_min_cells=0)
 

@@ -45,14 +45,16 @@ def add_profile_option(parser: argparse.ArgumentParser) -> None:
                              "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
 
 
-def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
-    """What a replay needs to rebuild the explorer of this run (JSON values)."""
+def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict:
+    """What a replay needs to rebuild the explorer of this run (JSON values); ``sensing``: the episode's
+    :class:`~superex_deploy.sim.sensing.SpadSensing` or None (recorded under ``sensor`` and ``nlos``)."""
     from dataclasses import asdict
 
     return {"map": grid.name, "planner": args.planner, "planner_options": options, "predictor": args.predictor,
-            "seed": args.seed, "spad": nlos is not None,
+            "seed": args.seed, "spad": sensing is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
-            "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
+            "sensor": None if sensing is None else asdict(sensing.spad),
+            "nlos": None if sensing is None else asdict(sensing.nlos_cfg),
             "explorer": asdict(explorer_cfg), "profile": args.profile,
             "profile_settings": PROFILES[args.profile].to_json()}
 
@@ -119,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
     profile = check_profile(args.profile, planner, args.predictor)
-    nlos = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
+    sensing = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
     predictor = make_predictor(args.predictor, grid, args.models, profile)
     cfg = profile.episode_config()
     if args.record is not None and args.predictor == "oracle":
@@ -135,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         explorer_cfg = cfg.explorer
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
-                                 recording_metadata(grid, args, options, nlos, explorer_cfg))
+                                 recording_metadata(grid, args, options, sensing, explorer_cfg))
     recorder = GifRecorder(every=args.gif_every)
     try:
         with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
@@ -147,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
                 record.write(observation, command, explorer.observed)
 
             result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
-                                 on_step=on_step, nlos=nlos,
+                                 on_step=on_step, sensing=sensing,
                                  on_observation=None if record is None else on_observation)
         if record is not None:
             record.write_map(result.final_observed)

@@ -70,16 +70,16 @@ def build_explorer(metadata: dict, frame, models=None):
         reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
         cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
-        nlos = None
+        spad_processing = None
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
-            nlos = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
+            spad_processing = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
     except (KeyError, TypeError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
-    return Explorer(frame, planner, predictor, nlos=nlos, cfg=cfg, seed=seed)
+    return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg, seed=seed)
 
 
 def run(args: argparse.Namespace) -> int:

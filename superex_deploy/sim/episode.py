@@ -163,33 +163,34 @@ class EpisodeResult:
         }
 
 
-def _check_inputs(grid: OccupancyGrid, steps: int, cfg: ExplorationConfig, nlos) -> int:
+def _check_inputs(grid: OccupancyGrid, steps: int, cfg: ExplorationConfig, sensing) -> int:
     if not isinstance(grid, OccupancyGrid):
         raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
     if isinstance(steps, bool) or int(steps) != steps or int(steps) < 1:
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(cfg, ExplorationConfig):
         raise ValueError(f"cfg must be an ExplorationConfig, got {type(cfg).__name__}")
-    if nlos is not None and not isinstance(nlos, SpadSensing):
-        raise ValueError(f"nlos must be a SpadSensing or None, got {type(nlos).__name__}")
+    if sensing is not None and not isinstance(sensing, SpadSensing):
+        raise ValueError(f"sensing must be a SpadSensing or None, got {type(sensing).__name__}")
     return int(steps)
 
 
 def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, seed: int = 0,
-                            cfg: ExplorationConfig = ExplorationConfig(), nlos: Optional[SpadSensing] = None
+                            cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None
                             ) -> tuple[World, Explorer]:
     """The two halves of an episode: the :class:`World` on ``grid`` with the robot at ``start_rc``, and a fresh
     :class:`Explorer` on the world's map frame (see :func:`run_episode` for the arguments)."""
-    world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if nlos is None else nlos.spad,
+    world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
                                               step_cells=cfg.explorer.motion.step_cells,
-                                              seed=0 if nlos is None else nlos.seed))
-    explorer = Explorer(world.frame, planner, predictor, nlos=None if nlos is None else nlos.processing(),
-                        cfg=cfg.explorer, seed=seed)
+                                              seed=0 if sensing is None else sensing.seed))
+    explorer = Explorer(world.frame, planner, predictor,
+                        spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
+                        seed=seed)
     return world, explorer
 
 
 def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, steps: int = 1000,
-                seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), nlos: Optional[SpadSensing] = None,
+                seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None,
                 on_step: Optional[Callable[[EpisodeState], None]] = None,
                 on_observation: Optional[Callable] = None) -> EpisodeResult:
     """Explore ``grid`` from ``start_rc`` for up to ``steps`` steps (see the module docstring).
@@ -202,7 +203,7 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
         steps: step budget (>= 1).
         seed: seed of the generator handed to the planner.
         cfg: episode parameters.
-        nlos: optional SPAD sensing (simulated in the world, processed by the explorer).
+        sensing: optional SPAD sensing (simulated in the world, processed by the explorer).
         on_step: optional callback, called once per step with the :class:`EpisodeState`.
         on_observation: optional callback ``(observation, command, explorer)`` once per step, right after the
             explorer's step (recording).
@@ -215,8 +216,8 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
             planner that is not a Planner, a predictor without ``predict``.
         RuntimeError: the planner returned a goal that no path reaches (a planner bug).
     """
-    steps = _check_inputs(grid, steps, cfg, nlos)
-    world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, nlos)
+    steps = _check_inputs(grid, steps, cfg, sensing)
+    world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, sensing)
     iou_area = evaluation_area(grid) if cfg.iou_every else None
     try:
         return _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area, on_step, on_observation)
