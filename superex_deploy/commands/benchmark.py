@@ -17,6 +17,7 @@ from pathlib import Path
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
 from superex_deploy.commands._options import make_backend
 from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
+from superex_deploy.files import write_atomically
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,13 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "planners); --planners / --predictor / --spad / --profile are ignored")
     parser.add_argument("--rows", default="all",
                         help="with --suite paper: comma-separated row names, or 'all'")
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader never sees half a file."""
-    part = path.with_name(path.name + ".part")
-    part.write_text(text)
-    os.replace(part, path)
 
 
 def prepare_output(out: Path, settings: dict, resume: bool) -> Path:

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from superex_deploy.files import write_atomically
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,12 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models (default: the recording's, else the repository's exported/)")
-
-
-def _atomic_write(path: Path, write) -> None:
-    part = path.with_name(path.name + ".part")
-    write(part)
-    os.replace(part, path)
 
 
 def build_explorer(metadata: dict, frame, models=None):
@@ -125,14 +120,14 @@ def _replay(args, recording, explorer) -> int:
                           "p99": float(np.percentile(step_total, 99)) if step_total.size else 0.0},
                "stage_s": per_stage}
     args.out.mkdir(parents=True, exist_ok=True)
-    _atomic_write(args.out / "metrics.json", lambda p: p.write_text(json.dumps(metrics)))
+    write_atomically(args.out / "metrics.json", json.dumps(metrics))
     evidence = explorer.evidence if explorer.evidence is not None else np.zeros(0, np.float32)
 
     def save_map(part: Path) -> None:
         with open(part, "wb") as file:
             np.savez_compressed(file, observed=explorer.observed, carved=explorer.mapper.carved, evidence=evidence)
 
-    _atomic_write(args.out / "map.npz", save_map)
+    write_atomically(args.out / "map.npz", save_map)
     verdict = "goals match the recording" if not mismatches else f"{len(mismatches)} steps differ from the recording"
     print(f"replayed {len(recording.steps)} steps of {args.recording}: {len(goals)} goals, {verdict}")
     print(f"wrote {args.out / 'metrics.json'}, {args.out / 'map.npz'}")
