@@ -35,8 +35,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from superex_deploy.onboard.prediction import check_observed
-from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction, check_observed
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry",
@@ -354,7 +353,7 @@ def encode_map(observed: np.ndarray, evidence: Optional[np.ndarray], kind: Model
             LAMA_LOS, whose baselines do not use NLOS evidence).
         kind: LAMA_BP or LAMA_LOS.
     """
-    observed = check_observed(observed)
+    observed = check_observed(observed, codes=True)
     wall = (observed == OCCUPIED).astype(np.float32)
     unknown = (observed == UNKNOWN).astype(np.float32)
     if kind is ModelKind.LAMA_LOS:
