@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
-from superex_deploy.commands._options import make_backend
-from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
+from superex_deploy.commands._options import (add_parallel_options, add_planner_option, add_profile_option,
+                                               check_jobs, make_backend, planner_options)
 from superex_deploy.files import write_atomically
 
 
@@ -33,13 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=1000)
     add_profile_option(parser)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
+    add_parallel_options(parser)
     parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--backend", choices=("local", "ray"), default="local",
-                        help="local: --jobs worker processes here; ray: Ray tasks (the ray extra), on a local Ray "
-                             "instance with --jobs CPUs or on the cluster at --address")
-    parser.add_argument("--address", default=None,
-                        help="with --backend ray: the cluster to use ('auto', or HOST:PORT from `ray start --head`)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out: skip the episodes OUT/episodes.jsonl already holds (the "
                              "settings must be the same)")
@@ -93,8 +87,7 @@ def run(args: argparse.Namespace) -> int:
     unknown = [p for p in planners if p not in PLANNERS]
     if unknown:
         raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    check_jobs(args)
     if args.predictor == "lama_bp" and not args.spad:
         raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
     if args.steps < 1:

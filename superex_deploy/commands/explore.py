@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.pipeline import (DEFAULT_PROFILE, PREDICTORS, PROFILES, check_profile, make_predictor,
-                                     make_sensing, resolve_profile)
+from superex_deploy.commands._options import add_planner_option, add_profile_option, planner_options
+from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,14 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
 
 
-def add_profile_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", choices=tuple(PROFILES), default=None,
-                        help="real-time settings of the onboard pipeline (superex_deploy.pipeline.PROFILES): "
-                             "'full' runs everything inside each step, 'realtime' the measured asynchronous, cropped, "
-                             f"one-member prediction (benchmarks/realtime). Default: {DEFAULT_PROFILE}, or full for "
-                             "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
-
-
 def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict:
     """What a replay needs to rebuild the explorer of this run (JSON values); ``sensing``: the episode's
     :class:`~superex_deploy.sim.sensing.SpadSensing` or None (recorded under ``sensor`` and ``nlos``)."""
@@ -57,33 +49,6 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
             "nlos": None if sensing is None else asdict(sensing.nlos_cfg),
             "explorer": asdict(explorer_cfg), "profile": args.profile,
             "profile_settings": PROFILES[args.profile].to_json()}
-
-
-def add_planner_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
-                        help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
-                             "straight-line divisor (repeatable; numbers and true/false are converted)")
-
-
-def planner_options(pairs: list[str]) -> dict:
-    """``["field=value", ...]`` -> config overrides; ints, floats and true / false are converted."""
-    options = {}
-    for pair in pairs:
-        field_name, separator, text = pair.partition("=")
-        if not separator or not field_name.strip():
-            raise ValueError(f"--planner-option takes FIELD=VALUE, got {pair!r}")
-        value: object = text.strip()
-        if text.strip().lower() in ("true", "false"):
-            value = text.strip().lower() == "true"
-        else:
-            for convert in (int, float):
-                try:
-                    value = convert(text)
-                    break
-                except ValueError:
-                    pass
-        options[field_name.strip()] = value
-    return options
 
 
 def resolve_start(grid, start_index: int, pose):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.commands._options import check_jobs, make_backend
 from superex_deploy.files import write_atomically
 from superex_deploy.sim.suite import (CHECKPOINTS, IOU_BINS, IOU_LEVELS, PAPER_ROWS, REFERENCE_ROW,
                                           paired_summary, row_summary)
@@ -28,7 +29,6 @@ def _rows(spec: str) -> list[str]:
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
     from superex_deploy.benchmarking import ScenarioTask, run_scenario
-    from superex_deploy.commands._options import make_backend
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
@@ -102,8 +102,7 @@ def run_paper(args: argparse.Namespace) -> int:
         raise ValueError("--planner-option does not apply to --suite paper: its rows fix their planners' settings")
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    check_jobs(args)
     maps = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out {args.out} exists and is not a folder")
