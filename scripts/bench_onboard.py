@@ -15,6 +15,7 @@ Writes ``OUT/onboard.json`` and ``OUT/onboard.md``.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import subprocess
@@ -51,12 +52,14 @@ def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
     planner, predictor, spad = SETTINGS[setting]
     grid = load_map(map_name)
     start = start_poses(map_name)[start_index]
+    # The SPAD sensing's keyword: ``sensing``, ``nlos`` in trees before #22.
+    keyword = "sensing" if "sensing" in inspect.signature(run_episode).parameters else "nlos"
     warm = run_episode(grid, start, make_planner(planner), make_predictor(predictor, grid), steps=3,
-                       cfg=ExplorationConfig(iou_every=0), nlos=make_sensing(predictor, spad, 0))
+                       cfg=ExplorationConfig(iou_every=0), **{keyword: make_sensing(predictor, spad, 0)})
     del warm  # compiled kernels and loaded sessions: the measured episode starts warm
     clock = time.perf_counter()
     result = run_episode(grid, start, make_planner(planner), make_predictor(predictor, grid), steps=steps,
-                         cfg=ExplorationConfig(iou_every=0), nlos=make_sensing(predictor, spad, 0))
+                         cfg=ExplorationConfig(iou_every=0), **{keyword: make_sensing(predictor, spad, 0)})
     wall = time.perf_counter() - clock
     timings = {stage: values.tolist() for stage, values in result.timings_s.items()}
     simulation = getattr(result, "simulation_s", None)

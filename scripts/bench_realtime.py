@@ -104,7 +104,7 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.pipeline import make_predictor, make_sensing
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import run_episode
 
     map_name, start_index, start, name, steps, mode = task
     grid = load_map(map_name)
@@ -113,7 +113,7 @@ def _episode(task: tuple) -> dict:
     else:
         planner, predictor_name, spad, profile = "superex", "lama_bp", True, SETTINGS[name]
     iou = {"iou_every": 10, "iou_dense_until": 0.35} if mode == "error" else {"iou_every": 0}
-    cfg = ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse, **iou)
+    cfg = profile.episode_config(**iou)
     counters: dict = {}
 
     def episode(n_steps: int, pace_hz: float = 0.0):
@@ -124,14 +124,14 @@ def _episode(task: tuple) -> dict:
             if explorer.reusing is not None:
                 counters.update(runs=explorer.reusing.runs, reused=explorer.reusing.reused,
                                 predicted_cells=explorer.reusing.predicted_cells)
-            if explorer.nlos is not None:
-                counters["nlos"] = dict(explorer.nlos.counts)
+            if explorer.spad_processing is not None:
+                counters["nlos"] = dict(explorer.spad_processing.counts)
             if pace_hz:
                 tick[0] += 1.0 / pace_hz
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
         return run_episode(grid, start, make_planner(planner), make_predictor(predictor_name, grid, profile=profile),
-                           steps=n_steps, seed=0, cfg=cfg, nlos=make_sensing(predictor_name, spad, 0, profile=profile),
+                           steps=n_steps, seed=0, cfg=cfg, sensing=make_sensing(predictor_name, spad, 0, profile=profile),
                            on_observation=after_step)
 
     if mode != "error":

@@ -143,7 +143,7 @@ def _episode(args: tuple[str, int, str]) -> list[dict]:
 
     try:
         run_episode(grid, start, make_planner(PLANNERS[index % len(PLANNERS)]), ObservedAsPrediction(),
-                    steps=400, seed=index, nlos=sensing, on_step=on_step)
+                    steps=400, seed=index, sensing=sensing, on_step=on_step)
     except _Done:
         pass
     return records

@@ -12,7 +12,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Optional
 
-from superex_deploy.onboard.explorer import PredictionSchedule
+from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.inference import SessionConfig, check_member_options
 from superex_deploy.onboard.predictors import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
                                                models_dir)
@@ -53,6 +53,19 @@ class RealtimeProfile:
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
         check_member_options(self.max_members, self.agreement_stop)
+
+    def explorer_config(self) -> ExplorerConfig:
+        """The explorer's configuration under this profile: its prediction schedule and reuse, the defaults
+        otherwise (motion, frontier size)."""
+        return ExplorerConfig(prediction=self.schedule, reuse=self.reuse)
+
+    def episode_config(self, **episode):
+        """A simulated episode's :class:`~superex_deploy.sim.episode.ExplorationConfig` under this profile: the
+        explorer of :meth:`explorer_config`, and ``episode``'s fields (``lidar``, ``iou_every``,
+        ``iou_dense_until``) or their defaults."""
+        from superex_deploy.sim.episode import ExplorationConfig
+
+        return ExplorationConfig(explorer=self.explorer_config(), **episode)
 
     def to_json(self) -> dict:
         """The profile's values as JSON (recorded beside its name in settings and recordings: a later version may
@@ -143,14 +156,14 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: Re
     return SpadSensing(seed=seed, bp_filter=bp_filter, skips=profile.nlos_skips)
 
 
-def make_processing(predictor: str, sensor=None, nlos=None, models=None, skips: Optional[NlosSkips] = None):
+def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, skips: Optional[NlosSkips] = None):
     """The onboard :class:`~superex_deploy.onboard.spad_processing.SpadProcessing` for ``predictor``: with the
     Pix2Pix filter for the evidence predictors, the Laplacian filter otherwise.
 
     Args:
         predictor: a name of :data:`PREDICTORS`.
         sensor: the sensor model (:class:`~superex_deploy.spad_types.SpadConfig`; default: the simulator's).
-        nlos: the processing parameters (:class:`~superex_deploy.onboard.nlos.NlosConfig`; default).
+        nlos_cfg: the processing parameters (:class:`~superex_deploy.onboard.nlos.NlosConfig`; default).
         models: folder of exported models (default: the repository's ``exported/``).
         skips: work the processing may leave out (default: none).
     """
@@ -159,5 +172,5 @@ def make_processing(predictor: str, sensor=None, nlos=None, models=None, skips: 
     from superex_deploy.spad_types import SpadConfig
 
     bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None
-    return SpadProcessing(sensor=sensor or SpadConfig(), nlos=nlos or NlosConfig(), bp_filter=bp_filter,
+    return SpadProcessing(sensor=sensor or SpadConfig(), nlos_cfg=nlos_cfg or NlosConfig(), bp_filter=bp_filter,
                           skips=skips or NlosSkips())

@@ -230,7 +230,7 @@ def _episode_samples(task: tuple[str, int, str, str, CalibrationConfig]) -> tupl
     planners = ("nearest", "hector", "mapex")
     try:
         run_episode(grid, random_start(grid, rng, 0.4), make_planner(planners[index % len(planners)]),
-                    ObservedAsPrediction(), steps=cfg.steps, seed=index, nlos=sensing, on_step=on_step)
+                    ObservedAsPrediction(), steps=cfg.steps, seed=index, sensing=sensing, on_step=on_step)
     except _Done:
         pass
     if not probabilities:

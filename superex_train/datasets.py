@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
@@ -29,6 +28,7 @@ from typing import Optional, Union
 import numpy as np
 from scipy import ndimage
 
+from superex_deploy.files import write_atomically
 from superex_deploy.onboard.inference import MODEL_CHANNELS, ModelKind, sha256_file
 
 __all__ = ["DATASET_FORMAT", "DatasetInfo", "ShardWriter", "read_index", "ShardDataset", "synthetic_walls",
@@ -73,11 +73,9 @@ def _canonical(document: dict) -> bytes:
     return json.dumps(document, sort_keys=True, separators=(",", ":")).encode()
 
 
-def _save_atomic(path: Path, array: np.ndarray) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as handle:
+def _save_npy(array: np.ndarray, path: Path) -> None:
+    with open(path, "wb") as handle:  # a handle: given a name, np.save would append ".npy" to the temporary's
         np.save(handle, array)
-    os.replace(tmp, path)
 
 
 class ShardWriter:
@@ -145,7 +143,8 @@ class ShardWriter:
         hashes = {}
         for array_name in _ARRAYS:
             path = self.directory / f"{name}.{array_name}.npy"
-            _save_atomic(path, np.stack(self._pending[array_name]))
+            array = np.stack(self._pending[array_name])
+            write_atomically(path, lambda part: _save_npy(array, part))
             hashes[array_name] = sha256_file(path)
             self._pending[array_name] = []
         self._shards.append({"name": name, "count": count, "sha256": hashes})
@@ -158,9 +157,7 @@ class ShardWriter:
                 raise ValueError("no samples were added; an empty dataset is not written")
             index = {"format": DATASET_FORMAT, "kind": self.kind.value, "channels": list(MODEL_CHANNELS[self.kind]),
                      "tile_hw": list(self.tile_hw), "shards": self._shards, "generator": self.generator}
-            tmp = self.directory / (INDEX_NAME + ".tmp")
-            tmp.write_text(json.dumps(index, indent=1, sort_keys=True))
-            os.replace(tmp, self.directory / INDEX_NAME)
+            write_atomically(self.directory / INDEX_NAME, json.dumps(index, indent=1, sort_keys=True))
             self._closed = True
         return read_index(self.directory)
 

@@ -37,6 +37,7 @@ import torch
 from torch import nn
 
 import superex_deploy
+from superex_deploy.files import write_atomically
 from superex_deploy.onboard.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANNELS, NORMALISATION, RESOLUTION_M,
                                       BpEncoding, ModelKind, SessionConfig, make_session, sha256_file)
 from superex_train.models import (LamaConfig, LamaGenerator, Pix2PixConfig, SpectralBackend, UNetGenerator,
@@ -346,9 +347,7 @@ def write_generator_checkpoint(checkpoint_path: PathLike, out_path: PathLike) ->
     slim["state"] = {"generator": checkpoint["state"]["generator"]}
     slim["optimizers"] = {}
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    partial = out_path.with_name(out_path.name + ".partial")
-    torch.save(slim, partial)
-    partial.replace(out_path)
+    write_atomically(out_path, lambda part: torch.save(slim, part))
     return out_path
 
 

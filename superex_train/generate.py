@@ -89,7 +89,7 @@ class GenerationConfig:
         min_clearance_m: start cells are at least this far from any wall.
         jobs: worker processes.
         seed: seeds start cells, planners' generators and tile jitter.
-        spad, nlos, exploration: simulator, processing and episode settings.
+        spad, nlos_cfg, exploration: simulator, processing and episode settings.
     """
 
     maps: tuple[str, ...] = ()
@@ -104,7 +104,7 @@ class GenerationConfig:
     jobs: int = 1
     seed: int = 0
     spad: SpadConfig = field(default_factory=SpadConfig)
-    nlos: NlosConfig = field(default_factory=NlosConfig)
+    nlos_cfg: NlosConfig = field(default_factory=NlosConfig)
     exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
 
     def __post_init__(self) -> None:
@@ -132,7 +132,7 @@ class GenerationConfig:
                 "planners": list(self.planners), "sample_every": self.sample_every,
                 "window_cells": self.window_cells, "tile_cells": self.tile_cells,
                 "tiles_per_sample": self.tiles_per_sample, "min_clearance_m": self.min_clearance_m,
-                "seed": self.seed, "spad": repr(self.spad), "nlos": repr(self.nlos),
+                "seed": self.seed, "spad": repr(self.spad), "nlos": repr(self.nlos_cfg),
                 "exploration": repr(self.exploration)}
 
 
@@ -173,7 +173,7 @@ def _pix2pix_episode(episode: _Episode, cfg: GenerationConfig) -> list[Sample]:
             return
         known = state.observed != UNKNOWN
         scan = simulate_scan(grid, state.pose, cfg.spad)
-        bp = back_project(scan, estimate_los(scan, cfg.nlos), cfg.nlos, known)
+        bp = back_project(scan, estimate_los(scan, cfg.nlos_cfg), cfg.nlos_cfg, known)
         truth = nlos_ground_truth(scan) & ~known
         window = crop_window(bp, state.pose, size, 0.0)
         samples.append((encode_bp_windows(window[None])[0], crop_window(truth, state.pose, size, False),
@@ -200,7 +200,7 @@ def _lama_episode(episode: _Episode, cfg: GenerationConfig, pix2pix_path: Option
     rng = np.random.default_rng(episode.seed)
     start = random_start(grid, rng, cfg.min_clearance_m)
     take = _sample_steps(rng, cfg)
-    sensing = SpadSensing(spad=cfg.spad, nlos=cfg.nlos,
+    sensing = SpadSensing(spad=cfg.spad, nlos_cfg=cfg.nlos_cfg,
                           bp_filter=None if bp_filter is None else bp_filter.filter_map)
     tile = cfg.tile_cells
     samples = []
@@ -221,7 +221,7 @@ def _lama_episode(episode: _Episode, cfg: GenerationConfig, pix2pix_path: Option
                 crop_window(grid.valid | grid.occupied, centre, tile, False)))
 
     run_episode(grid, start, make_planner(episode.planner), ObservedAsPrediction(), cfg.steps,
-                seed=int(rng.integers(2 ** 31)), cfg=cfg.exploration, nlos=sensing, on_step=on_step)
+                seed=int(rng.integers(2 ** 31)), cfg=cfg.exploration, sensing=sensing, on_step=on_step)
     return samples
 
 

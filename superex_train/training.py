@@ -25,7 +25,6 @@ import dataclasses
 import enum
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +33,7 @@ from typing import Optional
 import numpy as np
 import torch
 
+from superex_deploy.files import write_atomically
 from superex_deploy.onboard.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
 from superex_train.datasets import ShardDataset, split_by_group
 from superex_train.losses import gan_loss, soft_dice_loss, wall_weighted_bce, wall_weighted_l1
@@ -286,12 +286,6 @@ def initialise_lama_from(generator: "LamaGenerator", kind: ModelKind, path) -> s
     return sha256_file(path)
 
 
-def _save_atomic(obj, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
 def _dihedral(tensors: list[torch.Tensor], k: int, flip: bool) -> list[torch.Tensor]:
     out = []
     for t in tensors:
@@ -415,7 +409,7 @@ class _Run:
             "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
             "history": self.history, "extra": self.extra,
         }
-        _save_atomic(checkpoint, self.checkpoint_path())
+        write_atomically(self.checkpoint_path(), lambda part: torch.save(checkpoint, part))
         (self.out_dir / "history.json").write_text(json.dumps(self.history, indent=1))
 
 

@@ -22,7 +22,8 @@ def test_explore_with_the_oracle_logs_everything_the_benchmark_needs(tmp_path):
     # The oracle's prediction is the ground truth itself: its map IoU is 1 whatever the coverage.
     assert metrics["iou"]["steps"] == [0, 25, 29] and metrics["iou"]["iou"] == [1.0, 1.0, 1.0]
     assert all(len(v) == 30 for v in metrics["timings_s"].values())
-    assert metrics["config"]["motion"]["robot_radius_m"] == 0.15 and metrics["config"]["frontier_min_cells"] == 10
+    explorer = metrics["config"]["explorer"]
+    assert explorer["motion"]["robot_radius_m"] == 0.15 and explorer["frontier_min_cells"] == 10
     frames = imageio.mimread(out / "episode.gif")
     assert len(frames) == 5  # steps 0, 7, 14, 21, 28
     assert max(frames[0].shape[:2]) <= 400

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.explorer import _choose, _near_visited, _reached
+from superex_deploy.onboard.explorer import ExplorerConfig, _choose, _near_visited, _reached
 from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
@@ -131,7 +131,7 @@ def test_a_door_seen_edge_on_is_followed_though_its_frontier_is_small():
     assert result.finished and find_frontiers(result.final_observed, min_cells=1) == ()
     # With the minimum at one cell there is no fallback to make: the same episode.
     same = run_episode(grid, (3, 3), _Closest(), _CountingPredictor(), steps=300, seed=0,
-                       cfg=ExplorationConfig(frontier_min_cells=1))
+                       cfg=ExplorationConfig(explorer=ExplorerConfig(frontier_min_cells=1)))
     assert same.poses[:, 0].max() > 30
 
 
@@ -139,7 +139,7 @@ def test_the_onboard_nlos_processing_feeds_carving_and_evidence():
     grid = _two_rooms()
     hook = _CarveRightRoom(grid.shape)
     predictor = _CountingPredictor()
-    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, nlos=_SensingWith(hook),
+    result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, sensing=_SensingWith(hook),
                          cfg=ExplorationConfig(iou_every=0))
     assert hook.calls == result.steps
     assert np.all(result.coverage_with_carving >= result.coverage)
@@ -177,7 +177,7 @@ def test_on_step_sees_every_step_and_the_log_is_json_ready():
     log = json.loads(json.dumps(result.to_json()))
     assert set(log["timings_s"]) == set(STAGES) and all(len(v) == result.steps for v in log["timings_s"].values())
     assert log["steps"] == result.steps == len(log["coverage"]) == len(log["path_length_m"])
-    assert log["config"]["motion"]["step_cells"] == 3 and log["config"]["lidar"]["n_rays"] == 2500
+    assert log["config"]["explorer"]["motion"]["step_cells"] == 3 and log["config"]["lidar"]["n_rays"] == 2500
 
 
 def test_episodes_are_deterministic_on_a_bundled_map():
@@ -204,12 +204,12 @@ def test_bad_inputs_raise_value_error():
         run_episode(grid, (5, 5), planner, object())
     with pytest.raises(ValueError, match="steps"):
         run_episode(grid, (5, 5), planner, predictor, steps=2.5)
-    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
-        run_episode(grid, (5, 5), planner, predictor, nlos="spad")
-    with pytest.raises(ValueError, match="nlos must be a SpadSensing"):
-        run_episode(grid, (5, 5), planner, predictor, nlos=lambda g, p, o: (np.zeros((3, 3), bool), None))
+    with pytest.raises(ValueError, match="sensing must be a SpadSensing"):
+        run_episode(grid, (5, 5), planner, predictor, sensing="spad")
+    with pytest.raises(ValueError, match="sensing must be a SpadSensing"):
+        run_episode(grid, (5, 5), planner, predictor, sensing=lambda g, p, o: (np.zeros((3, 3), bool), None))
     with pytest.raises(ValueError, match="frontier_min_cells"):
-        ExplorationConfig(frontier_min_cells=0)
+        ExplorerConfig(frontier_min_cells=0)
 
 
 def _two_side_rooms():

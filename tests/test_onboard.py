@@ -17,7 +17,7 @@ from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start, start_poses
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
-from superex_deploy.onboard import Explorer, SpadProcessing
+from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
@@ -37,7 +37,7 @@ def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(ca
     start = start_poses(case["map"])[case["start_index"]]
     result = run_episode(grid, start, make_planner(case["planner"]), make_predictor(case["predictor"], grid),
                          steps=case["steps"], seed=case["seed"], cfg=ExplorationConfig(iou_every=case["iou_every"]),
-                         nlos=make_sensing(case["predictor"], case["spad"], case["seed"]))
+                         sensing=make_sensing(case["predictor"], case["spad"], case["seed"]))
     assert result.poses.tolist() == case["poses"]
     assert result.goal_steps == case["goal_steps"] and [list(g) for g in result.goals] == case["goals"]
     assert result.coverage.tolist() == case["coverage"]
@@ -162,7 +162,7 @@ def test_a_spad_frame_that_does_not_match_the_sensor_model_is_refused():
     grid = _box(40, 40)
     world = World(grid, (20, 20), WorldConfig(spad=SpadConfig(n_rays=100, range_m=2.0)))
     observation = world.observe()
-    explorer = _explorer(world.frame, nlos=SpadProcessing(sensor=SpadConfig(n_rays=100, range_m=3.0)))
+    explorer = _explorer(world.frame, spad_processing=SpadProcessing(sensor=SpadConfig(n_rays=100, range_m=3.0)))
     with pytest.raises(ValueError, match=r"bins per ray, the sensor model"):
         explorer.step(observation)
     frame = observation.spad
@@ -220,7 +220,7 @@ def test_the_explorer_holds_no_ground_truth_after_an_episode():
         captured["explorer"] = explorer
 
     run_episode(grid, start_poses("50052750")[0], make_planner("superex"), make_predictor("evidence", grid),
-                steps=8, nlos=make_sensing("evidence", True, 0), on_observation=keep)
+                steps=8, sensing=make_sensing("evidence", True, 0), on_observation=keep)
     for item in _reachable(captured["explorer"]):
         assert not isinstance(item, OccupancyGrid), "the explorer can reach the ground-truth grid"
         if isinstance(item, np.ndarray) and item.size > 1:
@@ -374,7 +374,7 @@ def test_the_readme_loop_explores_from_observations_alone():
     grid = load_map("50052750")
     world = World(grid, start_poses("50052750")[3], WorldConfig(spad=SpadConfig()))
     explorer = Explorer(world.frame, make_planner("superex"), make_predictor("evidence"),
-                        nlos=make_processing("evidence"))
+                        spad_processing=make_processing("evidence"))
     known = []
     for _ in range(12):
         command = explorer.step(world.observe())
@@ -413,7 +413,7 @@ def _async_run(schedule, steps=60, planner="mapex"):
     predictor = _SlowThreadRecordingPredictor()
     commands = []
     result = run_episode(grid, start_poses("50052750")[1], make_planner(planner), predictor, steps=steps, seed=2,
-                         cfg=ExplorationConfig(iou_every=10, prediction=schedule),
+                         cfg=ExplorationConfig(iou_every=10, explorer=ExplorerConfig(prediction=schedule)),
                          on_observation=lambda o, c, e: commands.append(c))
     return result, commands, predictor
 
@@ -470,7 +470,7 @@ def test_an_evidence_predictor_sees_zeros_until_the_first_spad_frame():
             seen.append(extra)
             return ObservedAsPrediction().predict(observed)
 
-    explorer = Explorer(world.frame, make_planner("mapex"), Evidence(), nlos=SpadProcessing())
+    explorer = Explorer(world.frame, make_planner("mapex"), Evidence(), spad_processing=SpadProcessing())
     explorer.step(world.observe())
     assert seen and seen[0] is not None and seen[0].shape == grid.shape and not seen[0].any()
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.explorer import PredictionSchedule
+from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.prediction import ObservedAsPrediction
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, _grow, changed_box
@@ -173,7 +173,7 @@ def _rooms():
 
 def _goals(cfg, predictor=None, planner="mapex", iou_every=0):
     result = run_episode(_rooms(), (40, 6), make_planner(planner), predictor or ObservedAsPrediction(), steps=150,
-                         cfg=ExplorationConfig(iou_every=iou_every, prediction=cfg[0], reuse=cfg[1]))
+                         cfg=ExplorationConfig(iou_every=iou_every, explorer=ExplorerConfig(prediction=cfg[0], reuse=cfg[1])))
     return result
 
 
@@ -221,8 +221,8 @@ def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(every, af
     ``wait_first``, the first step's own prediction until then)."""
     from superex_deploy.sim.episode import make_world_and_explorer
 
-    cfg = ExplorationConfig(iou_every=0, prediction=PredictionSchedule(True, every, after, wait_first=wait_first),
-                            reuse=PredictionReuse(crop_margin_m=1.0))
+    cfg = ExplorationConfig(iou_every=0, explorer=ExplorerConfig(
+        prediction=PredictionSchedule(True, every, after, wait_first=wait_first), reuse=PredictionReuse(crop_margin_m=1.0)))
     world, explorer = make_world_and_explorer(_rooms(), (40, 6), make_planner("mapex"), ObservedAsPrediction(),
                                               cfg=cfg)
     with explorer:

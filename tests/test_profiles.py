@@ -20,6 +20,15 @@ def test_the_default_profile_is_the_measured_realtime_one():
     assert ensemble.max_members == 1 and make_predictor("lama_bp").max_members is None
 
 
+def test_a_profile_gives_the_explorer_and_episode_configurations():
+    realtime = PROFILES["realtime"]
+    explorer = realtime.explorer_config()
+    assert explorer.prediction is realtime.schedule and explorer.reuse is realtime.reuse
+    assert explorer.motion == type(explorer)().motion
+    episode = realtime.episode_config(iou_every=10, iou_dense_until=0.35)
+    assert episode.explorer == explorer and (episode.iou_every, episode.iou_dense_until) == (10, 0.35)
+
+
 def test_a_one_member_profile_refuses_planners_that_read_the_variance():
     assert check_profile("realtime", make_planner("superex"), "lama_bp") is PROFILES["realtime"]
     assert check_profile("realtime", make_planner("mapex"), "observed") is PROFILES["realtime"]

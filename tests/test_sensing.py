@@ -21,7 +21,7 @@ def test_spad_sensing_adds_sound_carved_coverage_to_an_episode():
             seen_walls.append(extra)
             return ObservedAsPrediction().predict(observed)
 
-    result = run_episode(grid, start, NearestFrontier(), Recorder(), steps=40, seed=0, nlos=sensing)
+    result = run_episode(grid, start, NearestFrontier(), Recorder(), steps=40, seed=0, sensing=sensing)
     assert np.all(result.coverage_with_carving >= result.coverage)
     assert result.coverage_with_carving[-1] > result.coverage[-1]
     carved_walls = np.any(result.final_observed[grid.occupied] == 0)

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
-from superex_deploy.commands.explore import add_planner_option, add_profile_option, planner_options
+from superex_deploy.benchmarking import ScenarioTask, run_scenario
+from superex_deploy.commands._options import (add_parallel_options, add_planner_option, add_profile_option,
+                                               check_jobs, make_backend, planner_options)
+from superex_deploy.files import write_atomically
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,13 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=1000)
     add_profile_option(parser)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 1)))
+    add_parallel_options(parser)
     parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--backend", choices=("local", "ray"), default="local",
-                        help="local: --jobs worker processes here; ray: Ray tasks (the ray extra), on a local Ray "
-                             "instance with --jobs CPUs or on the cluster at --address")
-    parser.add_argument("--address", default=None,
-                        help="with --backend ray: the cluster to use ('auto', or HOST:PORT from `ray start --head`)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out: skip the episodes OUT/episodes.jsonl already holds (the "
                              "settings must be the same)")
@@ -46,53 +43,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "planners); --planners / --predictor / --spad / --profile are ignored")
     parser.add_argument("--rows", default="all",
                         help="with --suite paper: comma-separated row names, or 'all'")
-
-
-def run_scenario(task: tuple) -> dict:
-    """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings).
-
-    ``task``: ``(map, start index, start cell, planner, planner options, predictor, spad, steps, seed[, episode
-    config overrides[, profile name]])``; the overrides default to an IoU evaluation every 50 steps, the profile to
-    ``full`` (the paper suite's)."""
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.maps import load_map
-
-    map_name, start_index, start, planner_name, options, predictor_name, spad, steps, seed = task[:9]
-    iou_cfg = task[9] if len(task) > 9 else {"iou_every": 50}
-    profile = PROFILES[task[10] if len(task) > 10 else "full"]
-    grid = load_map(map_name)
-    result = run_episode(grid, start, make_planner(planner_name, **options),
-                         make_predictor(predictor_name, grid, profile=profile), steps=steps, seed=seed,
-                         cfg=ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse, **iou_cfg),
-                         nlos=make_sensing(predictor_name, spad, seed, profile=profile))
-    summary = result.to_json()
-    summary["start_index"] = start_index
-    summary["profile"] = task[10] if len(task) > 10 else "full"
-    summary.pop("poses")
-    summary.pop("timings_s")
-    return summary
-
-
-def make_backend(args: argparse.Namespace):
-    """The backend ``--backend`` / ``--address`` / ``--jobs`` name."""
-    from superex_deploy.parallel import LocalBackend, RayBackend
-
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-    if args.backend == "ray":
-        return RayBackend(address=args.address, num_cpus=None if args.address else args.jobs)
-    if args.address is not None:
-        raise ValueError("--address needs --backend ray")
-    return LocalBackend(args.jobs)
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader never sees half a file."""
-    part = path.with_name(path.name + ".part")
-    part.write_text(text)
-    os.replace(part, path)
 
 
 def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
@@ -137,8 +87,7 @@ def run(args: argparse.Namespace) -> int:
     unknown = [p for p in planners if p not in PLANNERS]
     if unknown:
         raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    check_jobs(args)
     if args.predictor == "lama_bp" and not args.spad:
         raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
     if args.steps < 1:
@@ -153,9 +102,11 @@ def run(args: argparse.Namespace) -> int:
     profile_name = resolved.pop() if len(resolved) == 1 else "full"
     for instance in instances:
         check_profile(profile_name, instance, args.predictor)
-    tasks = [(name, k, pose, planner, options, args.predictor, args.spad, args.steps, args.seed, {"iou_every": 50},
-              profile_name) for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
-    keys = [f"{name}/{k}/{planner}" for name, k, _, planner, *_ in tasks]
+    tasks = [ScenarioTask(map_name=name, start_index=k, start_rc=pose, planner=planner, predictor=args.predictor,
+                          spad=args.spad, steps=args.steps, seed=args.seed, planner_options=options, iou_every=50,
+                          profile=profile_name)
+             for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
+    keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
                 "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
                 "profile_settings": PROFILES[profile_name].to_json()}

@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.pipeline import (DEFAULT_PROFILE, PREDICTORS, PROFILES, check_profile, make_predictor,
-                                     make_sensing, resolve_profile)
+from superex_deploy.commands._options import add_planner_option, add_profile_option, planner_options
+from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,51 +37,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
 
 
-def add_profile_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", choices=tuple(PROFILES), default=None,
-                        help="real-time settings of the onboard pipeline (superex_deploy.pipeline.PROFILES): "
-                             "'full' runs everything inside each step, 'realtime' the measured asynchronous, cropped, "
-                             f"one-member prediction (benchmarks/realtime). Default: {DEFAULT_PROFILE}, or full for "
-                             "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
-
-
-def recording_metadata(grid, args, options: dict, nlos, explorer_cfg) -> dict:
-    """What a replay needs to rebuild the explorer of this run (JSON values)."""
+def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict:
+    """What a replay needs to rebuild the explorer of this run (JSON values); ``sensing``: the episode's
+    :class:`~superex_deploy.sim.sensing.SpadSensing` or None (recorded under ``sensor`` and ``nlos``)."""
     from dataclasses import asdict
 
     return {"map": grid.name, "planner": args.planner, "planner_options": options, "predictor": args.predictor,
-            "seed": args.seed, "spad": nlos is not None,
+            "seed": args.seed, "spad": sensing is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
-            "sensor": None if nlos is None else asdict(nlos.spad), "nlos": None if nlos is None else asdict(nlos.nlos),
+            "sensor": None if sensing is None else asdict(sensing.spad),
+            "nlos": None if sensing is None else asdict(sensing.nlos_cfg),
             "explorer": asdict(explorer_cfg), "profile": args.profile,
             "profile_settings": PROFILES[args.profile].to_json()}
-
-
-def add_planner_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
-                        help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
-                             "straight-line divisor (repeatable; numbers and true/false are converted)")
-
-
-def planner_options(pairs: list[str]) -> dict:
-    """``["field=value", ...]`` -> config overrides; ints, floats and true / false are converted."""
-    options = {}
-    for pair in pairs:
-        field_name, separator, text = pair.partition("=")
-        if not separator or not field_name.strip():
-            raise ValueError(f"--planner-option takes FIELD=VALUE, got {pair!r}")
-        value: object = text.strip()
-        if text.strip().lower() in ("true", "false"):
-            value = text.strip().lower() == "true"
-        else:
-            for convert in (int, float):
-                try:
-                    value = convert(text)
-                    break
-                except ValueError:
-                    pass
-        options[field_name.strip()] = value
-    return options
 
 
 def resolve_start(grid, start_index: int, pose):
@@ -107,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder, save_episode_figure
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import run_episode
 
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
@@ -119,9 +86,9 @@ def run(args: argparse.Namespace) -> int:
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
     profile = check_profile(args.profile, planner, args.predictor)
-    nlos = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
+    sensing = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
     predictor = make_predictor(args.predictor, grid, args.models, profile)
-    cfg = ExplorationConfig(prediction=profile.schedule, reuse=profile.reuse)
+    cfg = profile.episode_config()
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
@@ -133,9 +100,9 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     record = None
     if args.record is not None:
-        explorer_cfg = cfg.explorer()
+        explorer_cfg = cfg.explorer
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
-                                 recording_metadata(grid, args, options, nlos, explorer_cfg))
+                                 recording_metadata(grid, args, options, sensing, explorer_cfg))
     recorder = GifRecorder(every=args.gif_every)
     try:
         with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
@@ -147,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
                 record.write(observation, command, explorer.observed)
 
             result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
-                                 on_step=on_step, nlos=nlos,
+                                 on_step=on_step, sensing=sensing,
                                  on_observation=None if record is None else on_observation)
         if record is not None:
             record.write_map(result.final_observed)

@@ -4,23 +4,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.commands._options import check_jobs, make_backend
+from superex_deploy.files import write_atomically
 from superex_deploy.sim.suite import (CHECKPOINTS, IOU_BINS, IOU_LEVELS, PAPER_ROWS, REFERENCE_ROW,
                                           paired_summary, row_summary)
 
 IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 """IoU every 10 steps while the coverage is below 35 % (the IoU metrics read that part), every 100 after."""
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    temporary = path.with_name(path.name + ".partial")
-    temporary.write_text(text)
-    os.replace(temporary, path)
 
 
 def _rows(spec: str) -> list[str]:
@@ -33,20 +28,21 @@ def _rows(spec: str) -> list[str]:
 
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
-    from superex_deploy.commands.benchmark import make_backend, run_scenario
+    from superex_deploy.benchmarking import ScenarioTask, run_scenario
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
     row = PAPER_ROWS[name]
-    tasks = [(m, k, pose, row.planner, {}, row.predictor, row.spad, args.steps, args.seed, IOU_SCHEDULE)
+    tasks = [ScenarioTask(map_name=m, start_index=k, start_rc=pose, planner=row.planner, predictor=row.predictor,
+                          spad=row.spad, steps=args.steps, seed=args.seed, **IOU_SCHEDULE)
              for m in maps for k, pose in enumerate(start_poses(m))]
-    keys = [f"{m}/{k}" for m, k, *_ in tasks]
+    keys = [f"{task.map_name}/{task.start_index}" for task in tasks]
     recorded = rows_dir / f"{name}.setting.json"
     setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad}}
     if recorded.is_file() and json.loads(recorded.read_text()) != json.loads(json.dumps(setting)):
         raise ValueError(f"{recorded} holds a partial row of other settings; move it and {name}.episodes.jsonl "
                          f"away or choose another --out")
-    _write_atomically(recorded, json.dumps(setting))
+    write_atomically(recorded, json.dumps(setting))
     episodes = run_tasks(run_scenario, tasks, keys, make_backend(args), rows_dir / f"{name}.episodes.jsonl", name)
     for episode in episodes:
         episode["row"] = name
@@ -106,8 +102,7 @@ def run_paper(args: argparse.Namespace) -> int:
         raise ValueError("--planner-option does not apply to --suite paper: its rows fix their planners' settings")
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    check_jobs(args)
     maps = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out {args.out} exists and is not a folder")
@@ -129,7 +124,7 @@ def run_paper(args: argparse.Namespace) -> int:
             print(f"superex benchmark: {stop}; the finished episodes of row {name} are in "
                   f"{rows_dir / (name + '.episodes.jsonl')}: rerun the same command to finish", file=sys.stderr)
             return 130
-        _write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
+        write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
     rows = {}
     for name in PAPER_ROWS:  # every finished row, in the table's order
         path = rows_dir / f"{name}.json"
@@ -144,8 +139,8 @@ def run_paper(args: argparse.Namespace) -> int:
               f"the evaluation area at the first evaluation reaching each coverage, and the mean within each "
               f"coverage bin; ms / goal: median over episodes of the mean time per goal choice (2 episodes in "
               f"parallel on this machine).\n\n")
-    _write_atomically(args.out / "results.md", header + text)
-    _write_atomically(args.out / "results.json", json.dumps({"setting": setting, **summary}, indent=1))
+    write_atomically(args.out / "results.md", header + text)
+    write_atomically(args.out / "results.json", json.dumps({"setting": setting, **summary}, indent=1))
     save_suite_plots(args.out, rows, args.steps)
     print(header + text)
     print(f"wrote {args.out / 'results.md'}, results.json, coverage.png, iou_vs_coverage.png")

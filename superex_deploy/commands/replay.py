@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from superex_deploy.files import write_atomically
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,12 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models (default: the recording's, else the repository's exported/)")
-
-
-def _atomic_write(path: Path, write) -> None:
-    part = path.with_name(path.name + ".part")
-    write(part)
-    os.replace(part, path)
 
 
 def build_explorer(metadata: dict, frame, models=None):
@@ -70,16 +65,16 @@ def build_explorer(metadata: dict, frame, models=None):
         reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
         cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
-        nlos = None
+        spad_processing = None
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
-            nlos = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
+            spad_processing = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
     except (KeyError, TypeError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
-    return Explorer(frame, planner, predictor, nlos=nlos, cfg=cfg, seed=seed)
+    return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg, seed=seed)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -125,14 +120,14 @@ def _replay(args, recording, explorer) -> int:
                           "p99": float(np.percentile(step_total, 99)) if step_total.size else 0.0},
                "stage_s": per_stage}
     args.out.mkdir(parents=True, exist_ok=True)
-    _atomic_write(args.out / "metrics.json", lambda p: p.write_text(json.dumps(metrics)))
+    write_atomically(args.out / "metrics.json", json.dumps(metrics))
     evidence = explorer.evidence if explorer.evidence is not None else np.zeros(0, np.float32)
 
     def save_map(part: Path) -> None:
         with open(part, "wb") as file:
             np.savez_compressed(file, observed=explorer.observed, carved=explorer.mapper.carved, evidence=evidence)
 
-    _atomic_write(args.out / "map.npz", save_map)
+    write_atomically(args.out / "map.npz", save_map)
     verdict = "goals match the recording" if not mismatches else f"{len(mismatches)} steps differ from the recording"
     print(f"replayed {len(recording.steps)} steps of {args.recording}: {len(goals)} goals, {verdict}")
     print(f"wrote {args.out / 'metrics.json'}, {args.out / 'map.npz'}")

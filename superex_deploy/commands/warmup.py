@@ -47,7 +47,7 @@ def warm_up(models=None) -> float:
     grid = OccupancyGrid(walls, ~walls, 0.1, "warm-up")
     for planner in PLANNERS:
         run_episode(grid, (10, 10), make_planner(planner), make_predictor("evidence"), steps=4,
-                    cfg=ExplorationConfig(iou_every=2), nlos=make_sensing("evidence", True, 0, models))
+                    cfg=ExplorationConfig(iou_every=2), sensing=make_sensing("evidence", True, 0, models))
     for name in ("lama_los", "lama_bp"):
         make_predictor(name, models=models)
     return time.perf_counter() - started

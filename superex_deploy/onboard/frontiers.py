@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from superex_deploy.onboard.types import FREE, UNKNOWN, Frontier
+from superex_deploy.onboard.types import FREE, UNKNOWN, Frontier, check_observed
 
 __all__ = ["frontier_cells", "find_frontiers"]
 
@@ -77,14 +77,6 @@ def _frontier_regions(observed):
     return rows, cols, region, n_regions
 
 
-def _check_observed(observed: np.ndarray) -> np.ndarray:
-    observed = np.asarray(observed)
-    if observed.dtype != np.int8 or observed.ndim != 2:
-        raise ValueError(f"observed must be an int8 [H, W] array, got dtype {observed.dtype} and shape "
-                         f"{observed.shape}")
-    return observed
-
-
 def frontier_cells(observed: np.ndarray) -> np.ndarray:
     """Frontier mask of an observed map.
 
@@ -94,7 +86,7 @@ def frontier_cells(observed: np.ndarray) -> np.ndarray:
     Returns:
         bool ``[H, W]``: FREE cells with at least one UNKNOWN 4-neighbour.
     """
-    observed = _check_observed(observed)
+    observed = check_observed(observed)
     unknown = observed == UNKNOWN
     near_unknown = np.zeros_like(unknown)
     near_unknown[1:, :] |= unknown[:-1, :]
@@ -119,7 +111,7 @@ def find_frontiers(observed: np.ndarray, min_cells: int = 10) -> tuple[Frontier,
     Raises:
         ValueError: ``observed`` is not an int8 2-D array, or ``min_cells < 1``.
     """
-    observed = _check_observed(observed)
+    observed = check_observed(observed)
     if int(min_cells) < 1:
         raise ValueError(f"min_cells must be >= 1, got {min_cells}")
     rows, cols, region, n_regions = _frontier_regions(np.ascontiguousarray(observed))

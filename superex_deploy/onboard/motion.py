@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from superex_deploy.onboard.types import FREE, OCCUPIED
+from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
 __all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear"]
 
@@ -274,9 +274,7 @@ class PlanningMap:
 
 
 def _check_observed_and_pose(observed: np.ndarray, pose_rc) -> tuple[np.ndarray, tuple[int, int]]:
-    observed = np.asarray(observed)
-    if observed.dtype != np.int8 or observed.ndim != 2 or min(observed.shape) < 1:
-        raise ValueError(f"observed must be a non-empty int8 [H, W] array, got {observed.dtype} {observed.shape}")
+    observed = check_observed(observed)
     r, c = int(pose_rc[0]), int(pose_rc[1])
     if not (0 <= r < observed.shape[0] and 0 <= c < observed.shape[1]):
         raise ValueError(f"robot cell {(r, c)} lies outside the map of shape {observed.shape}")

@@ -9,21 +9,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction, check_observed
 
-__all__ = ["ObservedAsPrediction", "EvidenceAsPrediction", "check_observed"]
-
-
-def check_observed(observed: np.ndarray, shape: Optional[tuple[int, int]] = None) -> np.ndarray:
-    """Validate an observed map: int8 ``[H, W]`` holding only UNKNOWN (-1), FREE (0) and OCCUPIED (1)."""
-    observed = np.asarray(observed)
-    if observed.dtype != np.int8 or observed.ndim != 2:
-        raise ValueError(f"observed must be an int8 [H, W] array, got {observed.dtype} with shape {observed.shape}")
-    if shape is not None and observed.shape != tuple(shape):
-        raise ValueError(f"observed has shape {observed.shape}, expected {tuple(shape)}")
-    if observed.size and (observed.min() < -1 or observed.max() > 1):
-        raise ValueError("observed may hold only -1 (unknown), 0 (free) and 1 (occupied)")
-    return observed
+__all__ = ["ObservedAsPrediction", "EvidenceAsPrediction"]
 
 
 class ObservedAsPrediction:
@@ -37,7 +25,7 @@ class ObservedAsPrediction:
     accepts_crops = True  # each cell's output depends on that cell alone
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
-        observed = check_observed(observed)
+        observed = check_observed(observed, codes=True)
         mean = (observed == OCCUPIED).astype(np.float32)
         return Prediction(mean=mean, variance=np.zeros_like(mean))
 
@@ -54,7 +42,7 @@ class EvidenceAsPrediction:
     accepts_crops = True
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
-        observed = check_observed(observed)
+        observed = check_observed(observed, codes=True)
         mean = (observed == OCCUPIED).astype(np.float32)
         if extra is not None:
             extra = np.asarray(extra)

@@ -82,7 +82,7 @@ class SpadProcessing:
 
     Attributes:
         sensor: the sensor model (bin width, range, noise) the frames must match.
-        nlos: processing parameters.
+        nlos_cfg: processing parameters.
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
@@ -92,7 +92,7 @@ class SpadProcessing:
     """
 
     sensor: SpadConfig = field(default_factory=SpadConfig)
-    nlos: NlosConfig = field(default_factory=NlosConfig)
+    nlos_cfg: NlosConfig = field(default_factory=NlosConfig)
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
     skips: NlosSkips = field(default_factory=NlosSkips)
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
@@ -120,7 +120,7 @@ class SpadProcessing:
         discs lie within the carving cap of wall points within the sensor's range; votes lie in the
         back-projection window."""
         carve_m = self.sensor.range_m + carve_radius_cap_m(self.sensor.n_secondary, resolution_m)
-        return max(int(np.ceil(carve_m / resolution_m)) + 1, int(np.ceil(self.nlos.window_m / resolution_m)))
+        return max(int(np.ceil(carve_m / resolution_m)) + 1, int(np.ceil(self.nlos_cfg.window_m / resolution_m)))
 
     def _skip(self, scan: SpadScan, known: np.ndarray) -> Optional[str]:
         """Why this frame may be left out (a key of :attr:`counts`), or None."""
@@ -146,19 +146,19 @@ class SpadProcessing:
             self.counts[reason] += 1
             return np.zeros(scan.grid_shape, bool), self._evidence
         if self.bp_filter is None:
-            result = process_scan(scan, self.nlos, known=known)
+            result = process_scan(scan, self.nlos_cfg, known=known)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
             return result.carved, self._evidence
         # The learned filter replaces the Laplacian one: do not compute that too.
-        los = estimate_los(scan, self.nlos)
-        bp = back_project(scan, los, self.nlos, known)
+        los = estimate_los(scan, self.nlos_cfg)
+        bp = back_project(scan, los, self.nlos_cfg, known)
         if self.skips.filter_without_votes and not bp.any():
             self.counts["no_votes"] += 1
         else:
             np.maximum(self._evidence, self.bp_filter(bp, scan.pose_rc), out=self._evidence)
-        return carve(scan, los, self.nlos), self._evidence
+        return carve(scan, los, self.nlos_cfg), self._evidence
 
     def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:

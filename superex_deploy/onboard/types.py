@@ -17,6 +17,26 @@ FREE = np.int8(0)
 OCCUPIED = np.int8(1)
 
 
+def check_observed(observed, shape: Optional[tuple[int, int]] = None, codes: bool = False) -> np.ndarray:
+    """Validate an observed map and return it as an array: a non-empty int8 ``[H, W]`` (of ``shape`` when
+    given); with ``codes``, also holding only :data:`UNKNOWN` (-1), :data:`FREE` (0) and :data:`OCCUPIED` (1)
+    (a pass over the whole map: the predictors check it, the per-step map code does not).
+
+    Raises:
+        ValueError: another dtype or number of axes, an empty map, another shape, or (with ``codes``) another
+            value.
+    """
+    observed = np.asarray(observed)
+    if observed.dtype != np.int8 or observed.ndim != 2 or observed.size == 0:
+        raise ValueError(f"observed must be a non-empty int8 [H, W] array, got {observed.dtype} with shape "
+                         f"{observed.shape}")
+    if shape is not None and observed.shape != tuple(shape):
+        raise ValueError(f"observed has shape {observed.shape}, expected {tuple(shape)}")
+    if codes and (observed.min() < UNKNOWN or observed.max() > OCCUPIED):
+        raise ValueError("observed may hold only -1 (unknown), 0 (free) and 1 (occupied)")
+    return observed
+
+
 @dataclass(frozen=True)
 class Frontier:
     """One frontier region: free cells next to unknown ones, 8-connected.

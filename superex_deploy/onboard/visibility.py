@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction
+from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction, check_observed
 from superex_deploy.geometry import dda_start, dda_step
 
 __all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
@@ -241,7 +241,7 @@ def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: V
     """
     mean = check_map("prediction.mean", prediction.mean, np.float32)
     variance = check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
-    observed = check_map("observed", observed, np.int8, mean.shape)
+    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
     cells = check_cells(cells_rc, mean.shape)
     counts = np.zeros(len(cells), np.int64)
     var_sums = np.zeros(len(cells), np.float64)
@@ -269,7 +269,7 @@ def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: li
         int64 ``[N]``: the size of the union of each group's visible unknown cells (0 for an empty group).
     """
     mean = check_map("mean", mean, np.float32)
-    observed = check_map("observed", observed, np.int8, mean.shape)
+    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
     max_t = _max_range_cells(cfg, resolution_m)
     stamp = np.full(mean.shape, -1, np.int32)
     no_variance = np.zeros(mean.shape, np.float32)
@@ -307,7 +307,7 @@ def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,
         int64 ``[N]``; 0 for a cell predicted to be a wall.
     """
     mean = check_map("mean", mean, np.float32)
-    observed = check_map("observed", observed, np.int8, mean.shape)
+    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
     cells = check_cells(cells_rc, mean.shape)
     labels, n_labels = ndimage.label(mean <= wall_threshold)
     unknown_per_label = np.bincount(labels[observed == UNKNOWN], minlength=n_labels + 1)

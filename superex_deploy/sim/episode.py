@@ -23,11 +23,9 @@ import numpy as np
 
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.sim.metrics import evaluation_area, map_iou
-from superex_deploy.onboard.motion import MotionConfig
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.prediction_reuse import PredictionReuse
+from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 
@@ -36,42 +34,30 @@ __all__ = ["STAGES", "ExplorationConfig", "EpisodeState", "EpisodeResult", "run_
 
 @dataclass(frozen=True)
 class ExplorationConfig:
-    """Episode parameters.
+    """Episode parameters: the world's sensors, the explorer's configuration, and when the metrics are evaluated.
 
     Attributes:
-        lidar: the line-of-sight LiDAR.
-        motion: robot radius, proximity cost, step length, goal tolerance.
-        frontier_min_cells: frontier regions with fewer cells are offered to the planner only when no larger
-            region gives a goal (MapEx drops them: 10). Dropping them outright stopped 2 of the 40 benchmark
-            episodes at their first step, in rooms whose open door, seen edge-on, showed fewer frontier cells.
+        lidar: the line-of-sight LiDAR (the world's).
+        explorer: what the explorer is built with (:class:`~superex_deploy.onboard.explorer.ExplorerConfig`:
+            motion, frontier size, prediction schedule and reuse); the world drives ``explorer.motion.step_cells``
+            cells per step.
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
-        prediction: when the explorer runs its predictor (synchronously by default; see
-            :class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
-        reuse: what the explorer keeps of its last prediction (nothing by default; see
-            :class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
-    motion: MotionConfig = field(default_factory=MotionConfig)
-    frontier_min_cells: int = 10
+    explorer: ExplorerConfig = field(default_factory=ExplorerConfig)
     iou_every: int = 25
     iou_dense_until: float = 1.0
-    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
-    reuse: PredictionReuse = field(default_factory=PredictionReuse)
 
     def __post_init__(self) -> None:
-        if int(self.frontier_min_cells) < 1:
-            raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
+        for name, kind in (("lidar", LidarConfig), ("explorer", ExplorerConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
         if int(self.iou_every) < 0:
             raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
-
-    def explorer(self) -> ExplorerConfig:
-        """The onboard half of these parameters (what the explorer is built with)."""
-        return ExplorerConfig(motion=self.motion, frontier_min_cells=self.frontier_min_cells,
-                              prediction=self.prediction, reuse=self.reuse)
 
 
 @dataclass
@@ -119,7 +105,8 @@ class EpisodeResult:
             carving) there.
         goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
         finished: True when the planner found no goal before the budget ran out.
-        config: the :class:`ExplorationConfig` as a dict.
+        config: the :class:`ExplorationConfig` as a dict (``lidar``, ``explorer``: ``motion``,
+            ``frontier_min_cells``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``).
         final_observed: int8 ``[H, W]`` observed map at the end.
         final_carved: bool ``[H, W]`` carved cells at the end.
         final_prediction: the last prediction computed (for the final figure), or None.
@@ -176,33 +163,34 @@ class EpisodeResult:
         }
 
 
-def _check_inputs(grid: OccupancyGrid, steps: int, cfg: ExplorationConfig, nlos) -> int:
+def _check_inputs(grid: OccupancyGrid, steps: int, cfg: ExplorationConfig, sensing) -> int:
     if not isinstance(grid, OccupancyGrid):
         raise ValueError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
     if isinstance(steps, bool) or int(steps) != steps or int(steps) < 1:
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(cfg, ExplorationConfig):
         raise ValueError(f"cfg must be an ExplorationConfig, got {type(cfg).__name__}")
-    if nlos is not None and not isinstance(nlos, SpadSensing):
-        raise ValueError(f"nlos must be a SpadSensing or None, got {type(nlos).__name__}")
+    if sensing is not None and not isinstance(sensing, SpadSensing):
+        raise ValueError(f"sensing must be a SpadSensing or None, got {type(sensing).__name__}")
     return int(steps)
 
 
 def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, seed: int = 0,
-                            cfg: ExplorationConfig = ExplorationConfig(), nlos: Optional[SpadSensing] = None
+                            cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None
                             ) -> tuple[World, Explorer]:
     """The two halves of an episode: the :class:`World` on ``grid`` with the robot at ``start_rc``, and a fresh
     :class:`Explorer` on the world's map frame (see :func:`run_episode` for the arguments)."""
-    world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if nlos is None else nlos.spad,
-                                              step_cells=cfg.motion.step_cells,
-                                              seed=0 if nlos is None else nlos.seed))
-    explorer = Explorer(world.frame, planner, predictor, nlos=None if nlos is None else nlos.processing(),
-                        cfg=cfg.explorer(), seed=seed)
+    world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
+                                              step_cells=cfg.explorer.motion.step_cells,
+                                              seed=0 if sensing is None else sensing.seed))
+    explorer = Explorer(world.frame, planner, predictor,
+                        spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
+                        seed=seed)
     return world, explorer
 
 
 def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, steps: int = 1000,
-                seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), nlos: Optional[SpadSensing] = None,
+                seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None,
                 on_step: Optional[Callable[[EpisodeState], None]] = None,
                 on_observation: Optional[Callable] = None) -> EpisodeResult:
     """Explore ``grid`` from ``start_rc`` for up to ``steps`` steps (see the module docstring).
@@ -215,7 +203,7 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
         steps: step budget (>= 1).
         seed: seed of the generator handed to the planner.
         cfg: episode parameters.
-        nlos: optional SPAD sensing (simulated in the world, processed by the explorer).
+        sensing: optional SPAD sensing (simulated in the world, processed by the explorer).
         on_step: optional callback, called once per step with the :class:`EpisodeState`.
         on_observation: optional callback ``(observation, command, explorer)`` once per step, right after the
             explorer's step (recording).
@@ -228,8 +216,8 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
             planner that is not a Planner, a predictor without ``predict``.
         RuntimeError: the planner returned a goal that no path reaches (a planner bug).
     """
-    steps = _check_inputs(grid, steps, cfg, nlos)
-    world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, nlos)
+    steps = _check_inputs(grid, steps, cfg, sensing)
+    world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, sensing)
     iou_area = evaluation_area(grid) if cfg.iou_every else None
     try:
         return _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area, on_step, on_observation)

@@ -114,7 +114,7 @@ class ExplorationEnv(gym.Env):
 
     def _action_mask(self) -> np.ndarray:
         observed = self._explorer.observed
-        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.motion)
+        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.explorer.motion)
         # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
         # visited before would be dropped at once, wasting the action.
         regions = self._explorer.frontier_candidates(self._world.pose_rc)

@@ -8,7 +8,7 @@ wall cells of the eval maps; the rest are the inner cells of thick walls and wal
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -16,7 +16,7 @@ from scipy import ndimage
 from superex_deploy.maps import OccupancyGrid
 
 __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
-           "results_markdown", "paired_differences"]
+           "results_markdown", "pair_by_scenario", "difference_counts", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
 
@@ -113,6 +113,37 @@ def _scenario_key(result: dict) -> tuple:
     return result["map"], int(result["start_index"]), result["planner"]
 
 
+def pair_by_scenario(baseline: list[dict], candidate: list[dict], key: Callable[[dict], tuple] = _scenario_key,
+                     what: str = "runs") -> list[tuple[dict, dict]]:
+    """The episodes of two runs paired by scenario: ``(baseline episode, candidate episode)`` in the order of
+    their sorted ``key`` (default: map, start index, planner); ``what`` names the runs in error messages.
+
+    Raises:
+        ValueError: a run holds a scenario twice, or the runs do not hold the same scenarios.
+    """
+    runs = []
+    for name, episodes in (("baseline", baseline), ("candidate", candidate)):
+        keyed = {}
+        for episode in episodes:
+            scenario = key(episode)
+            if scenario in keyed:
+                raise ValueError(f"the {name} run holds scenario {scenario} twice")
+            keyed[scenario] = episode
+        runs.append(keyed)
+    if set(runs[0]) != set(runs[1]):
+        missing = sorted(set(runs[0]) ^ set(runs[1]))
+        raise ValueError(f"the {what} hold different scenarios (e.g. {missing[:3]}); pair {what} of the same "
+                         f"scenarios")
+    return [(runs[0][scenario], runs[1][scenario]) for scenario in sorted(runs[0])]
+
+
+def difference_counts(differences: np.ndarray, tie_tolerance: float = 1e-6) -> dict[str, int]:
+    """How many paired differences (candidate - baseline, float ``[n]``) are ``better`` (above
+    ``tie_tolerance``), ``worse`` (below ``-tie_tolerance``) or ``tied``."""
+    return {"better": int(np.sum(differences > tie_tolerance)), "worse": int(np.sum(differences < -tie_tolerance)),
+            "tied": int(np.sum(np.abs(differences) <= tie_tolerance))}
+
+
 def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints: Sequence[int],
                        series: str = "coverage", baseline_series: str = "coverage",
                        tie_tolerance: float = 1e-6) -> dict:
@@ -127,19 +158,7 @@ def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints:
     Raises:
         ValueError: the runs do not cover the same scenarios, a scenario appears twice, or an unknown series.
     """
-    runs = {}
-    for name, results in (("baseline", baseline), ("candidate", candidate)):
-        keyed = {}
-        for result in results:
-            key = _scenario_key(result)
-            if key in keyed:
-                raise ValueError(f"the {name} run holds scenario {key} twice")
-            keyed[key] = result
-        runs[name] = keyed
-    if set(runs["baseline"]) != set(runs["candidate"]):
-        missing = sorted(set(runs["baseline"]) ^ set(runs["candidate"]))
-        raise ValueError(f"the runs cover different scenarios (e.g. {missing[:3]}); pair runs of the same "
-                         f"maps, start poses and planners")
+    pairs = pair_by_scenario(baseline, candidate)
     for name, key in (("series", series), ("baseline_series", baseline_series)):
         if key not in ("coverage", "coverage_with_carving"):
             raise ValueError(f"{name} must be 'coverage' or 'coverage_with_carving', got {key!r}")
@@ -149,15 +168,13 @@ def paired_differences(baseline: list[dict], candidate: list[dict], checkpoints:
         values = cand - base
         return {"n": int(values.size), "baseline_mean": float(base.mean()), "candidate_mean": float(cand.mean()),
                 "median": float(np.median(values)), "mean": float(np.mean(values)),
-                "better": int(np.sum(values > tie_tolerance)), "worse": int(np.sum(values < -tie_tolerance)),
-                "tied": int(np.sum(np.abs(values) <= tie_tolerance))}
+                **difference_counts(values, tie_tolerance)}
 
-    keys = sorted(runs["baseline"])
     out = {}
     for step in checkpoints:
-        out[f"coverage@{step}"] = describe([coverage_at(runs["baseline"][k][baseline_series], step) for k in keys],
-                                           [coverage_at(runs["candidate"][k][series], step) for k in keys])
-    ious = [(runs["baseline"][k]["iou"]["iou"], runs["candidate"][k]["iou"]["iou"]) for k in keys]
+        out[f"coverage@{step}"] = describe([coverage_at(b[baseline_series], step) for b, _ in pairs],
+                                           [coverage_at(c[series], step) for _, c in pairs])
+    ious = [(b["iou"]["iou"], c["iou"]["iou"]) for b, c in pairs]
     if all(b and c for b, c in ious):
         out["final_iou"] = describe([b[-1] for b, _ in ious], [c[-1] for _, c in ious])
     return out

@@ -8,7 +8,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.prediction import check_observed
+from superex_deploy.onboard.types import check_observed
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["OraclePredictor"]
@@ -27,6 +27,6 @@ class OraclePredictor:
         self._walls = grid.occupied.astype(np.float32)
 
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
-        observed = check_observed(observed, self._walls.shape)
+        observed = check_observed(observed, self._walls.shape, codes=True)
         mean = np.where(observed == UNKNOWN, self._walls, (observed == OCCUPIED).astype(np.float32))
         return Prediction(mean=mean.astype(np.float32), variance=np.zeros_like(self._walls))

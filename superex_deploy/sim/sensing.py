@@ -26,7 +26,7 @@ class SpadSensing:
 
     Attributes:
         spad: sensor configuration (the simulator's and the processing's sensor model).
-        nlos: processing configuration.
+        nlos_cfg: processing configuration.
         seed: seed of the noise generator (used only when ``spad.noise.enabled``).
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
@@ -35,7 +35,7 @@ class SpadSensing:
     """
 
     spad: SpadConfig = field(default_factory=SpadConfig)
-    nlos: NlosConfig = field(default_factory=NlosConfig)
+    nlos_cfg: NlosConfig = field(default_factory=NlosConfig)
     seed: int = 0
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
     skips: NlosSkips = field(default_factory=NlosSkips)
@@ -44,7 +44,7 @@ class SpadSensing:
 
     def processing(self) -> SpadProcessing:
         """A fresh onboard :class:`SpadProcessing` for one episode; :attr:`evidence` follows it."""
-        self._processing = SpadProcessing(sensor=self.spad, nlos=self.nlos, bp_filter=self.bp_filter,
+        self._processing = SpadProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter,
                                           skips=self.skips)
         return self._processing
 

@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from superex_deploy.sim.metrics import coverage_at
+from superex_deploy.sim.metrics import coverage_at, difference_counts, pair_by_scenario
 
 __all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
            "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary", "coverage_curves"]
@@ -149,18 +149,16 @@ def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie
         (candidate mean / reference mean - 1), "better", "worse", "tied"}``.
 
     Raises:
-        ValueError: the two rows do not hold the same scenarios.
+        ValueError: the two rows do not hold the same scenarios, or a row holds one twice
+            (:func:`~superex_deploy.sim.metrics.pair_by_scenario`).
     """
-    ref = {_key(e): scenario_metrics(e, steps) for e in reference}
-    cand = {_key(e): scenario_metrics(e, steps) for e in candidate}
-    if set(ref) != set(cand):
-        raise ValueError(f"the rows hold different scenarios (e.g. {sorted(set(ref) ^ set(cand))[:3]})")
-    keys = sorted(ref)
+    per_scenario = [(scenario_metrics(ref, steps), scenario_metrics(cand, steps))
+                    for ref, cand in pair_by_scenario(reference, candidate, _key, what="rows")]
     out = {}
-    for metric in ref[keys[0]] if keys else ():
-        if metric.endswith("_ms_per_goal") or any(metric not in cand[k] for k in keys):
+    for metric in per_scenario[0][0] if per_scenario else ():
+        if metric.endswith("_ms_per_goal") or any(metric not in cand for _, cand in per_scenario):
             continue
-        pairs = np.array([(ref[k][metric], cand[k][metric]) for k in keys], float)
+        pairs = np.array([(ref[metric], cand[metric]) for ref, cand in per_scenario], float)
         pairs = pairs[np.isfinite(pairs).all(axis=1)]
         if len(pairs) == 0:
             continue
@@ -169,8 +167,7 @@ def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie
         base = pairs[:, 0].mean()
         out[metric] = {"n": int(len(diff)), "mean": float(diff.mean()), "low": low, "high": high,
                        "ratio": float(pairs[:, 1].mean() / base - 1.0) if base else float("nan"),
-                       "better": int(np.sum(diff > tie_tolerance)), "worse": int(np.sum(diff < -tie_tolerance)),
-                       "tied": int(np.sum(np.abs(diff) <= tie_tolerance))}
+                       **difference_counts(diff, tie_tolerance)}
     return out
 
 

@@ -8,6 +8,8 @@ import json
 import os
 from pathlib import Path
 
+from superex_deploy.commands._options import add_parallel_options, make_backend
+
 
 def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: float, wall_weight: float,
             lr_schedule: str = "constant") -> None:
@@ -51,11 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--tile", type=int, default=128, help="lama tile side (cells)")
     data.add_argument("--tiles-per-sample", type=int, default=2)
     data.add_argument("--maps", nargs="*", default=None, help="train map names (default: all)")
-    data.add_argument("--jobs", type=int, default=max(1, os.cpu_count() or 1),
-                      help="worker processes (with --backend ray and no --address: CPUs of the local Ray instance)")
-    data.add_argument("--backend", choices=("local", "ray"), default="local",
-                      help="ray: run the episodes as Ray tasks (the ray extra); the dataset is the same")
-    data.add_argument("--address", default=None, help="with --backend ray: the cluster ('auto' or HOST:PORT)")
+    add_parallel_options(data)
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--quiet", action="store_true", help="no progress bar")
     pix2pix = sub.add_parser("pix2pix", help="the back-projection filter (U-Net + PatchGAN)")
@@ -122,8 +120,6 @@ def run(args: argparse.Namespace) -> int:
                                steps=args.steps, sample_every=args.sample_every, window_cells=args.window,
                                tile_cells=args.tile, tiles_per_sample=args.tiles_per_sample, jobs=args.jobs,
                                seed=args.seed)
-        from superex_deploy.commands.benchmark import make_backend
-
         backend = make_backend(args) if args.backend == "ray" else None  # local: cfg.jobs processes
         if args.what == "pix2pix":
             infos = [generate_pix2pix(args.out, cfg, progress=not args.quiet, backend=backend)]

@@ -22,7 +22,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.onboard.inference.manifest import ModelKind
-from superex_deploy.onboard.prediction import check_observed
+from superex_deploy.onboard.types import check_observed
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN
 
 __all__ = ["BpEncoding", "NORMALISATION", "RESOLUTION_M", "encode_bp_windows", "encode_map", "crop_window",
@@ -99,7 +99,7 @@ def encode_map(observed: np.ndarray, evidence: Optional[np.ndarray], kind: Model
             LAMA_LOS, whose baselines do not use NLOS evidence).
         kind: LAMA_BP or LAMA_LOS.
     """
-    observed = check_observed(observed)
+    observed = check_observed(observed, codes=True)
     wall = (observed == OCCUPIED).astype(np.float32)
     unknown = (observed == UNKNOWN).astype(np.float32)
     if kind is ModelKind.LAMA_LOS:
