@@ -20,20 +20,12 @@ LAYERS = (
     ("onboard", ("superex_deploy.onboard",)),
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
-    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
+    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),
     ("train commands", ("superex_train.commands",)),
 )
-
-# Imports that break the rules today and are being removed by the helpers of issue #22; removed when #22 lands
-# (the lead empties this after merging). An entry that no longer exists fails the test, so it cannot go stale.
-KNOWN_VIOLATIONS_UNTIL_22_LANDS = frozenset({
-    ("superex_deploy.spad_types", "superex_deploy.sim.spad"),  # base -> sim (TYPE_CHECKING), and a circle
-    ("superex_deploy.commands.benchmark", "superex_deploy.commands.paper_benchmark"),  # a circle
-})
-
 
 def _modules() -> dict[str, Path]:
     """Dotted name -> source file of every module of the packages (a package is its ``__init__.py``)."""
@@ -137,22 +129,13 @@ def test_no_module_imports_from_a_higher_layer():
     graph = _graph()
     upward = sorted((module, target, LAYERS[_layer(module)][0], LAYERS[_layer(target)][0])
                     for module, targets in graph.items() for target in targets
-                    if _layer(target) > _layer(module) and (module, target) not in KNOWN_VIOLATIONS_UNTIL_22_LANDS)
+                    if _layer(target) > _layer(module))
     assert not upward, "imports from a higher layer (module, imported, layer, its layer):\n" + "\n".join(map(str, upward))
 
 
 def test_no_import_circles():
-    graph = _graph()
-    for module, target in KNOWN_VIOLATIONS_UNTIL_22_LANDS:
-        graph[module].discard(target)
-    circles = _circles(graph)
+    circles = _circles(_graph())
     assert not circles, f"import circles: {circles}"
-
-
-def test_the_known_violations_still_exist():
-    graph = _graph()
-    gone = sorted(edge for edge in KNOWN_VIOLATIONS_UNTIL_22_LANDS if edge[1] not in graph.get(edge[0], ()))
-    assert not gone, f"fixed: remove {gone} from KNOWN_VIOLATIONS_UNTIL_22_LANDS"
 
 
 def test_superex_deploy_never_imports_torch_in_its_source():

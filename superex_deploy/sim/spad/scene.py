@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from superex_deploy.geometry import minor_axis_2x2
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.sim.spad import fans
+import superex_deploy.sim.spad.fans as fans
 from superex_deploy.sim.spad.fans import FanCache
 from superex_deploy.sim.spad.tracer import BLOCK_CELLS, CELL_FREE, CELL_OPEN_BLOCK, CELL_WALL
 
