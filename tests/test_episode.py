@@ -3,7 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.explorer import ExplorerConfig, _choose, _near_visited, _reached
+from superex_deploy.onboard.explorer import ExplorerConfig
+from superex_deploy.onboard.goal_choice import choose_goal as _choose, goal_reached as _reached, near_visited_goal as _near_visited
 from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction

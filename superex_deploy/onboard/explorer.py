@@ -10,9 +10,9 @@
 3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
    larger ones give no goal);
 4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and* in
-   line of sight on the map, see :func:`_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
+   line of sight on the map, see :func:`~superex_deploy.onboard.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
    blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
-   chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`_choose`), calling
+   chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.goal_choice.choose_goal`), calling
    the predictor lazily (once per step at most).
 
 How the predictor runs is configured, not fixed (issue #16): inside the asking step or in a worker thread
@@ -32,17 +32,18 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.mapper import Mapper
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
+from superex_deploy.onboard.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.types import (FREE, OCCUPIED, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
+from superex_deploy.onboard.prediction_schedule import LazyPrediction, PredictionSchedule, StalePrediction
+from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
-from superex_deploy.geometry import line_of_sight
 from superex_deploy.messages import Command, MapFrame, Observation
 from superex_deploy.onboard.spad_processing import SpadProcessing
 
@@ -50,44 +51,6 @@ __all__ = ["STAGES", "ExplorerConfig", "Explorer", "PredictionSchedule", "Predic
 
 STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
 """The stages of a step whose wall-clock time :attr:`Command.timings_s` reports (seconds)."""
-
-
-@dataclass(frozen=True)
-class PredictionSchedule:
-    """When the explorer runs its map predictor.
-
-    Attributes:
-        asynchronous: False (default): inside the step whose planner asks for it; the step waits for the whole
-            ensemble (up to ~0.9 s on 2 cores on the largest eval map). True: in a worker thread, never inside a
-            step; planners read the newest finished prediction, with the cells known since overwritten by the
-            current map (:func:`merge_with_map`).
-        every_steps: with ``asynchronous``: 0 runs free (a new prediction of the newest map starts as soon as the
-            last one finished; fast, but the steps at which predictions land depend on the machine, so episodes are
-            not reproducible). ``N >= 1`` is the deterministic mode for benchmarks and tests: the map of every
-            step ``k N`` is predicted, and the result is applied at step ``k N + apply_after_steps``, waiting for it
-            there if it is not done; episodes are reproducible on any machine.
-        apply_after_steps: the deterministic delay (``1 <= apply_after_steps <= every_steps``).
-        wait_first: with ``asynchronous``: the first step waits for the prediction of its own map (the robot
-            stands at its start; without it the planners and the first evaluations see no prediction at all until
-            one lands: -29 % IoU at 10 % coverage on the train floors with ``every_steps=5``).
-    """
-
-    asynchronous: bool = False
-    every_steps: int = 10
-    apply_after_steps: int = 1
-    wait_first: bool = False
-
-    def __post_init__(self) -> None:
-        for name in ("every_steps", "apply_after_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
-        for name in ("asynchronous", "wait_first"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if self.every_steps and not 1 <= self.apply_after_steps <= self.every_steps:
-            raise ValueError(f"apply_after_steps must lie in 1..every_steps = {self.every_steps}, got "
-                             f"{self.apply_after_steps}")
 
 
 @dataclass(frozen=True)
@@ -120,115 +83,6 @@ class ExplorerConfig:
             raise ValueError(f"reuse must be a PredictionReuse, got {type(self.reuse).__name__}")
         if int(self.frontier_min_cells) < 1:
             raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
-
-
-class _LazyPrediction:
-    """The predictor's output for one map: computed on the first call, then cached, with the seconds it took.
-
-    A planner's request (``__call__``) lets a :class:`ReusingPredictor` keep the result as its new last
-    prediction; :meth:`look` (an evaluation between requests) computes it without leaving a trace."""
-
-    def __init__(self, predictor, observed: np.ndarray, evidence: Optional[np.ndarray]):
-        self._predictor, self._observed, self._evidence = predictor, observed, evidence
-        self.value: Optional[Prediction] = None
-        self.seconds = 0.0
-
-    def __call__(self) -> Prediction:
-        return self._compute(commit=True)
-
-    def look(self) -> Prediction:
-        return self._compute(commit=False)
-
-    def _compute(self, commit: bool) -> Prediction:
-        if self.value is None:
-            started = time.perf_counter()
-            if isinstance(self._predictor, ReusingPredictor):
-                self.value = self._predictor.predict(self._observed, self._evidence, commit=commit)
-            else:
-                self.value = self._predictor.predict(self._observed, self._evidence)
-            self.seconds = time.perf_counter() - started
-        return self.value
-
-
-class _StalePrediction:
-    """What a planner reads in asynchronous mode: the newest finished prediction merged with this step's map
-    (computed on the first call, then cached), or the map itself (unknown = free) before any prediction landed."""
-
-    def __init__(self, newest: Optional[Prediction], observed: np.ndarray):
-        self._newest, self._observed = newest, observed
-        self.value: Optional[Prediction] = None
-        self.seconds = 0.0
-
-    def __call__(self) -> Prediction:
-        if self.value is None:
-            started = time.perf_counter()
-            if self._newest is None:
-                mean = (self._observed == OCCUPIED).astype(np.float32)
-                self.value = Prediction(mean=mean, variance=np.zeros_like(mean))
-            else:
-                self.value = merge_with_map(self._newest, self._observed)
-            self.seconds = time.perf_counter() - started
-        return self.value
-
-    look = __call__
-
-
-def _reached(not_free: np.ndarray, pose: tuple[int, int], cell: tuple[int, int], reach_cells: float) -> bool:
-    """Whether the robot at ``pose`` has reached the goal ``cell``: within the goal tolerance *and* in line of
-    sight on the map (``not_free``: bool ``[H, W]``, every cell not known free).
-
-    Distance alone (MapEx's rule) counted a frontier as reached from behind the corner of the wall that hides
-    it: on eval map 50010539 the robot stopped 1 m short of a frontier in the next room, never saw it, and
-    shuttled between two such frontiers for 900 steps (28.9 % coverage for every planner). Seeing the goal cell
-    means the sensor has looked at the frontier from that side."""
-    if np.hypot(cell[0] - pose[0], cell[1] - pose[1]) > reach_cells:
-        return False
-    return line_of_sight(not_free, pose, cell)
-
-
-def _near_visited(cell: tuple[int, int], visited: set[tuple[int, int]]) -> bool:
-    """Whether ``cell`` is a reached goal or one of its 8 neighbours: a frontier whose goal cell was reached
-    and that is still there cannot be resolved from where the robot can stand (unknown cells seen only edge-on,
-    the inside of a thick wall), and would be offered again as soon as the robot left."""
-    return any((cell[0] + dr, cell[1] + dc) in visited for dr in (-1, 0, 1) for dc in (-1, 0, 1))
-
-
-def _choose(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]]], observed: np.ndarray,
-            frontiers: tuple[Frontier, ...], min_cells: int, not_free: np.ndarray, pose: tuple[int, int],
-            reach_cells: float, visited: set[tuple[int, int]]) -> tuple[Optional[tuple[int, int]], float]:
-    """Offer the frontiers to the planner in three tiers; returns the goal (or None: nothing is left) and the
-    distance within which it counts as reached.
-
-    1. Regions of at least ``min_cells`` cells that do not count as reached already (:func:`_reached`: MapEx's
-       validity rule, since offering one would lock the robot onto a goal it never leaves) and whose goal cell
-       the robot has not reached before (:func:`_near_visited`).
-    2. The same for smaller regions: a doorway seen edge-on can show fewer frontier cells than the minimum, and
-       a robot must not stop in a room with an open door.
-    3. Regions that count as reached from where the robot stands but were never visited: their goal cell is in
-       sight within the tolerance while the unknown behind them is not (seen through a door at a steep angle).
-       The robot then drives onto the goal cell itself (tolerance 0) instead of declaring the map explored.
-    """
-    small: Optional[tuple[Frontier, ...]] = None
-    if not frontiers:
-        small = find_frontiers(observed, 1)
-        if not small:
-            return None, reach_cells
-    unvisited = [f for f in frontiers if not _near_visited(f.cell_rc, visited)]
-    candidates = tuple(f for f in unvisited if not _reached(not_free, pose, f.cell_rc, reach_cells))
-    # The planner is asked even when every region was filtered out: UPEN's tree can still find a goal.
-    chosen = offer(candidates) if frontiers else None
-    if chosen is not None:
-        return chosen, reach_cells
-    if small is None:
-        small = tuple(f for f in find_frontiers(observed, 1) if len(f.cells) < min_cells) if min_cells > 1 else ()
-    small_unvisited = [f for f in small if not _near_visited(f.cell_rc, visited)]
-    candidates = tuple(f for f in small_unvisited if not _reached(not_free, pose, f.cell_rc, reach_cells))
-    chosen = offer(candidates) if small else None
-    if chosen is not None:
-        return chosen, reach_cells
-    close = tuple(f for f in unvisited + small_unvisited if _reached(not_free, pose, f.cell_rc, reach_cells))
-    chosen = offer(close) if close else None
-    return chosen, 0.0
 
 
 class Explorer:
@@ -294,7 +148,7 @@ class Explorer:
         self._goal_tolerance = self._reach_cells
         self._goal_step = -1
         self._visited: set[tuple[int, int]] = set()
-        self._prediction: Optional[_LazyPrediction] = None
+        self._prediction: Optional[LazyPrediction] = None
         self._latest: Optional[Prediction] = None
         self._latest_step = -1
         schedule = cfg.prediction
@@ -313,8 +167,8 @@ class Explorer:
 
     def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
         """The latest map's frontier regions, of every size, that :meth:`step` would offer a planner with the robot
-        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`_reached`) and whose goal cell
-        is no goal reached before nor next to one (:func:`_near_visited`), in ``find_frontiers`` order; ``()``
+        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`~superex_deploy.onboard.goal_choice.goal_reached`) and whose goal cell
+        is no goal reached before nor next to one (:func:`~superex_deploy.onboard.goal_choice.near_visited_goal`), in ``find_frontiers`` order; ``()``
         before the first observation. :meth:`step` offers the regions of ``cfg.frontier_min_cells`` cells or more
         first, the smaller ones only when those give no goal. For a goal chosen outside the explorer (a learning
         agent): a goal among these is one the explorer does not let go of at once.
@@ -326,8 +180,8 @@ class Explorer:
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
         not_free = self.observed != FREE
-        return tuple(f for f in find_frontiers(self.observed, 1) if not _near_visited(f.cell_rc, self._visited)
-                     and not _reached(not_free, pose, f.cell_rc, self._reach_cells))
+        return tuple(f for f in find_frontiers(self.observed, 1) if not near_visited_goal(f.cell_rc, self._visited)
+                     and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
 
     def drop_goal(self) -> None:
         """Let go of the locked goal and its path: the next :meth:`step` asks the planner again (the goal does not
@@ -450,9 +304,9 @@ class Explorer:
         waited = 0.0
         if self._worker is not None:
             waited = self._schedule_predictions(observed, t)
-            prediction = _StalePrediction(self._latest, observed)
+            prediction = StalePrediction(self._latest, observed)
         else:
-            prediction = _LazyPrediction(self._predictor, observed, self.evidence)
+            prediction = LazyPrediction(self._predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
         self.steps += 1
         if np.any(observed != UNKNOWN):
@@ -470,7 +324,7 @@ class Explorer:
                        prediction_step=self._latest_step, step=t, timings_s=timings)
 
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
-              prediction: _LazyPrediction, t: int, timings: dict) -> bool:
+              prediction: LazyPrediction, t: int, timings: dict) -> bool:
         """Keep or choose the goal and its path; returns whether a new goal was chosen."""
         res, motion = self.frame.resolution_m, self.cfg.motion
         clock = time.perf_counter()
@@ -478,7 +332,7 @@ class Explorer:
         not_free = observed != FREE
         goal = self.goal
         path = self.path[self.path.index(pose):] if pose in self.path else []
-        if goal is not None and _reached(not_free, pose, goal, self._goal_tolerance):
+        if goal is not None and goal_reached(not_free, pose, goal, self._goal_tolerance):
             self._visited.add(goal)
             goal, path = None, []
         if goal is not None and not self.planner.keep_goal(observed, pose, goal, t - self._goal_step):
@@ -504,7 +358,7 @@ class Explorer:
                 traversable=plan.traversable, resolution_m=res, predict=prediction, rng=self._rng))
 
         clock = time.perf_counter()
-        chosen, self._goal_tolerance = _choose(offer, observed, frontiers, self.cfg.frontier_min_cells, not_free,
+        chosen, self._goal_tolerance = choose_goal(offer, observed, frontiers, self.cfg.frontier_min_cells, not_free,
                                                pose, self._reach_cells, self._visited)
         timings["scoring"] = time.perf_counter() - clock - prediction.seconds
         timings["prediction"] = prediction.seconds
