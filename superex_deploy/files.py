@@ -24,7 +24,8 @@ def write_atomically(path: Union[str, os.PathLike], content: Union[str, bytes, C
         ``path`` as a :class:`~pathlib.Path`.
 
     Raises:
-        Whatever writing raised; the temporary file is removed and ``path`` keeps its previous content.
+        OSError: or whatever else writing raised, unchanged; the temporary file is removed and ``path`` keeps its
+            previous content.
     """
     path = Path(path)
     part = path.with_name(path.name + TEMPORARY_SUFFIX)
