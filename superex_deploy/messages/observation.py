@@ -1,0 +1,75 @@
+"""One step's exchange: the :class:`Observation` the robot sends and the :class:`Command` the explorer answers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.messages.frame import Pose2D
+from superex_deploy.messages.limits import check_stamp
+from superex_deploy.messages.sensors import LaserScan, SpadFrame
+
+__all__ = ["Observation", "Command"]
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """What the robot measures at one step: everything :meth:`superex_deploy.onboard.Explorer.step` receives.
+
+    Attributes:
+        stamp_s: time stamp (seconds; see :func:`check_stamp`: finite, in ``[0, MAX_STAMP_S]``).
+        pose: the robot's pose in the map frame (where both scans were taken).
+        scan: the line-of-sight scan.
+        spad: the SPAD frame, or None (no NLOS sensing this step).
+    """
+
+    stamp_s: float
+    pose: Pose2D
+    scan: LaserScan
+    spad: Optional[SpadFrame] = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "stamp_s", check_stamp("stamp_s", self.stamp_s))
+        if not isinstance(self.pose, Pose2D):
+            raise ValueError(f"pose must be a Pose2D, got {type(self.pose).__name__}")
+        if not isinstance(self.scan, LaserScan):
+            raise ValueError(f"scan must be a LaserScan, got {type(self.scan).__name__}")
+        if self.spad is not None and not isinstance(self.spad, SpadFrame):
+            raise ValueError(f"spad must be a SpadFrame or None, got {type(self.spad).__name__}")
+
+
+@dataclass(frozen=True, eq=False)
+class Command:
+    """What the explorer answers to one observation.
+
+    Attributes:
+        stamp_s: the observation's time stamp (seconds).
+        goal_xy: map-frame goal (metres), or None (no goal: see ``finished``).
+        goal_rc: the goal cell ``(row, col)``, or None.
+        path_xy: float64 ``[N, 2]`` map-frame waypoints (metres) from the robot's cell to the goal (cell centres;
+            empty without a goal).
+        path_rc: int64 ``[N, 2]`` the same waypoints as cells.
+        finished: True when the explorer's map holds known cells and no reachable frontier is left: the
+            exploration is over. False while a goal is set, and also without a goal while the map is still empty
+            (no observation so far had a valid reading): the next observation may see something.
+        new_goal: True when the goal was chosen at this step.
+        prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
+            the planner has not needed one yet.
+        prediction_step: the step the prediction was made at (its age is ``step - prediction_step``), or -1.
+        step: the explorer's step counter (0 for the first observation).
+        timings_s: seconds spent per stage of this step (see :data:`superex_deploy.onboard.explorer.STAGES`).
+    """
+
+    stamp_s: float
+    goal_xy: Optional[tuple[float, float]]
+    goal_rc: Optional[tuple[int, int]]
+    path_xy: np.ndarray
+    path_rc: np.ndarray
+    finished: bool
+    new_goal: bool
+    prediction: Optional[object] = None
+    prediction_step: int = -1
+    step: int = 0
+    timings_s: dict = field(default_factory=dict)
