@@ -9,6 +9,7 @@ import numpy as np
 
 from superex_deploy.messages.frame import Pose2D
 from superex_deploy.messages.limits import check_stamp
+from superex_deploy.messages.occupancy import OccupancyGridMessage, PoseCovariance
 from superex_deploy.messages.sensors import LaserScan, SpadFrame
 
 __all__ = ["Observation", "Command"]
@@ -20,22 +21,37 @@ class Observation:
 
     Attributes:
         stamp_s: time stamp (seconds; see :func:`check_stamp`: finite, in ``[0, MAX_STAMP_S]``).
-        pose: the robot's pose in the map frame (where both scans were taken).
-        scan: the line-of-sight scan.
+        pose: the robot's pose in the map frame (where both scans were taken): the localisation's estimate.
+        scan: the line-of-sight scan, or None when ``occupancy_grid`` is given (a map from SLAM replaces it).
         spad: the SPAD frame, or None (no NLOS sensing this step).
+        pose_covariance: the pose estimate's uncertainty (``geometry_msgs/PoseWithCovariance``), or None: the pose
+            is taken as exact.
+        occupancy_grid: the map published by SLAM or a costmap (``nav_msgs/OccupancyGrid``), or None. When given,
+            the explorer takes its line-of-sight map from it instead of integrating ``scan``; SPAD frames are still
+            processed on top of it.
     """
 
     stamp_s: float
     pose: Pose2D
-    scan: LaserScan
+    scan: Optional[LaserScan]
     spad: Optional[SpadFrame] = None
+    pose_covariance: Optional[PoseCovariance] = None
+    occupancy_grid: Optional[OccupancyGridMessage] = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stamp_s", check_stamp("stamp_s", self.stamp_s))
         if not isinstance(self.pose, Pose2D):
             raise ValueError(f"pose must be a Pose2D, got {type(self.pose).__name__}")
-        if not isinstance(self.scan, LaserScan):
+        if self.scan is None and self.occupancy_grid is None:
+            raise ValueError("scan must be a LaserScan (or None when an occupancy_grid is given), got None")
+        if self.scan is not None and not isinstance(self.scan, LaserScan):
             raise ValueError(f"scan must be a LaserScan, got {type(self.scan).__name__}")
+        if self.pose_covariance is not None and not isinstance(self.pose_covariance, PoseCovariance):
+            raise ValueError(f"pose_covariance must be a PoseCovariance or None, got "
+                             f"{type(self.pose_covariance).__name__}")
+        if self.occupancy_grid is not None and not isinstance(self.occupancy_grid, OccupancyGridMessage):
+            raise ValueError(f"occupancy_grid must be an OccupancyGridMessage or None, got "
+                             f"{type(self.occupancy_grid).__name__}")
         if self.spad is not None and not isinstance(self.spad, SpadFrame):
             raise ValueError(f"spad must be a SpadFrame or None, got {type(self.spad).__name__}")
 

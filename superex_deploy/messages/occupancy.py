@@ -1,0 +1,167 @@
+"""What a robot's localisation and mapping stack gives an exploration node: a SLAM map and the pose's uncertainty.
+
+* :class:`OccupancyGridMessage` is ``nav_msgs/OccupancyGrid``: int8 cells, ``-1`` unknown, ``0..100`` the
+  probability of occupancy in percent, row-major from the grid's lower-left corner (row 0 is the *bottom* row, as
+  ROS has it; SuperEx's own grids have row 0 at the top: :meth:`OccupancyGridMessage.in_frame` turns one into the
+  other).
+* :class:`PoseCovariance` is the ``(x, y, yaw)`` block of ``geometry_msgs/PoseWithCovariance``'s 6x6 covariance
+  (metres and radians), the uncertainty of the pose an :class:`~superex_deploy.messages.Observation` carries.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from superex_deploy.messages.frame import MapFrame
+from superex_deploy.messages.limits import _finite, check_map_size
+
+__all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN"]
+
+OCCUPANCY_UNKNOWN = -1
+"""The value of an unknown cell in a ``nav_msgs/OccupancyGrid``."""
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyGridMessage:
+    """A map published by SLAM or a costmap (``nav_msgs/OccupancyGrid``), in the map frame.
+
+    Attributes:
+        resolution_m: metres per cell (``info.resolution``).
+        width: cells per row (``info.width``, along ``+x``).
+        height: rows (``info.height``, along ``+y``).
+        origin_xy: map-frame position (metres) of the lower-left corner of cell ``(0, 0)`` (``info.origin``; a
+            rotated origin is not supported: SLAM maps are published axis-aligned).
+        data: int8 ``[height * width]``, row-major from the bottom row: ``-1`` unknown, ``0..100`` occupancy
+            probability in percent.
+    """
+
+    resolution_m: float
+    width: int
+    height: int
+    origin_xy: tuple[float, float]
+    data: np.ndarray
+
+    def __post_init__(self) -> None:
+        resolution = _finite("occupancy grid resolution_m", self.resolution_m)
+        if resolution <= 0.0:
+            raise ValueError(f"occupancy grid resolution_m must be positive, got {resolution}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"occupancy grid {name} must be a positive integer, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        check_map_size((self.height, self.width), resolution, "the occupancy grid")
+        try:
+            origin = tuple(_finite("occupancy grid origin_xy", v) for v in self.origin_xy)
+        except TypeError:
+            raise ValueError(f"occupancy grid origin_xy must be an (x, y) pair, got {self.origin_xy!r}") from None
+        if len(origin) != 2:
+            raise ValueError(f"occupancy grid origin_xy must be an (x, y) pair, got {self.origin_xy!r}")
+        data = np.asarray(self.data)
+        if data.dtype != np.int8 or data.shape != (self.height * self.width,):
+            raise ValueError(f"occupancy grid data must be int8 [height * width] = [{self.height * self.width}], "
+                             f"got {data.dtype} {data.shape}")
+        if data.size and (data.min() < OCCUPANCY_UNKNOWN or data.max() > 100):
+            raise ValueError("occupancy grid data may hold only -1 (unknown) and 0..100 (occupancy in percent)")
+        data = data.copy()
+        data.flags.writeable = False
+        object.__setattr__(self, "resolution_m", resolution)
+        object.__setattr__(self, "origin_xy", origin)
+        object.__setattr__(self, "data", data)
+
+    @classmethod
+    def from_frame_grid(cls, frame: MapFrame, grid: np.ndarray) -> "OccupancyGridMessage":
+        """The message of an int8 ``[H, W]`` grid in ``frame`` (row 0 at the top, values ``-1`` or ``0..100``)."""
+        grid = np.asarray(grid)
+        if grid.dtype != np.int8 or grid.shape != tuple(frame.shape):
+            raise ValueError(f"grid must be int8 {tuple(frame.shape)}, got {grid.dtype} {grid.shape}")
+        return cls(resolution_m=frame.resolution_m, width=frame.shape[1], height=frame.shape[0],
+                   origin_xy=frame.origin_xy, data=np.ascontiguousarray(grid[::-1]).reshape(-1))
+
+    def in_frame(self, frame: MapFrame) -> np.ndarray:
+        """int8 ``[H, W]`` occupancy (``-1`` unknown, ``0..100``) of ``frame``'s cells, row 0 at the top.
+
+        The message must share the frame's resolution and its origin must lie on the frame's cell lattice (a
+        whole number of cells away, within 1e-6 cells); the grids may cover different areas: frame cells outside
+        the message are unknown, message cells outside the frame are dropped.
+
+        Raises:
+            ValueError: another resolution, or an origin off the frame's lattice.
+        """
+        if not math.isclose(self.resolution_m, frame.resolution_m, rel_tol=1e-9, abs_tol=0.0):
+            raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the explorer's map "
+                             f"frame's {frame.resolution_m} m")
+        shift = [(m - f) / frame.resolution_m for m, f in zip(self.origin_xy, frame.origin_xy)]
+        cells = [round(s) for s in shift]
+        if any(abs(s - c) > 1e-6 for s, c in zip(shift, cells)):
+            raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
+                             f"map frame's {frame.origin_xy} m")
+        dx, dy = cells  # the message's cell (0, 0) is frame column dx, frame row counted from the bottom dy
+        height, width = frame.shape
+        out = np.full((height, width), OCCUPANCY_UNKNOWN, np.int8)
+        bottom_up = self.data.reshape(self.height, self.width)
+        rows = slice(max(0, -dy), min(self.height, height - dy))
+        cols = slice(max(0, -dx), min(self.width, width - dx))
+        if rows.start >= rows.stop or cols.start >= cols.stop:
+            return out
+        # frame row (from the top) of message row m (from the bottom): height - 1 - (dy + m)
+        top = height - 1 - (dy + rows.stop - 1)
+        bottom = height - 1 - (dy + rows.start)
+        out[top:bottom + 1, cols.start + dx:cols.stop + dx] = bottom_up[rows, cols][::-1]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class PoseCovariance:
+    """The uncertainty of a planar pose: the covariance of ``(x, y, yaw)``.
+
+    Attributes:
+        matrix: float64 ``[3, 3]``, symmetric, with non-negative variances; units m^2, m rad and rad^2 (the
+            ``x, y, yaw`` rows and columns of ``geometry_msgs/PoseWithCovariance.covariance``: indices 0, 1, 5 of
+            its 6x6).
+    """
+
+    matrix: np.ndarray
+
+    def __post_init__(self) -> None:
+        matrix = np.array(self.matrix, dtype=np.float64)
+        if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+            raise ValueError(f"pose covariance must be a finite [3, 3] matrix over (x, y, yaw), got shape "
+                             f"{matrix.shape}")
+        if np.any(np.diag(matrix) < 0.0) or not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-12):
+            raise ValueError("pose covariance must be symmetric with non-negative variances")
+        matrix.flags.writeable = False
+        object.__setattr__(self, "matrix", matrix)
+
+    @classmethod
+    def from_sigmas(cls, sigma_xy_m: float, sigma_yaw_rad: float) -> "PoseCovariance":
+        """Independent errors: ``sigma_xy_m`` on ``x`` and on ``y`` (metres), ``sigma_yaw_rad`` on the heading."""
+        sigma_xy_m = _finite("sigma_xy_m", sigma_xy_m)
+        sigma_yaw_rad = _finite("sigma_yaw_rad", sigma_yaw_rad)
+        if sigma_xy_m < 0.0 or sigma_yaw_rad < 0.0:
+            raise ValueError(f"sigmas must be >= 0, got {sigma_xy_m} m and {sigma_yaw_rad} rad")
+        return cls(np.diag([sigma_xy_m ** 2, sigma_xy_m ** 2, sigma_yaw_rad ** 2]))
+
+    @classmethod
+    def from_ros(cls, covariance36) -> "PoseCovariance":
+        """From ``geometry_msgs/PoseWithCovariance.covariance`` (36 row-major values over x, y, z, roll, pitch,
+        yaw)."""
+        full = np.asarray(covariance36, np.float64)
+        if full.shape not in ((36,), (6, 6)):
+            raise ValueError(f"a ROS pose covariance has 36 values, got shape {full.shape}")
+        index = [0, 1, 5]
+        return cls(full.reshape(6, 6)[np.ix_(index, index)])
+
+    @property
+    def sigma_xy_m(self) -> float:
+        """The position's standard deviation along its worst direction (metres): the root of the largest
+        eigenvalue of the ``(x, y)`` block."""
+        return float(math.sqrt(max(0.0, np.linalg.eigvalsh(self.matrix[:2, :2])[-1])))
+
+    @property
+    def sigma_yaw_rad(self) -> float:
+        """The heading's standard deviation (radians)."""
+        return float(math.sqrt(self.matrix[2, 2]))
