@@ -2,7 +2,7 @@
 # Reproduces the committed models in exported/: data from exploration episodes on the KTH train maps (never
 # the eval maps), the Pix2Pix filter, the Pix2Pix-filtered LaMa data, both LaMa ensembles, export with parity.
 #
-#   bash scripts/train_models.sh                 # CPU, 2 cores: the reference (hours; see README "Models")
+#   bash scripts/train_models.sh                 # CPU, 2 cores: the reference (hours; see docs/models.md)
 #   DEVICE=cuda JOBS=15 bash scripts/train_models.sh   # the same commands on a GPU machine
 #
 # Every step resumes: datasets already written are kept, training continues from the last epoch's checkpoint.

@@ -101,7 +101,7 @@ class Pix2PixTrainConfig(RunSettings):
             here).
         l1_weight: weight of the wall-weighted L1 term (the paper's lambda = 100 with adversarial weight 1; the
             defaults keep the same 100:1 ratio of L1 to adversarial term and add the BCE term, which with the log
-            encoding raised held-out wall IoU from 0.021 to 0.096; see README "Learned models").
+            encoding raised held-out wall IoU from 0.021 to 0.096; see docs/models.md).
         wall_weight: weight of a wall cell in the L1 term relative to a free cell (hidden walls are ~2 % of the
             unknown cells of a window).
         adversarial: train against the PatchGAN discriminator (False: reconstruction terms only).

@@ -8,8 +8,8 @@ planner does): the currently unknown cells predicted visible from its goal cell 
 to it, sampled every ``sense_every_m``, per unit of travel cost; the best frontier wins and is kept until
 reached or blocked (MapEx's locked goal). Rays stop at cells predicted walls at or above ``wall_threshold``.
 
-Ideas measured on the train floors (``scripts/ceiling_study.py``, oracle against observed predictor; see the
-README) and kept as options because each answers a question:
+Ideas measured on the train floors (``scripts/ceiling_study.py``, oracle against observed predictor; see
+docs/benchmarks/better-map.md) and kept as options because each answers a question:
 
 * ``choice="rollout"``: for the ``candidates`` best frontiers, play the rest of the exploration out on the
   predicted map (pooled into ``rollout_cell_m`` cells; greedy goals, travel priced through predicted-free
