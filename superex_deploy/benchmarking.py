@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Optional
 
-__all__ = ["ScenarioTask", "run_scenario"]
+__all__ = ["ScenarioTask", "run_scenario", "with_noise", "with_spad_noise"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -26,6 +27,9 @@ class ScenarioTask:
             :class:`~superex_deploy.sim.episode.ExplorationConfig`); by default every 50 steps.
         profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); by default ``full``
             (the paper suite's).
+        pose_noise: ``(sigma_m, sigma_deg)`` of the localisation error, or None (see :func:`with_noise`).
+        lidar_noise: ``(sigma_m, dropout, spurious)`` of the LiDAR, or None.
+        spad_noise: the SPAD photon budget's preset name (:data:`superex_deploy.spad_types.SPAD_PRESETS`).
     """
 
     map_name: str
@@ -40,6 +44,36 @@ class ScenarioTask:
     iou_every: int = 50
     iou_dense_until: float = 1.0
     profile: str = "full"
+    pose_noise: Optional[tuple[float, float]] = None
+    lidar_noise: Optional[tuple[float, float, float]] = None
+    spad_noise: str = "off"
+
+
+def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Optional[tuple[float, float, float]],
+               seed: int):
+    """The :class:`~superex_deploy.sim.episode.ExplorationConfig` ``cfg`` with the simulator's noise: the
+    localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.localization.PoseNoise.from_sigmas>` of
+    ``pose_noise = (sigma_m, sigma_deg)`` and the LiDAR noise ``lidar_noise = (sigma_m, dropout, spurious)``, both
+    seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None)."""
+    from superex_deploy.sim.lidar_noise import LidarNoise
+    from superex_deploy.sim.localization import PoseNoise
+
+    if pose_noise is None and lidar_noise is None:
+        return cfg
+    return replace(cfg, pose_noise=None if pose_noise is None else PoseNoise.from_sigmas(*pose_noise, seed=seed),
+                   lidar_noise=None if lidar_noise is None else LidarNoise(
+                       sigma_m=lidar_noise[0], dropout_prob=lidar_noise[1], spurious_prob=lidar_noise[2], seed=seed))
+
+
+def with_spad_noise(sensing, preset: str):
+    """The episode's :class:`~superex_deploy.sim.sensing.SpadSensing` (or None) with the sensor model of the
+    photon-budget ``preset`` (:func:`superex_deploy.spad_types.spad_preset`), on both the simulator's and the
+    onboard processing's side; unchanged for ``off``."""
+    from superex_deploy.spad_types import spad_preset
+
+    if sensing is None or preset == "off":
+        return sensing
+    return replace(sensing, spad=spad_preset(preset, sensing.spad))
 
 
 def run_scenario(task: ScenarioTask) -> dict:
@@ -52,10 +86,12 @@ def run_scenario(task: ScenarioTask) -> dict:
 
     profile = PROFILES[task.profile]
     grid = load_map(task.map_name)
+    cfg = with_noise(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
+                     task.pose_noise, task.lidar_noise, task.seed)
+    sensing = with_spad_noise(make_sensing(task.predictor, task.spad, task.seed, profile=profile), task.spad_noise)
     result = run_episode(grid, task.start_rc, make_planner(task.planner, **task.planner_options),
                          make_predictor(task.predictor, grid, profile=profile), steps=task.steps, seed=task.seed,
-                         cfg=profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
-                         sensing=make_sensing(task.predictor, task.spad, task.seed, profile=profile))
+                         cfg=cfg, sensing=sensing)
     summary = result.to_json()
     summary["start_index"] = task.start_index
     summary["profile"] = task.profile

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import argparse
 import os
+from typing import Optional
 
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
 
 __all__ = ["add_planner_option", "planner_options", "add_profile_option", "add_parallel_options", "check_jobs",
-           "make_backend"]
+           "make_backend", "add_noise_options", "parse_pose_noise", "parse_lidar_noise", "noise_options",
+           "noise_settings"]
 
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:
@@ -76,3 +78,109 @@ def make_backend(args: argparse.Namespace):
     if args.address is not None:
         raise ValueError("--address needs --backend ray")
     return LocalBackend(args.jobs)
+
+
+# Noise of the simulated robot (issue #24): off unless asked for, so the paper's protocol stays as it is.
+MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_DEG, MAX_LIDAR_SIGMA_M = 1.0, 45.0, 1.0
+SPAD_NOISE_CHOICES = ("off", "realistic", "low")
+
+
+def add_noise_options(parser: argparse.ArgumentParser) -> None:
+    """``--pose-noise``, ``--lidar-noise`` and ``--spad-noise`` (:func:`noise_options` parses and checks them)."""
+    parser.add_argument("--pose-noise", default=None, metavar="SIGMA_M,SIGMA_DEG",
+                        help="localisation error: white jitter of SIGMA_M metres (per axis) and SIGMA_DEG degrees, "
+                             "plus a bounded drift with the distance driven (superex_deploy.sim.localization); the "
+                             "robot then moves continuously and follows each path from where it believes it is. "
+                             "0,0: off (the default)")
+    parser.add_argument("--lidar-noise", default=None, metavar="SIGMA_M[,DROPOUT,SPURIOUS]",
+                        help="LiDAR range noise of SIGMA_M metres, with dropouts and spurious short returns at "
+                             "DROPOUT and SPURIOUS per ray (default 0.01 and 0.001; superex_deploy.sim.lidar_noise). "
+                             "0: off (the default)")
+    parser.add_argument("--spad-noise", default="off", choices=SPAD_NOISE_CHOICES,
+                        help="the SPAD LiDAR's photon budget (superex_deploy.spad_types.SPAD_PRESETS): off (the "
+                             "paper's noise-free model), realistic (indoors), low (weak laser, daylight); the "
+                             "onboard detection threshold follows it. Needs --spad")
+
+
+def _numbers(option: str, text: str, shape: str, counts: tuple[int, ...]) -> list[float]:
+    parts = [part.strip() for part in str(text).split(",")]
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) not in counts or not all(value == value and abs(value) != float("inf") for value in values):
+        raise ValueError(f"{option} takes {shape} (finite numbers separated by commas), got {text!r}")
+    return values
+
+
+def parse_pose_noise(text: Optional[str]) -> Optional[tuple[float, float]]:
+    """``"SIGMA_M,SIGMA_DEG"`` -> ``(sigma_m, sigma_deg)``; None for None or all zeros (off).
+
+    Raises:
+        ValueError: not two numbers, or a sigma outside ``[0, MAX_POSE_SIGMA_M]`` m / ``[0, MAX_POSE_SIGMA_DEG]``
+            degrees.
+    """
+    if text is None:
+        return None
+    sigma_m, sigma_deg = _numbers("--pose-noise", text, "SIGMA_M,SIGMA_DEG", (2,))
+    if not 0.0 <= sigma_m <= MAX_POSE_SIGMA_M:
+        raise ValueError(f"--pose-noise: SIGMA_M must lie in [0, {MAX_POSE_SIGMA_M:g}] metres, got {sigma_m:g}")
+    if not 0.0 <= sigma_deg <= MAX_POSE_SIGMA_DEG:
+        raise ValueError(f"--pose-noise: SIGMA_DEG must lie in [0, {MAX_POSE_SIGMA_DEG:g}] degrees, got {sigma_deg:g}")
+    return None if sigma_m == 0.0 and sigma_deg == 0.0 else (sigma_m, sigma_deg)
+
+
+def parse_lidar_noise(text: Optional[str]) -> Optional[tuple[float, float, float]]:
+    """``"SIGMA_M"`` or ``"SIGMA_M,DROPOUT,SPURIOUS"`` -> ``(sigma_m, dropout, spurious)``; None for None, ``"0"``
+    or all zeros (off). SIGMA_M alone takes the default rates (:meth:`LidarNoise.from_sigma
+    <superex_deploy.sim.lidar_noise.LidarNoise.from_sigma>`).
+
+    Raises:
+        ValueError: not one or three numbers, a sigma outside ``[0, MAX_LIDAR_SIGMA_M]``, a probability outside
+            ``[0, 1)``.
+    """
+    from superex_deploy.sim.lidar_noise import DEFAULT_DROPOUT_PROB, DEFAULT_SPURIOUS_PROB
+
+    if text is None:
+        return None
+    values = _numbers("--lidar-noise", text, "SIGMA_M or SIGMA_M,DROPOUT,SPURIOUS", (1, 3))
+    if len(values) == 1:
+        if values[0] == 0.0:
+            return None
+        values += [DEFAULT_DROPOUT_PROB, DEFAULT_SPURIOUS_PROB]
+    sigma_m, dropout, spurious = values
+    if not 0.0 <= sigma_m <= MAX_LIDAR_SIGMA_M:
+        raise ValueError(f"--lidar-noise: SIGMA_M must lie in [0, {MAX_LIDAR_SIGMA_M:g}] metres, got {sigma_m:g}")
+    for name, value in (("DROPOUT", dropout), ("SPURIOUS", spurious)):
+        if not 0.0 <= value < 1.0:
+            raise ValueError(f"--lidar-noise: {name} is a probability per ray in [0, 1), got {value:g}")
+    return None if sigma_m == dropout == spurious == 0.0 else (sigma_m, dropout, spurious)
+
+
+def noise_options(args: argparse.Namespace) -> dict:
+    """The noise the command line asks for, checked: ``{"pose_noise": (sigma_m, sigma_deg) or None,
+    "lidar_noise": (sigma_m, dropout, spurious) or None, "spad_noise": preset name}``.
+
+    Raises:
+        ValueError: a malformed value (see :func:`parse_pose_noise`, :func:`parse_lidar_noise`), or
+            ``--spad-noise`` other than off without ``--spad``.
+    """
+    spad_noise = getattr(args, "spad_noise", "off")
+    if spad_noise not in SPAD_NOISE_CHOICES:
+        raise ValueError(f"--spad-noise must be one of {', '.join(SPAD_NOISE_CHOICES)}, got {spad_noise!r}")
+    if spad_noise != "off" and not getattr(args, "spad", False):
+        raise ValueError(f"--spad-noise {spad_noise} sets the SPAD LiDAR's photon budget: add --spad")
+    return {"pose_noise": parse_pose_noise(getattr(args, "pose_noise", None)),
+            "lidar_noise": parse_lidar_noise(getattr(args, "lidar_noise", None)), "spad_noise": spad_noise}
+
+
+def noise_settings(noise: dict) -> dict:
+    """The entries of :func:`noise_options`' answer that are on, as JSON values (empty without noise: settings
+    and metadata of a noise-free run read as before)."""
+    settings = {}
+    for key in ("pose_noise", "lidar_noise"):
+        if noise.get(key) is not None:
+            settings[key] = list(noise[key])
+    if noise.get("spad_noise", "off") != "off":
+        settings["spad_noise"] = noise["spad_noise"]
+    return settings

@@ -14,8 +14,9 @@ import sys
 from pathlib import Path
 
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
-from superex_deploy.commands._options import (add_parallel_options, add_planner_option, add_profile_option,
-                                               check_jobs, make_backend, planner_options)
+from superex_deploy.commands._options import (add_noise_options, add_parallel_options, add_planner_option,
+                                               add_profile_option, check_jobs, make_backend, noise_options,
+                                               noise_settings, planner_options)
 from superex_deploy.files import write_atomically
 
 
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="simulate the SPAD LiDAR every step: NLOS carving and back-projection evidence")
     parser.add_argument("--steps", type=int, default=1000)
     add_profile_option(parser)
+    add_noise_options(parser)
     parser.add_argument("--seed", type=int, default=0)
     add_parallel_options(parser)
     parser.add_argument("--out", required=True, type=Path)
@@ -72,8 +74,13 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    noise = noise_options(args)
     if args.suite == "paper":
         from superex_deploy.commands.paper_benchmark import run_paper
+
+        if noise_settings(noise):
+            raise ValueError("--suite paper runs the paper's noise-free protocol: drop --pose-noise, --lidar-noise "
+                             "and --spad-noise (or run without --suite)")
 
         return run_paper(args)
     from superex_deploy.sim.metrics import results_markdown, summarise
@@ -104,12 +111,13 @@ def run(args: argparse.Namespace) -> int:
         check_profile(profile_name, instance, args.predictor)
     tasks = [ScenarioTask(map_name=name, start_index=k, start_rc=pose, planner=planner, predictor=args.predictor,
                           spad=args.spad, steps=args.steps, seed=args.seed, planner_options=options, iou_every=50,
-                          profile=profile_name)
+                          profile=profile_name, pose_noise=noise["pose_noise"], lidar_noise=noise["lidar_noise"],
+                          spad_noise=noise["spad_noise"])
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
     settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
                 "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
-                "profile_settings": PROFILES[profile_name].to_json()}
+                "profile_settings": PROFILES[profile_name].to_json(), **noise_settings(noise)}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:
@@ -120,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
               f"to finish", file=sys.stderr)
         return 130
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
-    table = summarise(results, checkpoints)
+    noisy = noise_settings(noise)
+    table = summarise(results, checkpoints, map_errors=bool(noisy))
     write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,
                                                           "planner_options": options}))
     table_text = results_markdown(table)
@@ -128,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     write_atomically(
         args.out / "results.md",
         f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}, profile {profile_name}; "
+        f"{''.join(f'{key} {value}, ' for key, value in noisy.items())}"
         f"{len(names)} maps, "
         f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
         f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "

@@ -7,7 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.commands._options import add_planner_option, add_profile_option, planner_options
+from superex_deploy.commands._options import (add_noise_options, add_planner_option, add_profile_option,
+                                               noise_options, noise_settings, planner_options)
 from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
 
 
@@ -34,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
                              "`superex replay FILE` reruns the explorer on it)")
     add_profile_option(parser)
+    add_noise_options(parser)
     parser.add_argument("--out", required=True, type=Path)
 
 
@@ -76,8 +78,11 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.render import GifRecorder, save_episode_figure
     from superex_deploy.sim.episode import run_episode
 
+    from superex_deploy.benchmarking import with_noise, with_spad_noise
+
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    noise = noise_options(args)
     if args.out.exists() and not args.out.is_dir():
         raise ValueError(f"--out {args.out} exists and is not a folder")
     grid = load_map(args.map)
@@ -86,9 +91,10 @@ def run(args: argparse.Namespace) -> int:
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
     profile = check_profile(args.profile, planner, args.predictor)
-    sensing = make_sensing(args.predictor, args.spad, args.seed, args.models, profile)
+    sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
+                              noise["spad_noise"])
     predictor = make_predictor(args.predictor, grid, args.models, profile)
-    cfg = profile.episode_config()
+    cfg = with_noise(profile.episode_config(), noise["pose_noise"], noise["lidar_noise"], args.seed)
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
@@ -101,8 +107,9 @@ def run(args: argparse.Namespace) -> int:
     record = None
     if args.record is not None:
         explorer_cfg = cfg.explorer
-        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
-                                 recording_metadata(grid, args, options, sensing, explorer_cfg))
+        metadata = recording_metadata(grid, args, options, sensing, explorer_cfg)
+        metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model is in "sensor")
+        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
     recorder = GifRecorder(every=args.gif_every)
     try:
         with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
@@ -125,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise
     metrics = result.to_json()
     metrics["profile"] = args.profile
+    metrics.update(noise_settings(noise))
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
     recorder.save(args.out / "episode.gif")
@@ -132,6 +140,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{grid.name} start {start} {args.planner}: {len(result.coverage)} steps, coverage {coverage:.1%}, "
           f"path {metrics['path_length_m'][-1] if metrics['path_length_m'] else 0:.1f} m"
           f"{' (explored: no frontier left)' if result.finished else ''}")
+    if noise_settings(noise):
+        print(f"with noise {noise_settings(noise)}: {result.collisions} collisions, {result.true_walls_held_free} true "
+              f"wall cells held free, {result.true_walls_carved} carved, explorer-map wall IoU "
+              f"{result.explorer_map_iou:.3f}")
     print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}"
           f"{', ' + str(args.record) if record is not None else ''}")
     return 0

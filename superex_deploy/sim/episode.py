@@ -22,7 +22,9 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.onboard.mapper import Mapper
-from superex_deploy.sim.metrics import evaluation_area, map_iou
+from superex_deploy.sim.lidar_noise import LidarNoise
+from superex_deploy.sim.localization import PoseNoise
+from superex_deploy.sim.metrics import evaluation_area, explorer_map_errors, map_iou
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig
@@ -45,17 +47,33 @@ class ExplorationConfig:
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
+        pose_noise: the world's localisation error (:class:`~superex_deploy.sim.localization.PoseNoise`), or None.
+        lidar_noise: the world's LiDAR noise (:class:`~superex_deploy.sim.lidar_noise.LidarNoise`), or None.
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
     explorer: ExplorerConfig = field(default_factory=ExplorerConfig)
     iou_every: int = 25
     iou_dense_until: float = 1.0
+    pose_noise: Optional[PoseNoise] = None
+    lidar_noise: Optional[LidarNoise] = None
 
     def __post_init__(self) -> None:
         for name, kind in (("lidar", LidarConfig), ("explorer", ExplorerConfig)):
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
+        for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), kind):
+                raise ValueError(f"{name} must be a {kind.__name__} or None, got {type(getattr(self, name)).__name__}")
+
+    def to_json(self) -> dict:
+        """The configuration as JSON values; the noise entries only where noise is on (a noise-free
+        configuration reads as it did before they existed)."""
+        config = asdict(self)
+        for name in ("pose_noise", "lidar_noise"):
+            if config[name] is None:
+                del config[name]
+        return config
         if int(self.iou_every) < 0:
             raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
 
@@ -106,10 +124,18 @@ class EpisodeResult:
         goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
         finished: True when the planner found no goal before the budget ran out.
         config: the :class:`ExplorationConfig` as a dict (``lidar``, ``explorer``: ``motion``,
-            ``frontier_min_cells``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``).
+            ``frontier_min_cells``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``; ``pose_noise``
+            and ``lidar_noise`` where set).
         final_observed: int8 ``[H, W]`` observed map at the end.
         final_carved: bool ``[H, W]`` carved cells at the end.
         final_prediction: the last prediction computed (for the final figure), or None.
+        collisions: moves a wall stopped (:attr:`World.collisions <superex_deploy.sim.world.World.collisions>`).
+        true_walls_carved: true wall cells the explorer carved at any step (each counted once).
+        true_walls_held_free: true wall cells the explorer's final map holds free (seen or carved).
+        explorer_map_iou: wall-class IoU of the explorer's own final map (seen walls) against the truth, over
+            the evaluation area (:func:`~superex_deploy.sim.metrics.evaluation_area`).
+        true_poses, believed_poses: float64 ``[T, 3]`` ``(x, y, yaw)`` (metres, radians) of the robot's true pose
+            and of the pose its observation carried, at each step's scan.
     """
 
     map_name: str
@@ -134,6 +160,12 @@ class EpisodeResult:
     final_observed: np.ndarray
     final_carved: np.ndarray
     final_prediction: Optional[Prediction]
+    collisions: int = 0
+    true_walls_carved: int = 0
+    true_walls_held_free: int = 0
+    explorer_map_iou: float = float("nan")
+    true_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    believed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def steps(self) -> int:
@@ -141,7 +173,9 @@ class EpisodeResult:
         return int(len(self.coverage))
 
     def to_json(self) -> dict:
-        """JSON-ready dict: the per-step series, IoU log, goals, mean stage times and the config."""
+        """JSON-ready dict: the per-step series, IoU log, goals, mean stage times, the config, and the errors of
+        the explorer's map against the truth (``collisions``, ``true_walls_held_free``, ``true_walls_carved``,
+        ``map_iou``: :attr:`explorer_map_iou`)."""
         timings = {stage: np.round(values, 6).tolist() for stage, values in self.timings_s.items()}
         return {
             "map": self.map_name, "planner": self.planner, "predictor": self.predictor, "seed": self.seed,
@@ -160,6 +194,8 @@ class EpisodeResult:
             "mean_step_s": {stage: float(np.mean(values)) if len(values) else 0.0
                             for stage, values in self.timings_s.items()},
             "config": self.config,
+            "collisions": int(self.collisions), "true_walls_held_free": int(self.true_walls_held_free),
+            "true_walls_carved": int(self.true_walls_carved), "map_iou": float(self.explorer_map_iou),
         }
 
 
@@ -182,7 +218,8 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, pre
     :class:`Explorer` on the world's map frame (see :func:`run_episode` for the arguments)."""
     world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
                                               step_cells=cfg.explorer.motion.step_cells,
-                                              seed=0 if sensing is None else sensing.seed))
+                                              seed=0 if sensing is None else sensing.seed,
+                                              pose_noise=cfg.pose_noise, lidar_noise=cfg.lidar_noise))
     explorer = Explorer(world.frame, planner, predictor,
                         spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
                         seed=seed)
@@ -230,6 +267,8 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
     timings = {stage: np.zeros(steps) for stage in STAGES}
     evaluation_s, simulation_s = np.zeros(steps), np.zeros(steps)
     poses = np.zeros((steps, 2), np.int64)
+    true_poses, believed_poses = np.zeros((steps, 3)), np.zeros((steps, 3))
+    walls_carved = np.zeros(grid.shape, bool)
     coverage, coverage_carved, path_length = np.zeros(steps), np.zeros(steps), np.zeros(steps)
     iou_steps: list[int] = []
     iou_values: list[float] = []
@@ -247,6 +286,8 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         simulation_s[t] = time.perf_counter() - clock
         poses[t] = world.pose_rc
         path_length[t] = world.driven_m
+        truth, belief = world.pose, observation.pose
+        true_poses[t], believed_poses[t] = (truth.x, truth.y, truth.yaw), (belief.x, belief.y, belief.yaw)
 
         command = explorer.step(observation)
         for stage in STAGES:
@@ -259,6 +300,9 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
             goal_steps.append(t)
             goals.append(command.goal_rc)
         finished = command.finished
+        clock = time.perf_counter()
+        walls_carved |= explorer.mapper.carved & grid.occupied
+        evaluation_s[t] += time.perf_counter() - clock
 
         every = cfg.iou_every if coverage_carved[t] <= cfg.iou_dense_until else 10 * cfg.iou_every
         if cfg.iou_every and (t % every == 0 or t == steps - 1 or finished):
@@ -267,7 +311,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
             iou_steps.append(t)
             iou_values.append(map_iou(evaluated.mean, grid, area=iou_area))
             iou_coverage.append(float(coverage_carved[t]))
-            evaluation_s[t] = time.perf_counter() - clock
+            evaluation_s[t] += time.perf_counter() - clock
         if explorer.step_prediction is not None:
             last_prediction = explorer.step_prediction
         if on_step is not None:
@@ -281,6 +325,8 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         world.apply(command)
         simulation_s[t] += time.perf_counter() - clock
 
+    final_observed = explorer.mapper.observed()
+    held_free, explorer_iou = explorer_map_errors(final_observed, grid, iou_area)
     return EpisodeResult(
         map_name=grid.name, planner=planner.name, predictor=getattr(predictor, "name", type(predictor).__name__),
         seed=int(seed), start_rc=start, poses=poses[:logged], coverage=coverage[:logged],
@@ -288,5 +334,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         timings_s={stage: values[:logged] for stage, values in timings.items()},
         evaluation_s=evaluation_s[:logged], simulation_s=simulation_s[:logged], iou_steps=iou_steps,
         iou=iou_values, iou_coverage=iou_coverage, goal_steps=goal_steps, goals=goals, finished=finished,
-        config=asdict(cfg), final_observed=explorer.mapper.observed(), final_carved=explorer.mapper.carved.copy(),
-        final_prediction=last_prediction)
+        config=cfg.to_json(), final_observed=final_observed, final_carved=explorer.mapper.carved.copy(),
+        final_prediction=last_prediction, collisions=world.collisions,
+        true_walls_carved=int(np.count_nonzero(walls_carved)), true_walls_held_free=held_free,
+        explorer_map_iou=explorer_iou, true_poses=true_poses[:logged], believed_poses=believed_poses[:logged])

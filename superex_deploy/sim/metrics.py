@@ -14,11 +14,14 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.onboard.types import FREE, OCCUPIED
 
 __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
            "results_markdown", "pair_by_scenario", "difference_counts", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
+MAP_ERROR_KEYS = ("collisions", "true_walls_held_free", "true_walls_carved", "map_iou")
+"""The episode-log keys of the explorer map's errors against the truth (see :func:`explorer_map_errors`)."""
 
 
 def coverage(known: np.ndarray, valid: np.ndarray) -> float:
@@ -80,13 +83,15 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
     return (float(np.mean(values)), float(np.std(values))) if values else (float("nan"), float("nan"))
 
 
-def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000)) -> list[dict]:
+def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000), map_errors: bool = False
+              ) -> list[dict]:
     """Per-planner results table from :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts.
 
     Each row holds ``planner``, ``episodes`` and ``(mean, std)`` pairs over episodes of: line-of-sight coverage
     ``coverage@N`` and carving-inclusive ``coverage_carved@N`` at each checkpoint, the area under the coverage
-    curve per step ``coverage_auc``, the final ``path_length_m`` and the ``final_iou``. Rows are sorted by
-    planner name.
+    curve per step ``coverage_auc``, the final ``path_length_m`` and the ``final_iou``; with ``map_errors`` (runs
+    with noise) also :data:`MAP_ERROR_KEYS` (collisions, true walls held free and carved, the explorer map's IoU).
+    Rows are sorted by planner name.
     """
     by_planner: dict[str, list[dict]] = {}
     for result in results:
@@ -105,6 +110,8 @@ def summarise(results: list[dict], checkpoints: Sequence[int] = (250, 500, 1000)
              if r["coverage"]])
         row["path_length_m"] = _mean_std([r["path_length_m"][-1] for r in runs if r["path_length_m"]])
         row["final_iou"] = _mean_std([r["iou"]["iou"][-1] for r in runs if r["iou"]["iou"]])
+        for key in MAP_ERROR_KEYS if map_errors else ():
+            row[key] = _mean_std([float(r[key]) for r in runs if key in r])
         rows.append(row)
     return rows
 
@@ -192,7 +199,7 @@ def results_markdown(rows: list[dict]) -> str:
         for key in columns:
             mean, std = row[key]
             scale = 100.0 if key.startswith("coverage") else 1.0
-            digits = 1 if key.startswith("coverage") or key == "path_length_m" else 3
+            digits = 1 if key.startswith("coverage") or key == "path_length_m" or key in MAP_ERROR_KEYS[:3] else 3
             cells.append(f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}")
         lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -228,4 +235,25 @@ def wall_iou_tolerant(pred: np.ndarray, truth: np.ndarray, tolerance_cells: floa
     return 1.0 if denominator == 0 else np.count_nonzero(pred & near_truth) / denominator
 
 
-__all__ += ["wall_iou", "wall_iou_tolerant"]
+def explorer_map_errors(observed: np.ndarray, grid: OccupancyGrid, area: np.ndarray | None = None
+                        ) -> tuple[int, float]:
+    """How the explorer's own map (not a prediction) errs against the truth.
+
+    Args:
+        observed: int8 ``[H, W]`` the explorer's map (FREE, OCCUPIED, UNKNOWN; carved cells FREE).
+        grid: the ground truth.
+        area: bool ``[H, W]`` where the IoU is scored; default :func:`evaluation_area`.
+
+    Returns:
+        ``(true wall cells the map holds FREE, anywhere; wall-class IoU of the map's OCCUPIED cells against the
+        true walls within the area)``.
+    """
+    observed = np.asarray(observed)
+    if observed.shape != grid.shape:
+        raise ValueError(f"observed has shape {observed.shape}, the map has {grid.shape}")
+    area = evaluation_area(grid) if area is None else area
+    held_free = int(np.count_nonzero((observed == FREE) & grid.occupied))
+    return held_free, wall_iou((observed == OCCUPIED) & area, grid.occupied & area)
+
+
+__all__ += ["wall_iou", "wall_iou_tolerant", "explorer_map_errors", "MAP_ERROR_KEYS"]

@@ -1,9 +1,19 @@
 """The simulated world: the ground-truth grid, the robot in it, its sensors, and the metrics only the truth allows.
 
 The world owns the truth; the explorer (:mod:`superex_deploy.onboard`) sees only the
-:class:`~superex_deploy.messages.Observation` that :meth:`World.observe` produces. The simulated robot is holonomic
-and moves on grid cells; its pose is the centre of its cell with yaw 0 (the scanners are aligned with the map
-frame).
+:class:`~superex_deploy.messages.Observation` that :meth:`World.observe` produces. By default (the paper's protocol)
+the simulated robot is holonomic and moves on grid cells; its pose is the centre of its cell with yaw 0 (the
+scanners are aligned with the map frame), and the observations carry it exactly.
+
+Imperfection, all off by default (:class:`WorldConfig`):
+
+* ``pose_noise`` (:class:`~superex_deploy.sim.localization.PoseNoise`): the observation's pose is the truth plus a
+  localisation error and carries its covariance; the robot then moves continuously (:mod:`.kinematics`: position
+  off the cell centres, heading along the direction of travel) and follows each command from where it believes it
+  is. The scans are cast from the true pose.
+* ``lidar_noise`` (:class:`~superex_deploy.sim.lidar_noise.LidarNoise`): range noise, dropouts, spurious returns.
+* The SPAD's photon noise is the sensor's own (:class:`~superex_deploy.spad_types.SpadNoise`, presets in
+  :data:`~superex_deploy.spad_types.SPAD_PRESETS`).
 """
 
 from __future__ import annotations
@@ -18,6 +28,9 @@ from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
+from superex_deploy.sim.kinematics import drive_belief_relative
+from superex_deploy.sim.lidar_noise import LidarNoise, noisy_ranges
+from superex_deploy.sim.localization import PoseErrorModel, PoseNoise
 from superex_deploy.sim.spad import simulate_scan
 
 __all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "advance"]
@@ -51,6 +64,10 @@ class WorldConfig:
         step_cells: path cells the robot drives per :meth:`World.apply` (MapEx: 3 cells = 0.3 m).
         seed: seed of the SPAD noise generator (used only when ``spad.noise.enabled``).
         step_s: simulated time per step (seconds; the observations' time stamps).
+        pose_noise: the localisation error (None: the observations carry the true pose, and the robot moves from
+            cell centre to cell centre). With it the robot moves continuously and drives
+            ``step_cells * resolution`` metres per step.
+        lidar_noise: the LiDAR's noise, or None (exact ranges).
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -58,6 +75,8 @@ class WorldConfig:
     step_cells: int = 3
     seed: int = 0
     step_s: float = 0.1
+    pose_noise: Optional[PoseNoise] = None
+    lidar_noise: Optional[LidarNoise] = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.lidar, LidarConfig):
@@ -68,6 +87,9 @@ class WorldConfig:
             raise ValueError(f"step_cells must be a positive integer, got {self.step_cells!r}")
         if not (float(self.step_s) > 0.0 and np.isfinite(self.step_s)):
             raise ValueError(f"step_s must be positive and finite, got {self.step_s}")
+        for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), kind):
+                raise ValueError(f"{name} must be a {kind.__name__} or None, got {type(getattr(self, name)).__name__}")
 
 
 def _float32_at_least(values_m: np.ndarray) -> np.ndarray:
@@ -125,10 +147,13 @@ class World:
     Attributes:
         grid, cfg: as given.
         frame: the map frame the observations use (the grid's shape and resolution, origin at (0, 0)).
-        pose_rc: the robot's cell.
+        pose_rc: the robot's cell (setting it puts the robot at the cell's centre).
         driven_m: metres driven so far.
         steps: observations produced so far.
-        collisions: commanded moves refused because the next cell was a wall.
+        collisions: commanded moves stopped by a wall (or the map's edge).
+        belief: the pose the last observation carried (None before the first).
+        pose_error: the running localisation error (:class:`~superex_deploy.sim.localization.PoseErrorModel`), or
+            None without pose noise.
     """
 
     def __init__(self, grid: OccupancyGrid, start_rc, cfg: WorldConfig = WorldConfig()):
@@ -143,6 +168,9 @@ class World:
         self.grid, self.cfg = grid, cfg
         self.frame = MapFrame(grid.shape, grid.resolution_m)
         self.pose_rc = start
+        self.belief: Optional[Pose2D] = None
+        self.pose_error = None if cfg.pose_noise is None else PoseErrorModel(cfg.pose_noise)
+        self._lidar_rng = None if cfg.lidar_noise is None else cfg.lidar_noise.generator()
         self.driven_m = 0.0
         self.steps = 0
         self.collisions = 0
@@ -156,49 +184,87 @@ class World:
         self.last_spad_scan: Optional[SpadScan] = None
 
     @property
+    def pose_rc(self) -> tuple[int, int]:
+        """The robot's cell ``(row, col)``."""
+        return self._pose_rc
+
+    @pose_rc.setter
+    def pose_rc(self, rc) -> None:
+        self._pose_rc = (int(rc[0]), int(rc[1]))
+        self._true_pose: Optional[Pose2D] = None  # None: the cell's centre, yaw 0
+
+    @property
     def pose(self) -> Pose2D:
-        """The robot's pose in the map frame: the centre of its cell, yaw 0."""
+        """The robot's true pose in the map frame: the centre of its cell, yaw 0 (with pose noise, where its
+        continuous motion took it)."""
+        if self._true_pose is not None:
+            return self._true_pose
         x, y = self.frame.centre_xy(self.pose_rc)
         return Pose2D(x, y, 0.0)
 
-    def observe(self) -> Observation:
-        """Scan from the robot's cell: the line-of-sight ranges and, with a SPAD sensor, its frame."""
-        pose = self.pose
-        origin, _ = self.frame.locate(pose.x, pose.y)
+    def _scan(self, pose: Pose2D, origin) -> LaserScan:
         resolution = self.grid.resolution_m
         hits = cast_rays(self.grid.occupied, origin, grid_angles(pose.yaw, self._scan_angles),
                          self._range_max / resolution)
-        scan = laser_scan_from_distances(hits.distance_cells, hits.hit_mask, resolution, 0.0, self._angle_increment,
-                                         self._range_max)
-        spad = None
-        if self.cfg.spad is not None:
-            if self._spad_rng is None:
-                self._spad_rng = np.random.default_rng(self.cfg.seed)
-            simulated = simulate_scan(self.grid, self.pose_rc, self.cfg.spad,
-                                      rng=self._spad_rng if self.cfg.spad.noise.enabled else None)
-            self.last_spad_scan = simulated  # the truth stays here: labels and tests only
-            sparse = simulated.sparse
-            # Grid angles back to robot-frame angles (yaw 0): an exact negation.
-            spad = SpadFrame(angles=-simulated.angles, bin_width_s=self.cfg.spad.bin_width_s, n_bins=sparse.n_bins,
-                             row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
-        observation = Observation(stamp_s=self.steps * self.cfg.step_s, pose=pose, scan=scan, spad=spad)
+        noise = self.cfg.lidar_noise
+        if noise is None:
+            return laser_scan_from_distances(hits.distance_cells, hits.hit_mask, resolution, 0.0,
+                                             self._angle_increment, self._range_max)
+        exact = np.where(hits.hit_mask, hits.distance_cells * resolution, np.inf)
+        return LaserScan(angle_min=0.0, angle_increment=self._angle_increment, range_min=noise.range_min_m,
+                         range_max=self._range_max, ranges=noisy_ranges(exact, noise, self._range_max, self._lidar_rng))
+
+    def _spad_frame(self, pose: Pose2D, origin) -> SpadFrame:
+        if self._spad_rng is None:
+            self._spad_rng = np.random.default_rng(self.cfg.seed)
+        continuous = self._true_pose is not None
+        simulated = simulate_scan(self.grid, self.pose_rc, self.cfg.spad,
+                                  rng=self._spad_rng if self.cfg.spad.noise.enabled else None,
+                                  origin_yx=origin if continuous else None)
+        self.last_spad_scan = simulated  # the truth stays here: labels and tests only
+        sparse = simulated.sparse
+        # Grid angles back to robot-frame angles: an exact negation at yaw 0 (the cell-to-cell robot); a turned
+        # robot's rays are the same grid directions seen from its heading.
+        angles = -simulated.angles - pose.yaw if continuous else -simulated.angles
+        return SpadFrame(angles=angles, bin_width_s=self.cfg.spad.bin_width_s, n_bins=sparse.n_bins,
+                         row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
+
+    def observe(self) -> Observation:
+        """Scan from the robot's true pose: the line-of-sight ranges and, with a SPAD sensor, its frame; the
+        observation carries the pose the robot believes it has (the truth without pose noise)."""
+        pose = self.pose
+        origin, _ = self.frame.locate(pose.x, pose.y)
+        scan = self._scan(pose, origin)
+        spad = None if self.cfg.spad is None else self._spad_frame(pose, origin)
+        belief, covariance = pose, None
+        if self.pose_error is not None:
+            belief, covariance = self.pose_error.believe(pose), self.pose_error.covariance()
+        self.belief = belief
+        observation = Observation(stamp_s=self.steps * self.cfg.step_s, pose=belief, scan=scan, spad=spad,
+                                  pose_covariance=covariance)
         self.steps += 1
         return observation
 
     def apply(self, command: Command) -> float:
         """Drive up to ``step_cells`` cells along the commanded path; returns the metres driven.
 
-        The path must start at the robot's cell; a move into a wall is refused (the robot stops before it and
-        :attr:`collisions` counts it). A command without a path leaves the robot where it is.
+        Without pose noise the path must start at the robot's cell and step between 8-connected cells; a move into
+        a wall is refused (the robot stops before it and :attr:`collisions` counts it). With pose noise the robot
+        follows the path from the pose it believes it has (see :mod:`superex_deploy.sim.kinematics`), up to
+        ``step_cells * resolution`` metres; a wall stops it and counts, and no path is refused. A command without a
+        path leaves the robot where it is.
 
         Raises:
-            ValueError: not a Command, or a path that does not start at the robot's cell.
+            ValueError: not a Command; without pose noise, a path that does not start at the robot's cell or that
+                skips cells.
         """
         if not isinstance(command, Command):
             raise ValueError(f"apply() takes a Command, got {type(command).__name__}")
         path_xy = np.asarray(command.path_xy, np.float64).reshape(-1, 2)
         if len(path_xy) == 0:
             return 0.0
+        if self.pose_error is not None:
+            return self._drive_continuously(path_xy)
         path = [self.frame.cell_of(x, y) for x, y in path_xy]
         if path[0] != self.pose_rc:
             raise ValueError(f"the commanded path starts at cell {path[0]}, the robot is at {self.pose_rc}")
@@ -214,6 +280,19 @@ class World:
         self.pose_rc = (int(pose[0]), int(pose[1]))
         self.driven_m += metres
         return metres
+
+    def _drive_continuously(self, path_xy: np.ndarray) -> float:
+        if not np.all(np.isfinite(path_xy)):
+            raise ValueError("the commanded path holds a non-finite waypoint")
+        truth = self.pose
+        drive = drive_belief_relative(self.grid, truth, self.belief or truth, path_xy,
+                                      self.cfg.step_cells * self.grid.resolution_m)
+        self.pose_rc = self.frame.cell_of(drive.pose.x, drive.pose.y)
+        self._true_pose = drive.pose
+        self.collisions += int(drive.collided)
+        self.driven_m += drive.metres
+        self.pose_error.drive(drive.metres)
+        return drive.metres
 
     def coverage(self, known: np.ndarray) -> float:
         """Known share of the valid area for a bool ``[H, W]`` map of known cells (the explorer's)."""

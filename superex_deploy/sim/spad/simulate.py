@@ -26,9 +26,17 @@ MIN_DISTANCE_CELLS = 0.5
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+def _origin_in_cell(origin_yx, pose_rc) -> tuple[float, float]:
+    origin = (float(origin_yx[0]), float(origin_yx[1]))
+    if not all(np.isfinite(origin)) or (int(np.floor(origin[0])), int(np.floor(origin[1]))) != tuple(pose_rc):
+        raise ValueError(f"origin_yx {origin} cells lies outside the robot cell {tuple(pose_rc)}")
+    return origin
+
+
 def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
-                  rng: Optional[np.random.Generator] = None) -> SpadScan:
-    """Simulate one SPAD scan from the centre of cell ``pose_rc``.
+                  rng: Optional[np.random.Generator] = None,
+                  origin_yx: Optional[tuple[float, float]] = None) -> SpadScan:
+    """Simulate one SPAD scan from the centre of cell ``pose_rc`` (or from ``origin_yx`` inside it).
 
     Secondary fans are reused from the grid's :class:`FanCache` where an earlier scan traced them (the result is
     the same either way); new ones are traced on numba's threads.
@@ -38,20 +46,23 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
         pose_rc: robot cell ``(row, col)``: inside the grid, not a wall.
         cfg: sensor configuration.
         rng: random generator, required when ``cfg.noise.enabled`` (ignored otherwise).
+        origin_yx: the sensor's continuous grid position ``(y down, x right)`` in cells, inside ``pose_rc`` (a
+            robot off its cell's centre, as the simulator's continuous motion leaves it); None: the cell's centre.
 
     Returns:
         The :class:`SpadScan`: sparse counts without noise, dense with it; counts are float32 and clamped to
         float32's finite range.
 
     Raises:
-        ValueError: bad grid, pose outside the map or in a wall, noise without a generator.
+        ValueError: bad grid, pose outside the map or in a wall, noise without a generator, an origin outside
+            ``pose_rc``.
     """
     if not isinstance(cfg, SpadConfig):
         raise ValueError(f"cfg must be a SpadConfig, got {type(cfg).__name__}")
     scene = prepare_scene(grid)
     pose_rc = grid.check_pose(pose_rc)
     rng = _check_rng(cfg, rng)
-    origin = cell_centre(pose_rc)
+    origin = cell_centre(pose_rc) if origin_yx is None else _origin_in_cell(origin_yx, pose_rc)
     resolution = grid.resolution_m
     max_t = cfg.range_m / resolution
     angles = ray_angles(cfg.n_rays)
