@@ -285,3 +285,11 @@ def test_iou_is_evaluated_densely_only_below_the_coverage_threshold():
     passed = int(np.argmax(dense.coverage_with_carving > threshold))
     assert [s for s in mixed.iou_steps if s < passed] == list(range(0, passed, 2))
     assert all(s % 20 == 0 for s in mixed.iou_steps[:-1] if s >= passed)
+
+
+@pytest.mark.parametrize("value", [-1, 2.5, True])
+def test_the_episode_config_refuses_a_bad_iou_interval(value):
+    from superex_deploy.sim.episode import ExplorationConfig
+
+    with pytest.raises(ValueError, match="iou_every must be an integer >= 0"):
+        ExplorationConfig(iou_every=value)

@@ -65,6 +65,8 @@ class ExplorationConfig:
         for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
             if getattr(self, name) is not None and not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__} or None, got {type(getattr(self, name)).__name__}")
+        if isinstance(self.iou_every, bool) or int(self.iou_every) != self.iou_every or self.iou_every < 0:
+            raise ValueError(f"iou_every must be an integer >= 0, got {self.iou_every!r}")
 
     def to_json(self) -> dict:
         """The configuration as JSON values; the noise entries only where noise is on (a noise-free
@@ -74,8 +76,6 @@ class ExplorationConfig:
             if config[name] is None:
                 del config[name]
         return config
-        if int(self.iou_every) < 0:
-            raise ValueError(f"iou_every must be >= 0, got {self.iou_every}")
 
 
 @dataclass
