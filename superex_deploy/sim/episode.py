@@ -132,6 +132,7 @@ class EpisodeResult:
         collisions: moves a wall stopped (:attr:`World.collisions <superex_deploy.sim.world.World.collisions>`).
         true_walls_carved: true wall cells the explorer carved at any step (each counted once).
         true_walls_held_free: true wall cells the explorer's final map holds free (seen or carved).
+        true_walls_seen: true wall cells the explorer's final map holds known (free or occupied).
         explorer_map_iou: wall-class IoU of the explorer's own final map (seen walls) against the truth, over
             the evaluation area (:func:`~superex_deploy.sim.metrics.evaluation_area`).
         true_poses, believed_poses: float64 ``[T, 3]`` ``(x, y, yaw)`` (metres, radians) of the robot's true pose
@@ -164,6 +165,7 @@ class EpisodeResult:
     true_walls_carved: int = 0
     true_walls_held_free: int = 0
     explorer_map_iou: float = float("nan")
+    true_walls_seen: int = 0
     true_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     believed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -196,6 +198,7 @@ class EpisodeResult:
             "config": self.config,
             "collisions": int(self.collisions), "true_walls_held_free": int(self.true_walls_held_free),
             "true_walls_carved": int(self.true_walls_carved), "map_iou": float(self.explorer_map_iou),
+            "true_walls_seen": int(self.true_walls_seen),
         }
 
 
@@ -326,7 +329,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         simulation_s[t] += time.perf_counter() - clock
 
     final_observed = explorer.mapper.observed()
-    held_free, explorer_iou = explorer_map_errors(final_observed, grid, iou_area)
+    held_free, explorer_iou, walls_seen = explorer_map_errors(final_observed, grid, iou_area)
     return EpisodeResult(
         map_name=grid.name, planner=planner.name, predictor=getattr(predictor, "name", type(predictor).__name__),
         seed=int(seed), start_rc=start, poses=poses[:logged], coverage=coverage[:logged],
@@ -337,4 +340,4 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         config=cfg.to_json(), final_observed=final_observed, final_carved=explorer.mapper.carved.copy(),
         final_prediction=last_prediction, collisions=world.collisions,
         true_walls_carved=int(np.count_nonzero(walls_carved)), true_walls_held_free=held_free,
-        explorer_map_iou=explorer_iou, true_poses=true_poses[:logged], believed_poses=believed_poses[:logged])
+        explorer_map_iou=explorer_iou, true_walls_seen=walls_seen, true_poses=true_poses[:logged], believed_poses=believed_poses[:logged])

@@ -14,13 +14,13 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.types import FREE, OCCUPIED
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
 __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "coverage_at", "summarise",
            "results_markdown", "pair_by_scenario", "difference_counts", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
-MAP_ERROR_KEYS = ("collisions", "true_walls_held_free", "true_walls_carved", "map_iou")
+MAP_ERROR_KEYS = ("collisions", "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen")
 """The episode-log keys of the explorer map's errors against the truth (see :func:`explorer_map_errors`)."""
 
 
@@ -199,7 +199,8 @@ def results_markdown(rows: list[dict]) -> str:
         for key in columns:
             mean, std = row[key]
             scale = 100.0 if key.startswith("coverage") else 1.0
-            digits = 1 if key.startswith("coverage") or key == "path_length_m" or key in MAP_ERROR_KEYS[:3] else 3
+            counts = key in MAP_ERROR_KEYS and key != "map_iou"
+            digits = 1 if key.startswith("coverage") or key == "path_length_m" or counts else 3
             cells.append(f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}")
         lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -236,7 +237,7 @@ def wall_iou_tolerant(pred: np.ndarray, truth: np.ndarray, tolerance_cells: floa
 
 
 def explorer_map_errors(observed: np.ndarray, grid: OccupancyGrid, area: np.ndarray | None = None
-                        ) -> tuple[int, float]:
+                        ) -> tuple[int, float, int]:
     """How the explorer's own map (not a prediction) errs against the truth.
 
     Args:
@@ -246,14 +247,16 @@ def explorer_map_errors(observed: np.ndarray, grid: OccupancyGrid, area: np.ndar
 
     Returns:
         ``(true wall cells the map holds FREE, anywhere; wall-class IoU of the map's OCCUPIED cells against the
-        true walls within the area)``.
+        true walls within the area; true wall cells the map holds known, FREE or OCCUPIED: the walls "seen", the
+        denominator of a held-free rate)``.
     """
     observed = np.asarray(observed)
     if observed.shape != grid.shape:
         raise ValueError(f"observed has shape {observed.shape}, the map has {grid.shape}")
     area = evaluation_area(grid) if area is None else area
     held_free = int(np.count_nonzero((observed == FREE) & grid.occupied))
-    return held_free, wall_iou((observed == OCCUPIED) & area, grid.occupied & area)
+    seen = int(np.count_nonzero((observed != UNKNOWN) & grid.occupied))
+    return held_free, wall_iou((observed == OCCUPIED) & area, grid.occupied & area), seen
 
 
 __all__ += ["wall_iou", "wall_iou_tolerant", "explorer_map_errors", "MAP_ERROR_KEYS"]
