@@ -16,11 +16,12 @@ def add_planner_option(parser: argparse.ArgumentParser) -> None:
     """``--planner-option FIELD=VALUE`` (repeatable; :func:`planner_options` parses it)."""
     parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
-                             "straight-line divisor (repeatable; numbers and true/false are converted)")
+                             "straight-line divisor (repeatable; numbers, true/false and none are converted)")
 
 
 def planner_options(pairs: list[str]) -> dict:
-    """``["field=value", ...]`` -> config overrides; ints, floats and true / false are converted."""
+    """``["field=value", ...]`` -> config overrides; ints, floats and true / false are converted, ``none`` becomes
+    None (a field that takes None accepts it; the others name themselves in their error)."""
     options = {}
     for pair in pairs:
         field_name, separator, text = pair.partition("=")
@@ -29,6 +30,8 @@ def planner_options(pairs: list[str]) -> dict:
         value: object = text.strip()
         if text.strip().lower() in ("true", "false"):
             value = text.strip().lower() == "true"
+        elif text.strip().lower() == "none":
+            value = None  # e.g. IG-Hector's visibility=none: MapEx's code path
         else:
             for convert in (int, float):
                 try:
