@@ -387,19 +387,37 @@ def _metadata(data: bytes, path: Path) -> dict:
     raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
 
 
-def read_recording(path: Union[str, Path]) -> Recording:
+def _message_count(data: bytes) -> Optional[int]:
+    """The number of messages the file's summary section states, or None (no summary: a cut file)."""
+    from mcap.reader import make_reader
+
+    try:
+        summary = make_reader(io.BytesIO(data)).get_summary()
+        return None if summary is None or summary.statistics is None else int(summary.statistics.message_count)
+    except Exception:  # noqa: BLE001 - a broken summary only costs the progress bar its total
+        return None
+
+
+def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
     """Read a recording written by :class:`EpisodeRecorder`.
 
     Reading stops at the first message that cannot be decoded or is inconsistent (a truncated file, a corrupt
-    record); :attr:`Recording.error` then names it, and :attr:`Recording.steps` holds every complete step before it.
+    record); :attr:`Recording.error` then names it (a file that ends inside a record is said to be truncated, at
+    its size in bytes), and :attr:`Recording.steps` holds every complete step before it.
+
+    Args:
+        path: the ``.mcap`` file.
+        progress: show a progress bar (tqdm, on stderr) over the messages read, from the first one.
 
     Raises:
         ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, metadata values of
             the wrong type (:data:`METADATA_TYPES`), another format version, a map frame beyond the size limits
             (:func:`superex_deploy.messages.check_map_size`).
     """
+    from mcap.exceptions import EndOfFile
     from mcap.reader import NonSeekingReader
     from mcap_ros2.decoder import DecoderFactory
+    from tqdm import tqdm
 
     path = Path(path)
     if not path.is_file():
@@ -415,30 +433,41 @@ def read_recording(path: Union[str, Path]) -> Recording:
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"{path}: the map frame in the metadata is unusable ({error})") from None
     recording = Recording(metadata=metadata, frame=frame)
-    reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True, decoder_factories=[DecoderFactory()])
+    stream = io.BytesIO(data)
+    reader = NonSeekingReader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
     parts: dict = {}
     current = -1
     done = 0  # messages fully read
     topic, sequence = "?", -1
-    try:
-        # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
-        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
-            topic, sequence = channel.topic, message.sequence
-            if topic in _REPLAYED_TOPICS:
-                if sequence != current:
-                    parts, current = {}, sequence
-                parts[topic] = decoded
-                if topic == "/command":
-                    if "/pose" not in parts or "/scan" not in parts:
-                        raise ValueError("a command without the pose and scan of its step")
-                    goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
-                    recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
-                                                        goal_rc=goal, new_goal=bool(decoded.new_goal),
-                                                        finished=bool(decoded.finished)))
-            done += 1
-            topic, sequence = "?", -1
-    except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
-        where = f"topic {topic}, step {sequence}" if topic != "?" else f"after step {current}"
-        recording.error = (f"message {done + 1} ({where}) is broken: {type(error).__name__}: {error}; kept the "
-                           f"{len(recording.steps)} complete steps before it")
+    # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
+    with tqdm(reader.iter_decoded_messages(log_time_order=False), desc=f"reading {path.name}", unit="msg",
+              total=_message_count(data) if progress else None, disable=not progress) as messages:
+        try:
+            for _, channel, message, decoded in messages:
+                topic, sequence = channel.topic, message.sequence
+                if topic in _REPLAYED_TOPICS:
+                    if sequence != current:
+                        parts, current = {}, sequence
+                    parts[topic] = decoded
+                    if topic == "/command":
+                        if "/pose" not in parts or "/scan" not in parts:
+                            raise ValueError("a command without the pose and scan of its step")
+                        goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
+                        recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
+                                                            goal_rc=goal, new_goal=bool(decoded.new_goal),
+                                                            finished=bool(decoded.finished)))
+                done += 1
+                topic, sequence = "?", -1
+        except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
+            steps = recording.steps
+            if topic != "?":
+                where = f"topic {topic}, step {sequence}"
+            else:
+                where = f"after step {steps[-1].step}" if steps else "before the first step"
+            if isinstance(error, EndOfFile) or stream.tell() >= len(data):
+                why = f"the file is truncated: it ends at byte {len(data):,}, inside a record"
+            else:
+                why = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+            recording.error = f"message {done + 1} ({where}) is broken: {why}; kept the {len(steps)} complete " \
+                              f"steps before it"
     return recording

@@ -3,6 +3,7 @@ option before anything is created, and every command stopped by a signal says so
 shell reports (130 for SIGINT, 143 for SIGTERM) and keeps what it promised to keep."""
 
 import math
+import re
 import signal
 from pathlib import Path
 
@@ -142,3 +143,59 @@ def test_the_environment_refuses_a_step_after_the_episode_ended_or_after_close()
     env.reset(seed=2)  # a reset starts afresh
     env.step(0)
     env.close()
+
+
+# Row 14: a recording without a step is not a successful replay.
+
+def test_a_recording_without_steps_is_refused(tmp_path, capsys):
+    from superex_deploy.recording import read_recording
+
+    empty = _record(tmp_path / "empty.mcap", steps=0)
+    assert read_recording(empty).steps == [] and read_recording(empty).error is None
+    out = tmp_path / "replay"
+    _refused(capsys, ["replay", str(empty), "--out", str(out)], "holds no step to replay")
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(_record(tmp_path / "three.mcap").read_bytes()[:900])  # the metadata, then cut
+    _refused(capsys, ["replay", str(cut), "--out", str(out)], "holds no step to replay", "truncated")
+    assert not out.exists()
+
+
+# Row 19: a truncated recording says so, and where.
+
+def test_a_truncated_recording_says_at_which_byte_and_after_which_step(tmp_path):
+    from superex_deploy.recording import read_recording
+
+    data = _record(tmp_path / "full.mcap", steps=12, chunk_bytes=2048).read_bytes()
+    seen = set()
+    for size in range(0, len(data), max(1, len(data) // 60)):
+        cut = tmp_path / "cut.mcap"
+        cut.write_bytes(data[:size])
+        try:
+            recording = read_recording(cut)
+        except ValueError as error:  # cut before the metadata: nothing is usable
+            assert "is not a SuperEx recording" in str(error)
+            continue
+        assert recording.error is not None
+        assert f"the file is truncated: it ends at byte {size:,}, inside a record" in recording.error
+        steps = len(recording.steps)
+        where = f"after step {steps - 1}" if steps else "before the first step"
+        assert where in recording.error or "topic /" in recording.error
+        assert recording.error.endswith(f"kept the {steps} complete steps before it")
+        assert "EndOfFile: ;" not in recording.error
+        seen.add(steps)
+    assert len(seen) >= 4 and 0 in seen and 12 in seen  # cuts before, among and after the steps
+
+
+# Row 20: reading shows progress from the first message.
+
+def test_reading_a_recording_shows_progress_over_its_messages(tmp_path, capsys):
+    from superex_deploy.recording import read_recording
+
+    path = _record(tmp_path / "r.mcap", steps=6)
+    read_recording(path)
+    assert capsys.readouterr().err == ""
+    recording = read_recording(path, progress=True)
+    err = capsys.readouterr().err
+    assert len(recording.steps) == 6 and "reading r.mcap" in err
+    # A known total (the file's summary): 6 steps of /pose, /scan, /command and /plan, and the map of step 0.
+    assert re.search(r"0/25 \[", err) and re.search(r"25/25 \[", err)
