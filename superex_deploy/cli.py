@@ -47,7 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run ``superex ARGV`` and return its exit code."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as usage:  # --help (0), or a usage error argparse has printed (2)
+        return 0 if usage.code is None else usage.code if isinstance(usage.code, int) else 2
     if not hasattr(args, "_module"):
         print(f"superex {args.command}: this command is unavailable; see `superex --help`", file=sys.stderr)
         return 2

@@ -2,6 +2,8 @@
 option before anything is created, and every command stopped by a signal says so in one line, exits with the code a
 shell reports (130 for SIGINT, 143 for SIGTERM) and keeps what it promised to keep."""
 
+import argparse
+import json
 import math
 import re
 import signal
@@ -13,7 +15,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from superex_deploy.cli import main
-from superex_deploy.commands._options import planner_options
+from superex_deploy.commands._options import (name_list, non_negative_int, planner_options, positive_int,
+                                              settings_differences)
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -199,3 +202,183 @@ def test_reading_a_recording_shows_progress_over_its_messages(tmp_path, capsys):
     assert len(recording.steps) == 6 and "reading r.mcap" in err
     # A known total (the file's summary): 6 steps of /pose, /scan, /command and /plan, and the map of step 0.
     assert re.search(r"0/25 \[", err) and re.search(r"25/25 \[", err)
+
+
+# Rows 2, 16: numbers are checked by their argparse type, which names the option.
+
+@FUZZ
+@given(value=st.one_of(st.integers(-10 ** 30, 10 ** 30), st.text(max_size=6)))
+@example(value="-5")
+@example(value="0")
+@example(value=" 7 ")
+@example(value="1e3")
+def test_integer_options_take_integers_from_their_lower_bound(value):
+    text = str(value)
+    for convert, low in ((non_negative_int, 0), (positive_int, 1)):
+        try:
+            expected = int(text)
+        except ValueError:
+            expected = None
+        if expected is None or expected < low:
+            with pytest.raises(argparse.ArgumentTypeError, match=f"must be an integer >= {low}, got"):
+                convert(text)
+        else:
+            assert convert(text) == expected
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["explore", "--map", MAP, "--gif-every", "-1"], "--gif-every"),
+    (["explore", "--map", MAP, "--gif-every", "x"], "--gif-every"),
+    (["explore", "--map", MAP, "--seed", "-5"], "--seed"),
+    (["explore", "--map", MAP, "--start", "-1"], "--start"),
+    (["benchmark", "--maps", MAP, "--seed", "-5"], "--seed"),
+    (["benchmark", "--maps", MAP, "--jobs", "0"], "--jobs"),
+    (["scan", "--map", MAP, "--seed", "-5"], "--seed"),
+    (["scan", "--map", MAP, "--secondary", "0"], "--secondary"),
+])
+def test_a_bad_number_is_refused_naming_its_option_before_anything_is_created(tmp_path, capsys, argv, option):
+    out = tmp_path / "out"
+    _refused(capsys, argv + ["--out", str(out)], f"argument {option}: must be an integer >=")
+    assert not out.exists()
+
+
+def test_gif_every_zero_writes_no_gif(tmp_path, capsys):
+    from superex_deploy.render import GifRecorder
+
+    out = tmp_path / "run"
+    assert main(["explore", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out", str(out)]) == 0
+    assert (out / "metrics.json").exists() and not (out / "episode.gif").exists()
+    assert "episode.gif" not in capsys.readouterr().out
+    for every in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="every must be an integer >= 1"):
+            GifRecorder(every=every)
+
+
+# Row 8: output paths are checked before any work.
+
+@pytest.mark.parametrize("argv", [
+    ["explore", "--map", MAP, "--steps", "5"],
+    ["scan", "--map", MAP],
+    ["benchmark", "--maps", MAP, "--planners", "nearest", "--steps", "5"],
+    ["benchmark", "--suite", "paper", "--maps", MAP, "--rows", "nearest", "--steps", "5"],
+    ["replay", "no_such_recording.mcap"],  # the folder is refused before the recording is even read
+])
+@pytest.mark.parametrize("below", ["sub", "sub/deeper", ""])
+def test_an_output_folder_below_a_file_is_refused_up_front(tmp_path, capsys, argv, below):
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    out = a_file / below if below else a_file
+    message = "exists and is not a folder" if not below else f"cannot be created: {a_file} is a file, not a folder"
+    _refused(capsys, argv + ["--out", str(out)], f"--out {out}", message)
+    assert a_file.read_text() == "x" and sorted(tmp_path.iterdir()) == [a_file]
+
+
+# Row 19: the recording's folder is checked up front too; a map without start poses asks for --pose.
+
+def test_a_record_path_in_a_missing_folder_leaves_nothing_behind(tmp_path, capsys):
+    out = tmp_path / "run"
+    _refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record",
+                      str(tmp_path / "nodir" / "x.mcap")], "--record", "the folder", "does not exist")
+    _refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record", str(tmp_path)],
+             "is a folder, not a file")
+    assert list(tmp_path.iterdir()) == []
+    # A folder that --out creates is fine: the recording goes beside the run.
+    new = tmp_path / "new"
+    assert main(["explore", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out", str(new / "run"),
+                 "--record", str(new / "x.mcap")]) == 0
+    assert (new / "x.mcap").exists() and (new / "run" / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("command", ["explore", "scan"])
+def test_a_map_without_start_poses_asks_for_pose(tmp_path, capsys, command):
+    from PIL import Image
+
+    image = np.full((60, 80), 255, np.uint8)
+    image[[0, -1], :] = image[:, [0, -1]] = 0
+    Image.fromarray(image).save(tmp_path / "small.png")
+    out = tmp_path / "out"
+    _refused(capsys, [command, "--map", str(tmp_path / "small.png"), "--out", str(out)],
+             "has no start poses", "--pose ROW COL")
+    assert not out.exists()
+    extra = ["--steps", "2", "--gif-every", "0"] if command == "explore" else ["--secondary", "4"]
+    assert main([command, "--map", str(tmp_path / "small.png"), "--pose", "30", "40", *extra, "--out", str(out)]) == 0
+
+
+# Row 13: lists are never empty.
+
+@FUZZ
+@given(text=st.text(alphabet=", ab", max_size=8))
+@example(text=",")
+@example(text=" , ,")
+@example(text="a,a")
+@example(text="a,b,")
+def test_a_name_list_is_one_or_more_distinct_names(text):
+    try:
+        names = name_list(text)
+    except argparse.ArgumentTypeError as error:
+        items = [item.strip() for item in text.split(",") if item.strip()]
+        assert not items or len(set(items)) < len(items), error
+        return
+    assert names and len(set(names)) == len(names) and all(name and name == name.strip() for name in names)
+    assert names == [item.strip() for item in text.split(",") if item.strip()]
+
+
+@pytest.mark.parametrize("option, value", [("--planners", ","), ("--maps", ","), ("--maps", " , "),
+                                           ("--planners", "nearest,nearest"), ("--rows", ",")])
+def test_an_empty_or_repeating_list_is_refused_before_anything_is_written(tmp_path, capsys, option, value):
+    out = tmp_path / "bench"
+    argv = ["benchmark", *(["--suite", "paper"] if option == "--rows" else []), option, value, "--out", str(out)]
+    _refused(capsys, argv, f"argument {option}:")
+    assert not out.exists()
+
+
+def test_an_unknown_map_in_the_list_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "bench"
+    _refused(capsys, ["benchmark", "--maps", f"{MAP},nope", "--out", str(out)], "--maps: not an eval map: nope")
+    _refused(capsys, ["benchmark", "--suite", "paper", "--maps", "nope", "--out", str(out)], "not an eval map")
+    assert not out.exists()
+
+
+# Row 18: --resume names the settings that differ.
+
+def test_a_run_of_other_settings_names_the_fields_that_differ(tmp_path):
+    from superex_deploy.commands.benchmark import prepare_output
+
+    base = {"maps": ["a"], "planners": ["nearest"], "steps": 20, "seed": 0,
+            "profile_settings": {"prediction": {"every_steps": 2}, "members": 1}}
+    out = tmp_path / "bench"
+    journal = prepare_output(out, base, resume=False)
+    journal.write_text('{"key": "a/0/nearest", "result": 1}\n')
+    other = {**base, "steps": 30, "seed": 2, "profile_settings": {"prediction": {"every_steps": 3}, "members": 1}}
+    with pytest.raises(ValueError) as error:
+        prepare_output(out, other, resume=True)
+    message = str(error.value)
+    assert "steps: recorded 20, now 30" in message and "seed: recorded 0, now 2" in message
+    assert "profile_settings.prediction.every_steps: recorded 2, now 3" in message
+    assert "maps" not in message and "members" not in message and len(message) < 300
+    assert prepare_output(out, base, resume=True) == journal  # the same settings resume
+
+
+def test_a_folder_whose_journal_holds_nothing_is_reused(tmp_path):
+    # What an early failure or signal used to leave: settings and an empty journal refusing any later valid run.
+    from superex_deploy.commands.benchmark import prepare_output
+
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "settings.json").write_text(json.dumps({"steps": 5, "seed": -5}))
+    (out / "episodes.jsonl").write_text("")
+    assert prepare_output(out, {"steps": 20, "seed": 0}, resume=False) == out / "episodes.jsonl"
+    assert json.loads((out / "settings.json").read_text()) == {"steps": 20, "seed": 0}
+
+
+@FUZZ
+@given(recorded=st.dictionaries(st.sampled_from("abc"), st.one_of(st.integers(0, 2), st.dictionaries(
+    st.sampled_from("xy"), st.integers(0, 2), max_size=2)), max_size=3),
+       new=st.dictionaries(st.sampled_from("abc"), st.one_of(st.integers(0, 2), st.dictionaries(
+           st.sampled_from("xy"), st.integers(0, 2), max_size=2)), max_size=3))
+def test_settings_differ_exactly_where_a_field_is_named(recorded, new):
+    differences = settings_differences(recorded, new)
+    assert (differences == []) == (recorded == new)
+    for key in set(recorded) | set(new):
+        named = any(d.startswith(f"{key}:") or d.startswith(f"{key}.") for d in differences)
+        assert named == (recorded.get(key, "absent") != new.get(key, "absent"))

@@ -7,13 +7,16 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.commands._options import add_planner_option, add_profile_option, planner_options
+from superex_deploy.commands._options import (add_planner_option, add_profile_option, check_output_file,
+                                               check_output_folder, folders_made, non_negative_int, planner_options,
+                                               resolve_start)
 from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="bundled map name or an image / ROS YAML path")
-    parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
+    parser.add_argument("--start", type=non_negative_int, default=0,
+                        help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
     parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex | superex")
     add_planner_option(parser)
@@ -25,14 +28,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models with manifest.json (default: the repository's exported/)")
     parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--spad", action="store_true",
                         help="also scan with the SPAD LiDAR every step and merge its carved free space "
                              "(coverage is reported with and without carving)")
-    parser.add_argument("--gif-every", type=int, default=5, help="record a GIF frame every N steps")
+    parser.add_argument("--gif-every", type=non_negative_int, default=5,
+                        help="record a GIF frame every N steps; 0: no GIF (episode.gif is not written)")
     parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
-                             "`superex replay FILE` reruns the explorer on it)")
+                             "`superex replay FILE` reruns the explorer on it); its folder must exist or be --out")
     add_profile_option(parser)
     parser.add_argument("--out", required=True, type=Path)
 
@@ -51,21 +55,6 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
             "profile_settings": PROFILES[args.profile].to_json()}
 
 
-def resolve_start(grid, start_index: int, pose):
-    from superex_deploy.maps import start_poses
-
-    if pose is not None:
-        start = grid.check_pose(pose)
-        if not grid.valid[start]:
-            raise ValueError(f"--pose {start[0]} {start[1]} lies outside the valid (inside-the-building) area of map "
-                             f"{grid.name!r}: nothing there could be explored")
-        return start
-    poses = start_poses(grid.name)
-    if not 0 <= start_index < len(poses):
-        raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")
-    return poses[start_index]
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -76,12 +65,14 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.render import GifRecorder, save_episode_figure
     from superex_deploy.sim.episode import run_episode
 
+    # Every check first: nothing is created before the last of them.
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a folder")
+    check_output_folder(args.out)
+    if args.record is not None:
+        check_output_file(args.record, "--record", made=folders_made(args.out))
     grid = load_map(args.map)
-    start = resolve_start(grid, args.start, args.pose)
+    start = resolve_start(args.map, grid, args.start, args.pose)
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
@@ -103,11 +94,12 @@ def run(args: argparse.Namespace) -> int:
         explorer_cfg = cfg.explorer
         record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
                                  recording_metadata(grid, args, options, sensing, explorer_cfg))
-    recorder = GifRecorder(every=args.gif_every)
+    recorder = GifRecorder(every=args.gif_every) if args.gif_every else None
     try:
         with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
             def on_step(state):
-                recorder(state)
+                if recorder is not None:
+                    recorder(state)
                 bar.update(1)
 
             def on_observation(observation, command, explorer):
@@ -127,11 +119,14 @@ def run(args: argparse.Namespace) -> int:
     metrics["profile"] = args.profile
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
-    recorder.save(args.out / "episode.gif")
+    written = [args.out / "metrics.json", args.out / "final.png"]
+    if recorder is not None:
+        written.append(recorder.save(args.out / "episode.gif"))
+    if record is not None:
+        written.append(args.record)
     coverage = result.coverage[-1] if len(result.coverage) else 0.0
     print(f"{grid.name} start {start} {args.planner}: {len(result.coverage)} steps, coverage {coverage:.1%}, "
           f"path {metrics['path_length_m'][-1] if metrics['path_length_m'] else 0:.1f} m"
           f"{' (explored: no frontier left)' if result.finished else ''}")
-    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}"
-          f"{', ' + str(args.record) if record is not None else ''}")
+    print(f"wrote {', '.join(str(path) for path in written)}")
     return 0

@@ -79,10 +79,10 @@ def build_explorer(metadata: dict, frame, models=None):
 
 
 def run(args: argparse.Namespace) -> int:
+    from superex_deploy.commands._options import check_output_folder
     from superex_deploy.recording import read_recording
 
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a folder")
+    check_output_folder(args.out)
     recording = read_recording(args.recording, progress=True)
     if not recording.steps:
         why = recording.error or "a recording stopped before its first step"
