@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
@@ -123,10 +122,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         results = run_tasks(run_scenario, tasks, keys, backend, journal, "episodes")
     except Interrupted as stop:
-        held = len(read_journal(journal))
-        print(f"superex benchmark: {stop}; {held} of {len(tasks)} episodes are in {journal}: rerun with --resume "
-              f"to finish", file=sys.stderr)
-        return 130
+        stop.kept = (f"{len(read_journal(journal))} of {len(tasks)} episodes are in {journal}: rerun with --resume "
+                     f"to finish")
+        raise
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     table = summarise(results, checkpoints)
     write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,

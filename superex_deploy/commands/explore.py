@@ -1,4 +1,9 @@
-"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif."""
+"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif.
+
+Stopped by SIGINT or SIGTERM, it keeps what the steps done so far hold: ``metrics.json`` with their series, marked
+``"interrupted": "SIGINT"`` (or ``"SIGTERM"``), and with ``--record`` a valid recording of every whole step, which
+``superex replay`` reads like any other.
+"""
 
 from __future__ import annotations
 
@@ -56,14 +61,11 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
-    from superex_deploy.render import GifRecorder, save_episode_figure
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.render import GifRecorder
 
     # Every check first: nothing is created before the last of them.
     if args.steps < 1:
@@ -89,39 +91,91 @@ def run(args: argparse.Namespace) -> int:
         print("superex explore: first run here: compiling the numba kernels (about half a minute, once; numba caches "
               "them; `superex warmup` does it ahead)", file=sys.stderr, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
+    gif = GifRecorder(every=args.gif_every) if args.gif_every else None
+    done = _StepsDone()
     record = None
-    if args.record is not None:
-        explorer_cfg = cfg.explorer
-        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
-                                 recording_metadata(grid, args, options, sensing, explorer_cfg))
-    recorder = GifRecorder(every=args.gif_every) if args.gif_every else None
     try:
-        with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
-            def on_step(state):
-                if recorder is not None:
-                    recorder(state)
-                bar.update(1)
-
-            def on_observation(observation, command, explorer):
-                record.write(observation, command, explorer.observed)
-
-            result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
-                                 on_step=on_step, sensing=sensing,
-                                 on_observation=None if record is None else on_observation)
+        if args.record is not None:
+            record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m),
+                                     recording_metadata(grid, args, options, sensing, cfg.explorer))
+        result = _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record)
         if record is not None:
             record.write_map(result.final_observed)
             record.close()
+    except KeyboardInterrupt as stop:  # parallel.Interrupted (SIGINT, SIGTERM): keep the steps done
+        stop.kept = _keep_interrupted(args, grid, start, done, record, getattr(stop, "signal_name", "SIGINT"))
+        raise
     except BaseException:
         if record is not None:
             record.abort()
         raise
+    return _write_outputs(args, grid, start, result, gif, record)
+
+
+def _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record):
+    from tqdm import tqdm
+
+    from superex_deploy.sim.episode import run_episode
+
+    with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
+        def on_step(state):
+            if gif is not None:
+                gif(state)
+            done.poses.append(list(state.pose))
+            done.coverage.append(round(state.coverage, 6))
+            bar.update(1)
+
+        def on_observation(observation, command, explorer):
+            if command.new_goal:
+                done.goals["steps"].append(command.step)
+                done.goals["cells"].append(list(command.goal_rc))
+            if record is not None:
+                record.write(observation, command, explorer.observed)
+
+        return run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
+                           on_step=on_step, sensing=sensing, on_observation=on_observation)
+
+
+class _StepsDone:
+    """What the steps of an episode stopped by a signal leave for its metrics."""
+
+    def __init__(self):
+        self.poses: list = []
+        self.coverage: list = []
+        self.goals: dict = {"steps": [], "cells": []}
+
+
+def _keep_interrupted(args, grid, start, done: _StepsDone, record, signal_name: str) -> str:
+    """Close the recording up to its last whole step and write the partial metrics; returns what was kept."""
+    from superex_deploy.files import write_atomically
+
+    kept = []
+    if record is not None:
+        record.close()
+        kept.append(f"{args.record} holds the {record.steps_written} whole steps recorded (replayable)")
+    steps = len(done.coverage)
+    metrics = {"interrupted": signal_name, "map": grid.name, "planner": args.planner, "predictor": args.predictor,
+               "seed": args.seed, "start_rc": list(start), "steps": steps, "finished": False,
+               "final_coverage": done.coverage[-1] if steps else 0.0, "coverage": done.coverage,
+               "poses": done.poses, "goals": {"steps": [s for s in done.goals["steps"] if s < steps],
+                                              "cells": [c for s, c in zip(done.goals["steps"], done.goals["cells"])
+                                                        if s < steps]},
+               "profile": args.profile}
+    write_atomically(args.out / "metrics.json", json.dumps(metrics))
+    kept.append(f"{args.out / 'metrics.json'} holds the {steps} steps done, marked interrupted")
+    return "; ".join(kept)
+
+
+def _write_outputs(args, grid, start, result, gif, record) -> int:
+    from superex_deploy.render import save_episode_figure
+
     metrics = result.to_json()
     metrics["profile"] = args.profile
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
     written = [args.out / "metrics.json", args.out / "final.png"]
-    if recorder is not None:
-        written.append(recorder.save(args.out / "episode.gif"))
+    if gif is not None:
+        written.append(gif.save(args.out / "episode.gif"))
     if record is not None:
         written.append(args.record)
     coverage = result.coverage[-1] if len(result.coverage) else 0.0

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -128,9 +127,9 @@ def run_paper(args: argparse.Namespace) -> int:
         try:
             episodes = _run_row(name, args, maps, rows_dir, setting, backend)
         except Interrupted as stop:
-            print(f"superex benchmark: {stop}; the finished episodes of row {name} are in "
-                  f"{rows_dir / (name + '.episodes.jsonl')}: rerun the same command to finish", file=sys.stderr)
-            return 130
+            stop.kept = (f"the finished episodes of row {name} are in {rows_dir / (name + '.episodes.jsonl')}: rerun "
+                         f"the same command to finish")
+            raise
         write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
     rows = {}
     for name in PAPER_ROWS:  # every finished row, in the table's order
