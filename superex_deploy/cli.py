@@ -5,6 +5,11 @@ Each command lives in its own module under :mod:`superex_deploy.commands` with t
 entry-point group ``superex.commands`` (name -> module with the same two functions): that is how the torch-side
 ``superex train`` and ``superex export`` appear when the ``train`` extra is installed, while this package never
 imports torch or :mod:`superex_train` itself.
+
+Exit codes (the same for every command): 0 done; 1 a result that is not the expected one (``superex replay``: the
+goals differ, or the recording was cut short), or an unexpected error (with its traceback); 2 a refused argument or
+input, said in one line (``superex CMD: error: ...``; argparse's usage errors too); 130 stopped by SIGINT (Ctrl-C)
+and 143 by SIGTERM, as a shell reports a process the signal ended, after one line on stderr saying what was kept.
 """
 
 from __future__ import annotations
@@ -47,7 +52,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run ``superex ARGV`` and return its exit code (see the module docstring); SIGINT and SIGTERM become
+    :class:`~superex_deploy.parallel.Interrupted` while it runs."""
+    from superex_deploy.parallel import stop_signals
+
+    args = None
+    with stop_signals():
+        try:
+            try:
+                args = build_parser().parse_args(argv)
+            except SystemExit as usage:  # --help (0), or a usage error argparse has printed (2)
+                return 0 if usage.code is None else usage.code if isinstance(usage.code, int) else 2
+            return _run(args)
+        except KeyboardInterrupt as stop:  # Interrupted, or a Ctrl-C that came before the handlers
+            name, code = getattr(stop, "signal_name", "SIGINT"), getattr(stop, "exit_code", 130)
+            kept = getattr(stop, "kept", "")
+            command = "superex" if args is None else f"superex {args.command}"
+            print(f"{command}: stopped by {name}{'; ' + kept if kept else ''}", file=sys.stderr)
+            return code
+
+
+def _run(args: argparse.Namespace) -> int:
     if not hasattr(args, "_module"):
         print(f"superex {args.command}: this command is unavailable; see `superex --help`", file=sys.stderr)
         return 2

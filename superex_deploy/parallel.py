@@ -10,6 +10,15 @@ Code outside the project that forks after running SuperEx should do the same (or
 
 Long sweeps go through :func:`run_tasks`: every finished task is appended to a journal at once, a rerun skips what
 the journal holds, and SIGTERM / SIGINT stop the workers instead of leaving them running.
+
+Signals: one rule for the whole package. Inside :func:`stop_signals` (``superex`` runs every command in it) SIGINT
+and SIGTERM raise :class:`Interrupted`, a ``KeyboardInterrupt`` that carries the signal, so the code that cleans
+up after Ctrl-C cleans up after a scheduler's SIGTERM too and the command exits with the code a shell reports for
+the signal (:attr:`Interrupted.exit_code`: 130, 143). Work that a signal must not cut in half (a recorded step)
+runs inside :func:`signals_deferred`, which holds a signal until the block ends. The workers of
+:class:`LocalBackend` ignore SIGINT (a Ctrl-C reaches the whole process group; the parent stops them) and leave
+at once on SIGTERM, from a thread that waits for it alone, after releasing the named semaphore numba made in them
+(the resource tracker would report it leaked).
 """
 
 from __future__ import annotations
@@ -20,12 +29,14 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from contextlib import contextmanager
 from typing import Callable, Iterator, Optional, Sequence
 
-__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "LocalBackend", "RayBackend", "kernel_parts"]
+__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "stop_signals", "signals_deferred",
+           "LocalBackend", "RayBackend", "kernel_parts"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -70,13 +81,124 @@ def _die_with_parent() -> None:
         pass
 
 
+def _exit_on_sigterm() -> None:
+    """A worker's SIGTERM watcher: waits for the signal (blocked in every other thread), releases the named
+    semaphores the process created (numba's lock; the resource tracker would report them leaked) and leaves at
+    once, whatever the main thread is doing (a kernel, or waiting on the pool's queue lock, which a Python signal
+    handler would never interrupt if the signal went to another thread)."""
+    signal.sigwait({signal.SIGTERM})
+    try:
+        from multiprocessing import util
+
+        util._run_finalizers(0)  # the SemLock finalizers: unlink each name, unregister it from the tracker
+    finally:
+        os._exit(128 + signal.SIGTERM)
+
+
 def _journal_worker() -> None:
+    """A :class:`LocalBackend` worker: dies with its parent, ignores SIGINT (the parent, which a Ctrl-C reaches
+    too, stops the pool), leaves at once and cleanly on the SIGTERM that stops it, one numba thread."""
     _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        # Blocked before any other thread starts (numba's, ONNX Runtime's, the explorer's): they all inherit it, and
+        # only the watcher takes the signal.
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+        threading.Thread(target=_exit_on_sigterm, name="superex-sigterm", daemon=True).start()
     _single_threaded_worker()
 
 
-class Interrupted(Exception):
-    """SIGTERM or SIGINT arrived while :func:`run_tasks` ran; the workers were stopped, the journal is consistent."""
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals that stop a run: Ctrl-C and what a cluster scheduler (or ``kill``) sends."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped the run (raised inside :func:`stop_signals`, and by :func:`run_tasks`, whose
+    workers are then stopped and whose journal is consistent).
+
+    A ``KeyboardInterrupt``, so that ``except Exception`` never swallows it and cleanup written for Ctrl-C runs
+    for SIGTERM as well.
+
+    Attributes:
+        signum: the signal's number.
+        kept: what the interrupted command kept, in a few words for its one line on stderr ("" for nothing);
+            set by the command before it re-raises.
+    """
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        self.kept = ""
+        super().__init__(f"stopped by {signal.Signals(self.signum).name}")
+
+    def __reduce__(self):
+        return Interrupted, (self.signum,)
+
+    @property
+    def signal_name(self) -> str:
+        """``"SIGINT"`` or ``"SIGTERM"``."""
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """``128 + signum``, what a shell reports for a process the signal ended: 130 for SIGINT, 143 for SIGTERM."""
+        return 128 + self.signum
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def stop_signals() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM raise :class:`Interrupted`; the previous handlers come back after it.
+
+    Signal handlers belong to the main thread: called from another thread, the block runs with the handlers as
+    they are.
+    """
+    if not _in_main_thread():
+        yield
+        return
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Run a block that a signal must not cut in half (a recorded step, closing a file): SIGINT or SIGTERM arriving
+    inside it is held, and handled by the handler installed before the block as soon as the block ends (with the
+    default handlers: KeyboardInterrupt, or the process ends as it would have).
+
+    In a thread other than the main one the block just runs: Python runs signal handlers in the main thread only,
+    so no signal can interrupt it there.
+    """
+    if not _in_main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        if held:
+            handler = previous[held[0]]
+            if callable(handler):
+                handler(held[0], None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), held[0])  # what would have happened without the block
 
 
 def read_journal(path: Path) -> dict:
@@ -114,6 +236,18 @@ def _call(payload):
     return key, worker(task)
 
 
+def _waking(results) -> Iterator:
+    """The pool's results, waiting at most half a second at a time: a signal that reached another thread of this
+    process is then handled within that time, not when the next result arrives."""
+    while True:
+        try:
+            yield results.next(timeout=0.5)
+        except multiprocessing.TimeoutError:
+            continue
+        except StopIteration:
+            return
+
+
 class LocalBackend:
     """``jobs`` worker processes on this machine (a fork-server pool, one numba thread each)."""
 
@@ -131,13 +265,14 @@ class LocalBackend:
         early (an exception, a signal)."""
         pool = multiprocessing.get_context("forkserver").Pool(self.jobs, initializer=_journal_worker)
         try:
-            yield pool.imap_unordered(function, items)
+            yield _waking(pool.imap_unordered(function, items))
             pool.close()
         except BaseException:
-            pool.terminate()
+            with signals_deferred():  # a second Ctrl-C must not cut the shutdown short
+                pool.terminate()
+                pool.join()
             raise
-        finally:
-            pool.join()
+        pool.join()
 
 
 class RayBackend:
@@ -226,27 +361,18 @@ def run_tasks(worker: Callable, tasks: Sequence, keys: Sequence[str], backend, j
     done = read_journal(journal)
     todo = [(worker, key, task) for key, task in zip(keys, tasks) if key not in done]
     if todo:
-        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
-
-        def stop(signum, frame):
-            raise Interrupted(f"stopped by {signal.Signals(signum).name}")
-
-        for sig in previous:
-            signal.signal(sig, stop)
         _drop_torn_line(journal)
-        try:
-            with open(journal, "a") as out, tqdm(total=len(keys), initial=len(keys) - len(todo), desc=progress,
-                                                 unit="episode", disable=progress is None) as bar, \
-                    backend.imap_unordered(_call, todo) as finished:
-                for sig in previous:  # again: starting Ray installs its own SIGTERM handler
-                    signal.signal(sig, stop)
-                for key, result in finished:
-                    out.write(json.dumps({"key": key, "result": result}) + "\n")
-                    out.flush()
-                    os.fsync(out.fileno())
-                    done[key] = result
-                    bar.update(1)
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+        with stop_signals(), open(journal, "a") as out, \
+                tqdm(total=len(keys), initial=len(keys) - len(todo), desc=progress, unit="episode",
+                     disable=progress is None) as bar, \
+                backend.imap_unordered(_call, todo) as finished:
+            if _in_main_thread():
+                for sig in STOP_SIGNALS:  # again: starting Ray installs its own SIGTERM handler
+                    signal.signal(sig, _raise_interrupted)
+            for key, result in finished:
+                out.write(json.dumps({"key": key, "result": result}) + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+                done[key] = result
+                bar.update(1)
     return [done[key] for key in keys]

@@ -22,8 +22,12 @@ frame's arrays are little-endian byte blobs (``uint8[]``): the CDR encoders writ
 and a frame holds ~160,000 non-zero bins.
 
 The file is written to ``PATH.part`` and renamed to ``PATH`` when the episode ends; an episode that fails leaves no
-file behind. :func:`read_recording` reads the messages in order and stops at the first broken one (a truncated
-file), saying which, and keeps every complete step before it.
+file behind. An episode stopped by a signal (SIGINT or SIGTERM raising ``KeyboardInterrupt``, as ``superex`` and
+:func:`superex_deploy.parallel.stop_signals` make them) is closed as a valid file of every whole step recorded
+before it: a step is written inside :func:`superex_deploy.parallel.signals_deferred`, so a signal never cuts one in
+half. A process killed outright (SIGKILL, or SIGTERM with no handler) leaves ``PATH.part``, cut anywhere.
+:func:`read_recording` reads the messages in order and stops at the first broken one (a truncated file), saying
+which, and keeps every complete step before it.
 
 Time stamps are those of :class:`~superex_deploy.messages.Observation` (finite, in ``[0, 2**31 - 1]`` s), so every
 one fits the ``int32`` seconds of a ROS 2 time; yaws are already normalised to ``(-pi, pi]`` there.
@@ -42,6 +46,7 @@ from typing import Optional, Union
 import numpy as np
 
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, check_stamp
+from superex_deploy.parallel import signals_deferred
 
 __all__ = ["FORMAT_VERSION", "SPAD_FRAME_MSG", "EXPLORER_COMMAND_MSG", "METADATA_TYPES", "EpisodeRecorder",
            "RecordedStep", "Recording", "read_recording", "check_metadata"]
@@ -223,6 +228,12 @@ class EpisodeRecorder:
         chunk_bytes: messages are compressed in chunks of about this size; a file cut short (a crash, a full
             disk) loses at most its last chunk.
 
+    Leaving the ``with`` block normally, or by ``KeyboardInterrupt`` (a signal), closes the file (:meth:`close`);
+    by any other exception drops it (:meth:`abort`).
+
+    Attributes:
+        steps_written: the steps recorded so far (whole: a signal never cuts a step in half).
+
     Raises:
         ValueError: a path whose folder does not exist or that names a folder, a bad ``map_every``.
     """
@@ -247,9 +258,13 @@ class EpisodeRecorder:
         except TypeError as error:
             raise ValueError(f"recording metadata must be JSON-serialisable: {error}") from None
         self._part = self.path.with_name(self.path.name + ".part")
-        self._file = open(self._part, "wb")
+        self._file = None
         self._closed = False
-        try:
+        self.steps_written = 0
+        self._last_map_step = -1
+        self._last = (0.0, 0)
+        try:  # a signal may arrive anywhere in here: nothing is left behind then
+            self._file = open(self._part, "wb")
             self._writer = Writer(self._file, chunk_size=int(chunk_bytes))
             self._schemas = {topic: self._writer.register_msgdef(name, text)
                              for topic, (name, text) in _SCHEMAS.items()}
@@ -257,8 +272,6 @@ class EpisodeRecorder:
         except BaseException:
             self.abort()
             raise
-        self._last_map_step = -1
-        self._last = (0.0, 0)
 
     def _write(self, topic: str, message: dict, stamp_s: float, step: int) -> None:
         nanoseconds = int(round(stamp_s * 1e9))
@@ -267,7 +280,13 @@ class EpisodeRecorder:
 
     def write(self, observation: Observation, command: Command, observed: Optional[np.ndarray] = None) -> None:
         """Record one step: the observation, the command and, every ``map_every`` steps, ``observed`` (int8
-        ``[H, W]``, the explorer's map after the step)."""
+        ``[H, W]``, the explorer's map after the step). A signal arriving meanwhile is handled after the step is
+        whole."""
+        with signals_deferred():
+            self._write_step(observation, command, observed)
+            self.steps_written += 1
+
+    def _write_step(self, observation: Observation, command: Command, observed: Optional[np.ndarray]) -> None:
         stamp, step = observation.stamp_s, command.step
         self._last = (stamp, step)
         pose = observation.pose
@@ -299,11 +318,15 @@ class EpisodeRecorder:
                               "poses": [{"header": _header(stamp, "map"), "pose": _pose(float(x), float(y), 0.0)}
                                         for x, y in command.path_xy]}, stamp, step)
         if observed is not None and (step % self.map_every == 0 or command.finished):
-            self.write_map(observed, stamp, step)
+            self._write_map(observed, stamp, step)
 
     def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None) -> None:
         """Record the explorer's int8 ``[H, W]`` map (rows flipped: ROS grids start at the bottom row), stamped
         with the last recorded step unless told otherwise (once per step at most)."""
+        with signals_deferred():
+            self._write_map(observed, stamp_s, step)
+
+    def _write_map(self, observed: np.ndarray, stamp_s: Optional[float], step: Optional[int]) -> None:
         if stamp_s is None or step is None:
             stamp_s, step = self._last
         stamp_s = check_stamp("stamp_s", stamp_s)
@@ -320,31 +343,35 @@ class EpisodeRecorder:
         self._last_map_step = step
 
     def close(self) -> None:
-        """Finish the file and move it into place (on failure, nothing is left at ``path`` or ``path.part``)."""
+        """Finish the file with the steps written so far and move it into place (on failure, nothing is left at
+        ``path`` or ``path.part``); a signal arriving meanwhile is handled after it."""
         if self._closed:
             return
-        try:
-            self._writer.finish()
-            self._file.close()
-            os.replace(self._part, self.path)
-        except BaseException:
-            self.abort()
-            raise
-        self._closed = True
+        with signals_deferred():
+            try:
+                self._writer.finish()
+                self._file.close()
+                os.replace(self._part, self.path)
+            except BaseException:
+                self.abort()
+                raise
+            self._closed = True
 
     def abort(self) -> None:
         """Drop the partial file (nothing is left at ``path``)."""
         if self._closed:
             return
-        self._file.close()
-        self._part.unlink(missing_ok=True)
-        self._closed = True
+        with signals_deferred():
+            if self._file is not None:
+                self._file.close()
+            self._part.unlink(missing_ok=True)
+            self._closed = True
 
     def __enter__(self) -> "EpisodeRecorder":
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
+        if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
             self.close()
         else:
             self.abort()
@@ -387,19 +414,37 @@ def _metadata(data: bytes, path: Path) -> dict:
     raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
 
 
-def read_recording(path: Union[str, Path]) -> Recording:
+def _message_count(data: bytes) -> Optional[int]:
+    """The number of messages the file's summary section states, or None (no summary: a cut file)."""
+    from mcap.reader import make_reader
+
+    try:
+        summary = make_reader(io.BytesIO(data)).get_summary()
+        return None if summary is None or summary.statistics is None else int(summary.statistics.message_count)
+    except Exception:  # noqa: BLE001 - a broken summary only costs the progress bar its total
+        return None
+
+
+def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
     """Read a recording written by :class:`EpisodeRecorder`.
 
     Reading stops at the first message that cannot be decoded or is inconsistent (a truncated file, a corrupt
-    record); :attr:`Recording.error` then names it, and :attr:`Recording.steps` holds every complete step before it.
+    record); :attr:`Recording.error` then names it (a file that ends inside a record is said to be truncated, at
+    its size in bytes), and :attr:`Recording.steps` holds every complete step before it.
+
+    Args:
+        path: the ``.mcap`` file.
+        progress: show a progress bar (tqdm, on stderr) over the messages read, from the first one.
 
     Raises:
         ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, metadata values of
             the wrong type (:data:`METADATA_TYPES`), another format version, a map frame beyond the size limits
             (:func:`superex_deploy.messages.check_map_size`).
     """
+    from mcap.exceptions import EndOfFile
     from mcap.reader import NonSeekingReader
     from mcap_ros2.decoder import DecoderFactory
+    from tqdm import tqdm
 
     path = Path(path)
     if not path.is_file():
@@ -415,30 +460,41 @@ def read_recording(path: Union[str, Path]) -> Recording:
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"{path}: the map frame in the metadata is unusable ({error})") from None
     recording = Recording(metadata=metadata, frame=frame)
-    reader = NonSeekingReader(io.BytesIO(data), validate_crcs=True, decoder_factories=[DecoderFactory()])
+    stream = io.BytesIO(data)
+    reader = NonSeekingReader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
     parts: dict = {}
     current = -1
     done = 0  # messages fully read
     topic, sequence = "?", -1
-    try:
-        # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
-        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
-            topic, sequence = channel.topic, message.sequence
-            if topic in _REPLAYED_TOPICS:
-                if sequence != current:
-                    parts, current = {}, sequence
-                parts[topic] = decoded
-                if topic == "/command":
-                    if "/pose" not in parts or "/scan" not in parts:
-                        raise ValueError("a command without the pose and scan of its step")
-                    goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
-                    recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
-                                                        goal_rc=goal, new_goal=bool(decoded.new_goal),
-                                                        finished=bool(decoded.finished)))
-            done += 1
-            topic, sequence = "?", -1
-    except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
-        where = f"topic {topic}, step {sequence}" if topic != "?" else f"after step {current}"
-        recording.error = (f"message {done + 1} ({where}) is broken: {type(error).__name__}: {error}; kept the "
-                           f"{len(recording.steps)} complete steps before it")
+    # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
+    with tqdm(reader.iter_decoded_messages(log_time_order=False), desc=f"reading {path.name}", unit="msg",
+              total=_message_count(data) if progress else None, disable=not progress) as messages:
+        try:
+            for _, channel, message, decoded in messages:
+                topic, sequence = channel.topic, message.sequence
+                if topic in _REPLAYED_TOPICS:
+                    if sequence != current:
+                        parts, current = {}, sequence
+                    parts[topic] = decoded
+                    if topic == "/command":
+                        if "/pose" not in parts or "/scan" not in parts:
+                            raise ValueError("a command without the pose and scan of its step")
+                        goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
+                        recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
+                                                            goal_rc=goal, new_goal=bool(decoded.new_goal),
+                                                            finished=bool(decoded.finished)))
+                done += 1
+                topic, sequence = "?", -1
+        except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
+            steps = recording.steps
+            if topic != "?":
+                where = f"topic {topic}, step {sequence}"
+            else:
+                where = f"after step {steps[-1].step}" if steps else "before the first step"
+            if isinstance(error, EndOfFile) or stream.tell() >= len(data):
+                why = f"the file is truncated: it ends at byte {len(data):,}, inside a record"
+            else:
+                why = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+            recording.error = f"message {done + 1} ({where}) is broken: {why}; kept the {len(steps)} complete " \
+                              f"steps before it"
     return recording

@@ -114,11 +114,18 @@ def save_episode_figure(path: Path, grid, result) -> Path:
 
 class GifRecorder:
     """Collects observed-map frames (robot in red, path in blue) every ``every`` steps; at most ``max_side``
-    pixels on the longer side, so GIFs of large maps stay small."""
+    pixels on the longer side, so GIFs of large maps stay small.
+
+    Raises:
+        ValueError: ``every`` or ``max_side`` not an integer >= 1.
+    """
 
     def __init__(self, every: int = 5, max_side: int = 400):
-        self.every = every
-        self.max_side = max_side
+        for name, value in (("every", every), ("max_side", max_side)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"GifRecorder: {name} must be an integer >= 1, got {value!r}")
+        self.every = int(every)
+        self.max_side = int(max_side)
         self.frames: list[np.ndarray] = []
         self._trail: list[tuple[int, int]] = []
 

@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
 from superex_deploy.commands._options import (add_noise_options, add_parallel_options, add_planner_option,
-                                               add_profile_option, check_jobs, make_backend, noise_options,
-                                               noise_settings, planner_options)
+                                               add_profile_option, check_jobs, check_output_folder, eval_maps,
+                                               make_backend, name_list, noise_options, noise_settings,
+                                               non_negative_int, planner_options, settings_differences)
 from superex_deploy.files import write_atomically
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--maps", default="eval", help="'eval', or comma-separated bundled eval map names")
-    parser.add_argument("--planners", default="nearest,hector,upen,mapex")
+    parser.add_argument("--maps", type=name_list, default="eval",
+                        help="'eval', or comma-separated bundled eval map names")
+    parser.add_argument("--planners", type=name_list, default="nearest,hector,upen,mapex",
+                        help="comma-separated planner names")
     add_planner_option(parser)
     parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los", "lama_bp"),
                         help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor); "
@@ -33,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=1000)
     add_profile_option(parser)
     add_noise_options(parser)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     add_parallel_options(parser)
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--resume", action="store_true",
@@ -43,31 +45,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="paper: the paper's rows (see --rows), IoU every 10 steps up to 35 %% coverage, "
                              "paired against MapEx on LaMa-LOS, always with the full profile (the table measures models and "
                              "planners); --planners / --predictor / --spad / --profile are ignored")
-    parser.add_argument("--rows", default="all",
+    parser.add_argument("--rows", type=name_list, default="all",
                         help="with --suite paper: comma-separated row names, or 'all'")
 
 
 def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
     """Check (or create) the output folder of a resumable run and return its journal, ``OUT/episodes.jsonl``.
 
-    ``OUT/settings.json`` records the run's settings; a folder that holds another run is refused, and one that
-    holds this run's journal only with ``resume``.
+    ``OUT/settings.json`` records the run's settings; a folder that holds episodes of another run is refused (the
+    error names the settings that differ, with their recorded and new values), and one that holds episodes of
+    this run only with ``resume``. A folder whose journal holds no episode has nothing to lose: it is reused.
 
     Raises:
-        ValueError: ``out`` is a file, holds a run of other settings, or holds a journal without ``resume``.
+        ValueError: ``out`` is a file, holds episodes of other settings, or holds episodes without ``resume``.
     """
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
+    from superex_deploy.parallel import read_journal
+
+    check_output_folder(out)
     journal, recorded = out / "episodes.jsonl", out / "settings.json"
-    if recorded.is_file():
-        previous = json.loads(recorded.read_text())
-        if previous != json.loads(json.dumps(settings)):
-            raise ValueError(f"{out} holds a run with other settings ({previous}); choose another --out")
-    if journal.is_file() and not resume:
-        raise ValueError(f"{out} already holds a run ({journal}): pass --resume to finish it, or choose another --out")
-    if journal.is_file() and not recorded.is_file():
-        raise ValueError(f"{journal} has no settings.json beside it: its settings cannot be checked; choose another "
-                         f"--out")
+    if read_journal(journal):
+        if not recorded.is_file():
+            raise ValueError(f"{journal} has no settings.json beside it: its settings cannot be checked; choose "
+                             f"another --out")
+        differences = settings_differences(json.loads(recorded.read_text()), json.loads(json.dumps(settings)))
+        if differences:
+            raise ValueError(f"{out} holds a run with other settings ({'; '.join(differences)}); choose another "
+                             f"--out, or rerun with its settings")
+        if not resume:
+            raise ValueError(f"{out} already holds a run ({journal}): pass --resume to finish it, or choose another "
+                             f"--out")
     out.mkdir(parents=True, exist_ok=True)
     write_atomically(recorded, json.dumps(settings))
     return journal
@@ -85,12 +91,13 @@ def run(args: argparse.Namespace) -> int:
         return run_paper(args)
     from superex_deploy.sim.metrics import results_markdown, summarise
     from superex_deploy.onboard.planners import PLANNERS, make_planner
-    from superex_deploy.maps import list_maps, start_poses
+    from superex_deploy.maps import start_poses
     from superex_deploy.parallel import Interrupted, read_journal, run_tasks
     from superex_deploy.render import save_benchmark_plots
 
-    names = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
-    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    names = eval_maps(args.maps)
+    check_output_folder(args.out)
+    planners = list(args.planners)
     unknown = [p for p in planners if p not in PLANNERS]
     if unknown:
         raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
@@ -123,10 +130,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         results = run_tasks(run_scenario, tasks, keys, backend, journal, "episodes")
     except Interrupted as stop:
-        held = len(read_journal(journal))
-        print(f"superex benchmark: {stop}; {held} of {len(tasks)} episodes are in {journal}: rerun with --resume "
-              f"to finish", file=sys.stderr)
-        return 130
+        stop.kept = (f"{len(read_journal(journal))} of {len(tasks)} episodes are in {journal}: rerun with --resume "
+                     f"to finish")
+        raise
     checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     noisy = noise_settings(noise)
     table = summarise(results, checkpoints, map_errors=bool(noisy))

@@ -1,4 +1,9 @@
-"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif."""
+"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif.
+
+Stopped by SIGINT or SIGTERM, it keeps what the steps done so far hold: ``metrics.json`` with their series, marked
+``"interrupted": "SIGINT"`` (or ``"SIGTERM"``), and with ``--record`` a valid recording of every whole step, which
+``superex replay`` reads like any other.
+"""
 
 from __future__ import annotations
 
@@ -8,13 +13,15 @@ import sys
 from pathlib import Path
 
 from superex_deploy.commands._options import (add_noise_options, add_planner_option, add_profile_option,
-                                               noise_options, noise_settings, planner_options)
+                                               check_output_file, check_output_folder, folders_made, noise_options,
+                                               noise_settings, non_negative_int, planner_options, resolve_start)
 from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="bundled map name or an image / ROS YAML path")
-    parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
+    parser.add_argument("--start", type=non_negative_int, default=0,
+                        help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
     parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex | superex")
     add_planner_option(parser)
@@ -26,14 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models with manifest.json (default: the repository's exported/)")
     parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--spad", action="store_true",
                         help="also scan with the SPAD LiDAR every step and merge its carved free space "
                              "(coverage is reported with and without carving)")
-    parser.add_argument("--gif-every", type=int, default=5, help="record a GIF frame every N steps")
+    parser.add_argument("--gif-every", type=non_negative_int, default=5,
+                        help="record a GIF frame every N steps; 0: no GIF (episode.gif is not written)")
     parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
-                             "`superex replay FILE` reruns the explorer on it)")
+                             "`superex replay FILE` reruns the explorer on it); its folder must exist or be --out")
     add_profile_option(parser)
     add_noise_options(parser)
     parser.add_argument("--out", required=True, type=Path)
@@ -53,40 +61,23 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
             "profile_settings": PROFILES[args.profile].to_json()}
 
 
-def resolve_start(grid, start_index: int, pose):
-    from superex_deploy.maps import start_poses
-
-    if pose is not None:
-        start = grid.check_pose(pose)
-        if not grid.valid[start]:
-            raise ValueError(f"--pose {start[0]} {start[1]} lies outside the valid (inside-the-building) area of map "
-                             f"{grid.name!r}: nothing there could be explored")
-        return start
-    poses = start_poses(grid.name)
-    if not 0 <= start_index < len(poses):
-        raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")
-    return poses[start_index]
-
-
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
-    from superex_deploy.render import GifRecorder, save_episode_figure
-    from superex_deploy.sim.episode import run_episode
-
+    from superex_deploy.render import GifRecorder
     from superex_deploy.benchmarking import with_noise, with_spad_noise
 
+    # Every check first: nothing is created before the last of them.
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     noise = noise_options(args)
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a folder")
+    check_output_folder(args.out)
+    if args.record is not None:
+        check_output_file(args.record, "--record", made=folders_made(args.out))
     grid = load_map(args.map)
-    start = resolve_start(grid, args.start, args.pose)
+    start = resolve_start(args.map, grid, args.start, args.pose)
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
@@ -104,46 +95,101 @@ def run(args: argparse.Namespace) -> int:
         print("superex explore: first run here: compiling the numba kernels (about half a minute, once; numba caches "
               "them; `superex warmup` does it ahead)", file=sys.stderr, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
+    gif = GifRecorder(every=args.gif_every) if args.gif_every else None
+    done = _StepsDone()
     record = None
-    if args.record is not None:
-        explorer_cfg = cfg.explorer
-        metadata = recording_metadata(grid, args, options, sensing, explorer_cfg)
-        metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model is in "sensor")
-        record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
-    recorder = GifRecorder(every=args.gif_every)
     try:
-        with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
-            def on_step(state):
-                recorder(state)
-                bar.update(1)
-
-            def on_observation(observation, command, explorer):
-                record.write(observation, command, explorer.observed)
-
-            result = run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
-                                 on_step=on_step, sensing=sensing,
-                                 on_observation=None if record is None else on_observation)
+        if args.record is not None:
+            metadata = recording_metadata(grid, args, options, sensing, cfg.explorer)
+            metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
+            record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
+        result = _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record)
         if record is not None:
             record.write_map(result.final_observed)
             record.close()
+    except KeyboardInterrupt as stop:  # parallel.Interrupted (SIGINT, SIGTERM): keep the steps done
+        stop.kept = _keep_interrupted(args, grid, start, done, record, getattr(stop, "signal_name", "SIGINT"))
+        raise
     except BaseException:
         if record is not None:
             record.abort()
         raise
+    return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
+
+
+def _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record):
+    from tqdm import tqdm
+
+    from superex_deploy.sim.episode import run_episode
+
+    with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
+        def on_step(state):
+            if gif is not None:
+                gif(state)
+            done.poses.append(list(state.pose))
+            done.coverage.append(round(state.coverage, 6))
+            bar.update(1)
+
+        def on_observation(observation, command, explorer):
+            if command.new_goal:
+                done.goals["steps"].append(command.step)
+                done.goals["cells"].append(list(command.goal_rc))
+            if record is not None:
+                record.write(observation, command, explorer.observed)
+
+        return run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
+                           on_step=on_step, sensing=sensing, on_observation=on_observation)
+
+
+class _StepsDone:
+    """What the steps of an episode stopped by a signal leave for its metrics."""
+
+    def __init__(self):
+        self.poses: list = []
+        self.coverage: list = []
+        self.goals: dict = {"steps": [], "cells": []}
+
+
+def _keep_interrupted(args, grid, start, done: _StepsDone, record, signal_name: str) -> str:
+    """Close the recording up to its last whole step and write the partial metrics; returns what was kept."""
+    from superex_deploy.files import write_atomically
+
+    kept = []
+    if record is not None:
+        record.close()
+        kept.append(f"{args.record} holds the {record.steps_written} whole steps recorded (replayable)")
+    steps = len(done.coverage)
+    metrics = {"interrupted": signal_name, "map": grid.name, "planner": args.planner, "predictor": args.predictor,
+               "seed": args.seed, "start_rc": list(start), "steps": steps, "finished": False,
+               "final_coverage": done.coverage[-1] if steps else 0.0, "coverage": done.coverage,
+               "poses": done.poses, "goals": {"steps": [s for s in done.goals["steps"] if s < steps],
+                                              "cells": [c for s, c in zip(done.goals["steps"], done.goals["cells"])
+                                                        if s < steps]},
+               "profile": args.profile}
+    write_atomically(args.out / "metrics.json", json.dumps(metrics))
+    kept.append(f"{args.out / 'metrics.json'} holds the {steps} steps done, marked interrupted")
+    return "; ".join(kept)
+
+
+def _write_outputs(args, grid, start, result, gif, record, noise: dict) -> int:
+    from superex_deploy.render import save_episode_figure
+
     metrics = result.to_json()
     metrics["profile"] = args.profile
-    metrics.update(noise_settings(noise))
+    metrics.update(noise)
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)
-    recorder.save(args.out / "episode.gif")
+    written = [args.out / "metrics.json", args.out / "final.png"]
+    if gif is not None:
+        written.append(gif.save(args.out / "episode.gif"))
+    if record is not None:
+        written.append(args.record)
     coverage = result.coverage[-1] if len(result.coverage) else 0.0
     print(f"{grid.name} start {start} {args.planner}: {len(result.coverage)} steps, coverage {coverage:.1%}, "
           f"path {metrics['path_length_m'][-1] if metrics['path_length_m'] else 0:.1f} m"
           f"{' (explored: no frontier left)' if result.finished else ''}")
-    if noise_settings(noise):
-        print(f"with noise {noise_settings(noise)}: {result.collisions} collisions, {result.true_walls_held_free} true "
-              f"wall cells held free, {result.true_walls_carved} carved, explorer-map wall IoU "
-              f"{result.explorer_map_iou:.3f}")
-    print(f"wrote {args.out / 'metrics.json'}, {args.out / 'final.png'}, {args.out / 'episode.gif'}"
-          f"{', ' + str(args.record) if record is not None else ''}")
+    if noise:
+        print(f"with noise {noise}: {result.collisions} collisions, {result.true_walls_held_free} true wall cells held "
+              f"free, {result.true_walls_carved} carved, explorer-map wall IoU {result.explorer_map_iou:.3f}")
+    print(f"wrote {', '.join(str(path) for path in written)}")
     return 0

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.commands._options import check_jobs, make_backend
+from superex_deploy.commands._options import (check_jobs, check_output_folder, eval_maps, make_backend,
+                                               settings_differences)
 from superex_deploy.files import write_atomically
 from superex_deploy.sim.suite import (CHECKPOINTS, IOU_BINS, IOU_LEVELS, PAPER_ROWS, REFERENCE_ROW,
                                           paired_summary, row_summary)
@@ -18,15 +18,23 @@ IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 """IoU every 10 steps while the coverage is below 35 % (the IoU metrics read that part), every 100 after."""
 
 
-def _rows(spec: str) -> list[str]:
-    names = list(PAPER_ROWS) if spec.strip() == "all" else [r.strip() for r in spec.split(",") if r.strip()]
+def _rows(names: list[str]) -> list[str]:
+    """``--rows`` (a :func:`~superex_deploy.commands._options.name_list`) -> row names; ``["all"]`` is every row."""
+    names = list(PAPER_ROWS) if list(names) == ["all"] else list(names)
     unknown = [r for r in names if r not in PAPER_ROWS]
-    if unknown or not names:
-        raise ValueError(f"unknown row(s) {unknown}; choose from {', '.join(PAPER_ROWS)} or 'all'")
+    if unknown:
+        raise ValueError(f"--rows: unknown row(s) {', '.join(unknown)}; choose from {', '.join(PAPER_ROWS)} or 'all'")
     return names
 
 
-def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict) -> list[dict]:
+def _refuse_other_settings(path: Path, recorded: dict, setting: dict, advice: str) -> None:
+    differences = settings_differences(recorded, json.loads(json.dumps(setting)))
+    if differences:
+        raise ValueError(f"{path} was run with other settings ({'; '.join(differences)}); {advice}")
+
+
+def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict,
+             backend) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
     from superex_deploy.benchmarking import ScenarioTask, run_scenario
     from superex_deploy.maps import start_poses
@@ -39,11 +47,11 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
     keys = [f"{task.map_name}/{task.start_index}" for task in tasks]
     recorded = rows_dir / f"{name}.setting.json"
     setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad}}
-    if recorded.is_file() and json.loads(recorded.read_text()) != json.loads(json.dumps(setting)):
-        raise ValueError(f"{recorded} holds a partial row of other settings; move it and {name}.episodes.jsonl "
-                         f"away or choose another --out")
+    if recorded.is_file():
+        _refuse_other_settings(recorded, json.loads(recorded.read_text()), setting,
+                               f"move it and {name}.episodes.jsonl away or choose another --out")
     write_atomically(recorded, json.dumps(setting))
-    episodes = run_tasks(run_scenario, tasks, keys, make_backend(args), rows_dir / f"{name}.episodes.jsonl", name)
+    episodes = run_tasks(run_scenario, tasks, keys, backend, rows_dir / f"{name}.episodes.jsonl", name)
     for episode in episodes:
         episode["row"] = name
     return episodes
@@ -93,7 +101,6 @@ def _table(rows: dict[str, list[dict]], steps: int) -> tuple[str, dict]:
 
 
 def run_paper(args: argparse.Namespace) -> int:
-    from superex_deploy.maps import list_maps
     from superex_deploy.parallel import Interrupted
     from superex_deploy.render import save_suite_plots
 
@@ -103,9 +110,9 @@ def run_paper(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     check_jobs(args)
-    maps = list_maps("eval") if args.maps == "eval" else [m.strip() for m in args.maps.split(",") if m.strip()]
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a folder")
+    maps = eval_maps(args.maps)
+    check_output_folder(args.out)
+    backend = make_backend(args)
     rows_dir = args.out / "rows"
     rows_dir.mkdir(parents=True, exist_ok=True)
     setting = {"maps": maps, "steps": args.steps, "seed": args.seed, "iou": IOU_SCHEDULE}
@@ -116,14 +123,13 @@ def run_paper(args: argparse.Namespace) -> int:
             if done.get("setting") == setting:
                 print(f"{name}: done already ({path})")
                 continue
-            raise ValueError(f"{path} was run with other settings ({done.get('setting')}); move it away or "
-                             f"choose another --out")
+            _refuse_other_settings(path, done.get("setting"), setting, "move it away or choose another --out")
         try:
-            episodes = _run_row(name, args, maps, rows_dir, setting)
+            episodes = _run_row(name, args, maps, rows_dir, setting, backend)
         except Interrupted as stop:
-            print(f"superex benchmark: {stop}; the finished episodes of row {name} are in "
-                  f"{rows_dir / (name + '.episodes.jsonl')}: rerun the same command to finish", file=sys.stderr)
-            return 130
+            stop.kept = (f"the finished episodes of row {name} are in {rows_dir / (name + '.episodes.jsonl')}: rerun "
+                         f"the same command to finish")
+            raise
         write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
     rows = {}
     for name in PAPER_ROWS:  # every finished row, in the table's order

@@ -3,7 +3,8 @@
 The explorer is rebuilt from the recording's metadata (planner and options, predictor, seed, sensor model, NLOS and
 explorer configuration) and given no map: it sees exactly the recorded observations. Its goals are compared with the
 recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything
-that stopped the reading) and ``DIR/map.npz`` (the explorer's final map and evidence).
+that stopped the reading) and ``DIR/map.npz`` (the explorer's final map and evidence). A recording without a
+single whole step is refused: there is nothing to compare.
 """
 
 from __future__ import annotations
@@ -78,11 +79,14 @@ def build_explorer(metadata: dict, frame, models=None):
 
 
 def run(args: argparse.Namespace) -> int:
+    from superex_deploy.commands._options import check_output_folder
     from superex_deploy.recording import read_recording
 
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a folder")
-    recording = read_recording(args.recording)
+    check_output_folder(args.out)
+    recording = read_recording(args.recording, progress=True)
+    if not recording.steps:
+        why = recording.error or "a recording stopped before its first step"
+        raise ValueError(f"{args.recording} holds no step to replay ({why})")
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
     with build_explorer(recording.metadata, recording.frame, args.models) as explorer:

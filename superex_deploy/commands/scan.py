@@ -6,14 +6,17 @@ import argparse
 import json
 from pathlib import Path
 
+from superex_deploy.commands._options import check_output_folder, non_negative_int, positive_int, resolve_start
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="bundled map name (see list_maps) or an image / ROS YAML path")
-    parser.add_argument("--start", type=int, default=0, help="index of the eval map's start pose (0-3)")
+    parser.add_argument("--start", type=non_negative_int, default=0,
+                        help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="robot cell instead of --start")
-    parser.add_argument("--secondary", type=int, default=64, help="secondary rays per wall hit")
+    parser.add_argument("--secondary", type=positive_int, default=64, help="secondary rays per wall hit")
     parser.add_argument("--noise", action="store_true", help="Poisson, ambient, dark counts and timing jitter")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="noise seed")
     parser.add_argument("--out", required=True, type=Path, help="output directory")
 
 
@@ -21,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from superex_deploy.geometry import cell_centre, mark_rays
-    from superex_deploy.maps import load_map, start_poses
+    from superex_deploy.maps import load_map
     from superex_deploy.onboard.nlos import NlosConfig, process_scan
     from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
     from superex_deploy.sim.spad import nlos_ground_truth
@@ -29,14 +32,9 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.spad_types import SpadConfig, SpadNoise
     from superex_deploy.sim.spad import simulate_scan
 
+    check_output_folder(args.out)
     grid = load_map(args.map)
-    if args.pose is not None:
-        pose = grid.check_pose(args.pose)
-    else:
-        poses = start_poses(grid.name)
-        if not 0 <= args.start < len(poses):
-            raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {args.start}")
-        pose = poses[args.start]
+    pose = resolve_start(args.map, grid, args.start, args.pose, require_valid=False)
     cfg = SpadConfig(n_secondary=args.secondary, noise=SpadNoise(enabled=args.noise))
     scan = simulate_scan(grid, pose, cfg, rng=np.random.default_rng(args.seed) if args.noise else None)
     seen_free = np.zeros(grid.shape, bool)

@@ -37,7 +37,15 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
-__all__ = ["MotionConfig", "PlanningMap", "planning_map", "wall_distance", "dijkstra", "path_is_clear"]
+__all__ = ["MAX_WALL_REACH_M", "MAX_WALL_REACH_CELLS", "MotionConfig", "PlanningMap", "planning_map", "wall_distance",
+           "dijkstra", "path_is_clear"]
+
+MAX_WALL_REACH_M = 5.0
+"""The largest robot radius and wall-cost range (metres). The wall distance is stamped from every wall cell over a
+disc that wide, so its work grows with the square of it; MapEx's values are 0.15 m and 1 m."""
+MAX_WALL_REACH_CELLS = 1000
+"""The largest reach of :func:`wall_distance` (cells): its table of disc offsets holds ``(2 reach + 1)**2`` entries
+(24 bytes each), 96 MB at this limit."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,12 @@ class MotionConfig:
         step_cells: path cells advanced per step (3 cells = 0.3 m, MapEx's ``ind_to_move_per_step``).
         goal_reached_m: a goal counts as reached within this straight-line distance (MapEx: 1 m); frontiers
             this close to the robot are not offered to the planner either.
+
+    Raises:
+        ValueError: ``MotionConfig: FIELD must ...``, for a field of another type, not finite or out of its range:
+            ``robot_radius_m`` in ``[0, MAX_WALL_REACH_M]``, ``wall_cost_range_m`` in ``(0, MAX_WALL_REACH_M]``
+            (:data:`MAX_WALL_REACH_M`), ``wall_cost_weight`` and ``goal_reached_m`` finite and >= 0,
+            ``step_cells`` an integer >= 1.
     """
 
     robot_radius_m: float = 0.15
@@ -61,13 +75,20 @@ class MotionConfig:
     goal_reached_m: float = 1.0
 
     def __post_init__(self) -> None:
-        if not (self.robot_radius_m >= 0 and self.wall_cost_weight >= 0 and self.wall_cost_range_m > 0):
-            raise ValueError(f"MotionConfig: robot_radius_m and wall_cost_weight must be >= 0 and "
-                             f"wall_cost_range_m > 0, got {self.robot_radius_m}, {self.wall_cost_weight}, "
-                             f"{self.wall_cost_range_m}")
-        if int(self.step_cells) < 1 or not self.goal_reached_m >= 0:
-            raise ValueError(f"MotionConfig: step_cells must be >= 1 and goal_reached_m >= 0, got "
-                             f"{self.step_cells}, {self.goal_reached_m}")
+        # Imported here: the planners package imports this module.
+        from superex_deploy.onboard.planners.config_checks import check_int, check_real
+
+        try:
+            checked = {"robot_radius_m": check_real("robot_radius_m", self.robot_radius_m, 0.0, MAX_WALL_REACH_M),
+                       "wall_cost_weight": check_real("wall_cost_weight", self.wall_cost_weight, 0.0),
+                       "wall_cost_range_m": check_real("wall_cost_range_m", self.wall_cost_range_m, 0.0,
+                                                       MAX_WALL_REACH_M, low_open=True),
+                       "step_cells": check_int("step_cells", self.step_cells, 1),
+                       "goal_reached_m": check_real("goal_reached_m", self.goal_reached_m, 0.0)}
+        except ValueError as error:
+            raise ValueError(f"MotionConfig: {error}") from None
+        for name, value in checked.items():
+            object.__setattr__(self, name, value)
 
 
 @numba.njit(cache=True)
@@ -181,7 +202,7 @@ def wall_distance(walls: np.ndarray, reach_cells: float) -> np.ndarray:
 
     Args:
         walls: bool ``[H, W]``.
-        reach_cells: largest distance computed (cells, >= 0).
+        reach_cells: largest distance computed (cells, in ``[0, MAX_WALL_REACH_CELLS]``).
 
     Returns:
         float64 ``[H, W]``: Euclidean centre-to-centre distance (cells) to the nearest wall cell where it is
@@ -190,8 +211,9 @@ def wall_distance(walls: np.ndarray, reach_cells: float) -> np.ndarray:
     walls = np.ascontiguousarray(walls)
     if walls.dtype != np.bool_ or walls.ndim != 2:
         raise ValueError(f"walls must be a bool [H, W] array, got {walls.dtype} {walls.shape}")
-    if not (float(reach_cells) >= 0.0 and np.isfinite(reach_cells)):
-        raise ValueError(f"reach_cells must be finite and >= 0, got {reach_cells}")
+    if not (0.0 <= float(reach_cells) <= MAX_WALL_REACH_CELLS):
+        raise ValueError(f"reach_cells must lie in [0, {MAX_WALL_REACH_CELLS}] (MAX_WALL_REACH_CELLS), got "
+                         f"{reach_cells}")
     distance = np.full(walls.shape, np.inf)
     _wall_distance(walls, float(reach_cells), distance)
     return distance
@@ -293,6 +315,10 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
 
     Returns:
         The :class:`PlanningMap` (full-map arrays; the search itself ran on the known bounding box).
+
+    Raises:
+        ValueError: a bad map, pose or resolution; a robot radius or wall cost range wider than
+            :data:`MAX_WALL_REACH_CELLS` cells at this resolution.
     """
     observed, (pr, pc) = _check_observed_and_pose(observed, pose_rc)
     if not (float(resolution_m) > 0.0 and np.isfinite(resolution_m)):
@@ -309,7 +335,12 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
     range_cells = cfg.wall_cost_range_m / float(resolution_m)
     # Exact up to a reach beyond both the radius and the cost range; farther cells are traversable and pay no
     # proximity cost whatever their true distance, so inf is as good as the true value there.
-    wall_distance_cells = wall_distance(local_walls, np.floor(max(radius_cells, range_cells)) + 1.0)
+    reach_cells = np.floor(max(radius_cells, range_cells)) + 1.0
+    if reach_cells > MAX_WALL_REACH_CELLS:
+        raise ValueError(f"MotionConfig: robot_radius_m {cfg.robot_radius_m} / wall_cost_range_m "
+                         f"{cfg.wall_cost_range_m} reach {reach_cells:.0f} cells at {resolution_m} m per cell, more "
+                         f"than MAX_WALL_REACH_CELLS ({MAX_WALL_REACH_CELLS})")
+    wall_distance_cells = wall_distance(local_walls, reach_cells)
     local_traversable = local_free & (wall_distance_cells > radius_cells)
     local_traversable[pr - r0, pc - c0] = True
     proximity = np.maximum(1.0 - wall_distance_cells / range_cells, 0.0)

@@ -22,12 +22,15 @@ from scipy import ndimage
 from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction, check_observed
 from superex_deploy.geometry import dda_start, dda_step
 
-__all__ = ["VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
+__all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
            "connected_unknown_gains",
            "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
 
 
 _NO_STAMP = np.zeros((1, 1), np.int32)  # the stamp of calls that count every visible unknown cell
+
+MAX_RAYS = 100_000
+"""The most rays a visibility cast takes (0.06 mm apart at 20 m): its arrays grow with them."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,11 @@ class VisibilityConfig:
         accumulate: False: a cell blocks when its own wall probability reaches the threshold (MapEx as run).
             True: when the accumulated blocking probability ``1 - prod(1 - p_i)`` along the ray, the viewpoint's
             cell included, reaches it (MapEx as described in its paper).
+
+    Raises:
+        ValueError: a field of another type or out of its range, named: ``n_rays`` an integer in ``[3,``
+            :data:`MAX_RAYS` ``]``, ``range_m`` positive and finite, ``hit_threshold`` in ``(0, 1]``,
+            ``accumulate`` a bool (the checks of :mod:`~superex_deploy.onboard.planners.config_checks`).
     """
 
     n_rays: int = 250
@@ -49,12 +57,14 @@ class VisibilityConfig:
     accumulate: bool = False
 
     def __post_init__(self) -> None:
-        if int(self.n_rays) != self.n_rays or self.n_rays < 3:
-            raise ValueError(f"n_rays must be an integer >= 3, got {self.n_rays}")
-        if not (np.isfinite(self.range_m) and self.range_m > 0):
-            raise ValueError(f"range_m must be positive and finite, got {self.range_m}")
-        if not 0.0 < self.hit_threshold <= 1.0:
-            raise ValueError(f"hit_threshold must lie in (0, 1], got {self.hit_threshold}")
+        # Imported here: the planners package imports this module.
+        from superex_deploy.onboard.planners.config_checks import check_instance, check_int, check_real
+
+        object.__setattr__(self, "n_rays", check_int("n_rays", self.n_rays, 3, MAX_RAYS))
+        object.__setattr__(self, "range_m", check_real("range_m", self.range_m, 0.0, low_open=True))
+        object.__setattr__(self, "hit_threshold", check_real("hit_threshold", self.hit_threshold, 0.0, 1.0,
+                                                             low_open=True))
+        check_instance("accumulate", self.accumulate, bool)
 
 
 @numba.njit(cache=True)

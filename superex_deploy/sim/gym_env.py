@@ -71,6 +71,10 @@ class ExplorationEnv(gym.Env):
         action: ``Discrete(max_frontiers)``; ``info["action_mask"]`` (int8 ``[max_frontiers]``) marks the frontier
             regions the robot can reach, nearest first, that it has not reached before; a masked-out action drives
             to the nearest frontier (``info["masked_action"]``).
+
+    Episodes follow Gymnasium's contract: :meth:`step` raises ``RuntimeError`` before the first :meth:`reset`,
+    after an episode ended (``terminated`` or ``truncated``) until the next :meth:`reset`, and after
+    :meth:`close` (a :meth:`reset` then starts afresh).
     """
 
     metadata = {"render_modes": []}
@@ -98,10 +102,12 @@ class ExplorationEnv(gym.Env):
         self._cfg = ExplorationConfig()
         self._world = self._explorer = None
         self._goals: list[tuple[int, int]] = []
+        self._ended: Optional[str] = "reset() has not been called yet"  # why step() is refused, or None
 
     def close(self) -> None:
         if self._explorer is not None:
             self._explorer.close()
+        self._ended = "the environment is closed"
 
     def _observation(self) -> np.ndarray:
         observed = self._explorer.observed
@@ -141,11 +147,12 @@ class ExplorationEnv(gym.Env):
                                                               self._predictor or ObservedAsPrediction(),
                                                               seed=int(self.np_random.integers(2 ** 31)), cfg=self._cfg)
         self._command = self._explorer.step(self._world.observe())
+        self._ended = None
         return self._observation(), self._info()
 
     def step(self, action):
-        if self._world is None:
-            raise RuntimeError("call reset() before step()")
+        if self._ended is not None:
+            raise RuntimeError(f"step() needs a running episode: {self._ended}; call reset() to start one")
         if not self.action_space.contains(action):
             raise ValueError(f"action must be an integer in [0, {self.max_frontiers}), got {action!r}")
         # A masked-out action (an agent that ignores info["action_mask"], or the environment checker's random one)
@@ -171,5 +178,7 @@ class ExplorationEnv(gym.Env):
         info["masked_action"] = masked
         if not terminated and not info["action_mask"].any():
             terminated = True  # nothing reachable is left to choose
+        if terminated or truncated:
+            self._ended = f"the episode has {'terminated' if terminated else 'been truncated'}"
         return self._observation(), float(reward), terminated, truncated, info
 

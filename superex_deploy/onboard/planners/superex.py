@@ -31,14 +31,12 @@ import numpy as np
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
-from superex_deploy.onboard.visibility import (VisibilityConfig, predicted_visibility, reachable_frontiers,
+from superex_deploy.onboard.visibility import (MAX_RAYS, VisibilityConfig, predicted_visibility, reachable_frontiers,
                                                union_visible_unknown, visible_gains)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
 
-MAX_RAYS = 100_000
-"""The most rays a visibility cast takes (0.06 mm apart at 20 m): its arrays grow with them."""
 MAX_ROLLOUT_CELL_M = 10.0
 """The largest rollout cell (metres): the rollout world is padded to a whole number of cells."""
 
