@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from superex_deploy.messages.limits import _finite, _heading, check_map_size
+from superex_deploy.messages.limits import _finite, _heading, _point_xy, check_map_size
 
 __all__ = ["MapFrame", "Pose2D", "grid_angles"]
 
@@ -44,12 +44,7 @@ class MapFrame:
         resolution = _finite("resolution_m", self.resolution_m)
         if resolution <= 0.0:
             raise ValueError(f"resolution_m must be positive, got {resolution}")
-        try:
-            origin = tuple(_finite("origin_xy", v) for v in self.origin_xy)
-        except TypeError:
-            raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}") from None
-        if len(origin) != 2:
-            raise ValueError(f"origin_xy must be an (x, y) pair, got {self.origin_xy!r}")
+        origin = _point_xy("origin_xy", self.origin_xy)
         check_map_size(shape, resolution, "the map frame")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "resolution_m", resolution)

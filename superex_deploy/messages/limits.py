@@ -32,6 +32,17 @@ def _finite(name: str, value) -> float:
     return value
 
 
+def _point_xy(name: str, value) -> tuple[float, float]:
+    """A finite map-frame point ``(x, y)`` (metres) as a tuple of floats."""
+    try:
+        point = tuple(_finite(name, v) for v in value)
+    except TypeError:
+        raise ValueError(f"{name} must be an (x, y) pair, got {value!r}") from None
+    if len(point) != 2:
+        raise ValueError(f"{name} must be an (x, y) pair, got {value!r}")
+    return point
+
+
 def _float32(name: str, value) -> float:
     """``value`` rounded to float32, as a Python float (finite)."""
     value = _finite(name, value)

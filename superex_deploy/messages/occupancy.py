@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from superex_deploy.messages.frame import MapFrame
-from superex_deploy.messages.limits import _finite, check_map_size
+from superex_deploy.messages.limits import _finite, _point_xy, check_map_size
 
 __all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN"]
 
@@ -54,12 +54,7 @@ class OccupancyGridMessage:
                 raise ValueError(f"occupancy grid {name} must be a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
         check_map_size((self.height, self.width), resolution, "the occupancy grid")
-        try:
-            origin = tuple(_finite("occupancy grid origin_xy", v) for v in self.origin_xy)
-        except TypeError:
-            raise ValueError(f"occupancy grid origin_xy must be an (x, y) pair, got {self.origin_xy!r}") from None
-        if len(origin) != 2:
-            raise ValueError(f"occupancy grid origin_xy must be an (x, y) pair, got {self.origin_xy!r}")
+        origin = _point_xy("occupancy grid origin_xy", self.origin_xy)
         data = np.asarray(self.data)
         if data.dtype != np.int8 or data.shape != (self.height * self.width,):
             raise ValueError(f"occupancy grid data must be int8 [height * width] = [{self.height * self.width}], "
