@@ -119,16 +119,19 @@ def test_carve_sectors_match_naive():
     normals[6:] = np.round(normals[6:], 15)
     radius = rng.uniform(0, 12, size=10)
     radius[6:] = 9.0  # reaching past the grid's edges
-    expected = naive_carve_sectors((30, 32), apex, normals, radius, 1.5, np.cos(np.deg2rad(70)))
+    # One wall strip per wall point (the pose-error margin widens each by its own amount).
+    strip = np.full(10, 1.5)
+    strip[[1, 4]] = [2.7, 4.0]
+    expected = naive_carve_sectors((30, 32), apex, normals, radius, strip, np.cos(np.deg2rad(70)))
     assert expected.any()
     for n_parts in (1, 2, 5):  # rows dealt to parallel parts in blocks
         out = np.zeros((30, 32), bool)
-        _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
+        _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
         np.testing.assert_array_equal(out, expected)
         # A patch of the grid receives exactly its part of the carving.
         for top, left, height, width in [(7, 3, 12, 20), (0, 20, 30, 12), (29, 31, 1, 1), (10, 10, 0, 5)]:
             patch = np.zeros((height, width), bool)
-            _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
+            _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
             np.testing.assert_array_equal(patch, expected[top:top + height, left:left + width])
 
 
