@@ -206,10 +206,13 @@ def naive_los_and_first_late_bins(histograms, threshold, guard):
 
 
 def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
-    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals)."""
+    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals);
+    ``interior``: one distance for every point, or one each."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
+    interiors = np.broadcast_to(np.asarray(interior, float), (len(points),))
     for u, p in enumerate(points):
+        interior = interiors[u]
         near = points[np.hypot(*(points - p).T) <= radius]
         if len(near) < 3:
             continue
