@@ -15,9 +15,12 @@
    line of sight on the map, see :func:`~superex_deploy.onboard.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
    blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
    chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.goal_choice.choose_goal`), calling
-   the predictor lazily (once per step at most). Paths cross only cells the map holds free with confidence: cells
-   known free only by carving count for frontiers, coverage and prediction, and for driving only as
-   ``MotionConfig.drive_carved`` allows (by default: while the pose is exact, i.e. without a pose covariance).
+   the predictor lazily (once per step at most). Paths cross only cells the map holds free with confidence
+   (log-odds at or below the free threshold). Cells known free only by carving count for coverage and for the
+   prediction; for frontiers, paths and goal checks only as ``MotionConfig.drive_carved`` allows (by default:
+   while the pose is exact, i.e. without a pose covariance). Otherwise the planning runs on the line-of-sight map
+   (:meth:`~superex_deploy.onboard.mapper.Mapper.observed` without carving): a planner then sees carved cells as
+   unknown, and the prediction it reads as free.
 
 How the predictor runs is configured, not fixed (issue #16): inside the asking step or in a worker thread
 (:class:`PredictionSchedule`), on the whole map or on a crop around what changed since the last prediction, and only
@@ -148,6 +151,7 @@ class Explorer:
         self._predictor: MapPredictor = self.reusing if self.reusing is not None else predictor
         self.mapper = Mapper(frame.shape, cfg.occupancy)
         self.observed = self.mapper.observed()
+        self._planning = self.observed  # the map the latest step planned on (see the module docstring)
         self.frontiers: tuple[Frontier, ...] = ()
         self.goal: Optional[tuple[int, int]] = None
         self.path: list[tuple[int, int]] = []
@@ -192,8 +196,8 @@ class Explorer:
         pose = (int(pose_rc[0]), int(pose_rc[1]))
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
-        not_free = self.observed != FREE
-        return tuple(f for f in find_frontiers(self.observed, 1) if not near_visited_goal(f.cell_rc, self._visited)
+        not_free = self._planning != FREE
+        return tuple(f for f in find_frontiers(self._planning, 1) if not near_visited_goal(f.cell_rc, self._visited)
                      and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
 
     def drop_goal(self) -> None:
@@ -316,10 +320,13 @@ class Explorer:
                                                  pose_covariance=obs.pose_covariance)
             self.mapper.merge_carved(carved)
         observed = self.mapper.observed()
+        # The map the planning reads: carved-only cells are free in it only when they may be driven on.
+        drive_carved = self._pose_exact if self.cfg.motion.drive_carved is None else self.cfg.motion.drive_carved
+        planning = observed if drive_carved else self.mapper.observed(include_carved=False)
         timings["map_update"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        frontiers = find_frontiers(observed, self.cfg.frontier_min_cells)
+        frontiers = find_frontiers(planning, self.cfg.frontier_min_cells)
         timings["frontiers"] = time.perf_counter() - clock
 
         waited = 0.0
@@ -329,9 +336,10 @@ class Explorer:
         else:
             prediction = LazyPrediction(self._predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
+        self._planning = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
-            new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+            new_goal = self._plan(planning, frontiers, pose, prediction, t, timings)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished = False, False
         timings["prediction"] += waited
@@ -351,9 +359,6 @@ class Explorer:
         clock = time.perf_counter()
         plan: Optional[PlanningMap] = None
         not_free = observed != FREE
-        # Cells a path may cross: held free with confidence (None: every FREE cell, carved ones included).
-        drive_carved = self._pose_exact if motion.drive_carved is None else motion.drive_carved
-        drivable = None if drive_carved else self.mapper.drivable()
         goal = self.goal
         path = self.path[self.path.index(pose):] if pose in self.path else []
         if goal is not None and goal_reached(not_free, pose, goal, self._goal_tolerance):
@@ -361,9 +366,9 @@ class Explorer:
             goal, path = None, []
         if goal is not None and not self.planner.keep_goal(observed, pose, goal, t - self._goal_step):
             goal, path = None, []
-        if goal is not None and (not path or not path_is_clear(observed, path[1:], self._radius_cells, drivable)):
+        if goal is not None and (not path or not path_is_clear(observed, path[1:], self._radius_cells)):
             # Blocked by a newly seen wall, or the robot did not stop on its path: plan again to the same goal.
-            plan = planning_map(observed, pose, res, motion, drivable)
+            plan = planning_map(observed, pose, res, motion)
             path = plan.path_to(goal)
             if not path:
                 goal = None
@@ -373,7 +378,7 @@ class Explorer:
             return False
 
         clock = time.perf_counter()
-        plan = plan or planning_map(observed, pose, res, motion, drivable)
+        plan = plan or planning_map(observed, pose, res, motion)
         timings["path"] += time.perf_counter() - clock
 
         def offer(regions: tuple[Frontier, ...]) -> Optional[tuple[int, int]]:

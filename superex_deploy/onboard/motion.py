@@ -2,9 +2,10 @@
 
 Planning map (after MapEx's ``inflate_map`` with ``use_distance_transform_for_planning``):
 
-* A cell is traversable when it is known FREE and farther than the robot radius from every observed wall. The
-  explorer passes the cells its map holds free with confidence (``drivable``): those the line of sight holds
-  free, and those known free only by NLOS carving only as ``MotionConfig.drive_carved`` allows. The default radius, 0.15 m, blocks exactly the cells 8-adjacent to a wall, i.e. MapEx's
+* A cell is traversable when it is known FREE and farther than the robot radius from every observed wall. FREE
+  cells are those the map holds free with confidence (log-odds at or below the free threshold); cells known free
+  only by NLOS carving are FREE in the map the explorer plans on only as ``MotionConfig.drive_carved`` allows.
+  The default radius, 0.15 m, blocks exactly the cells 8-adjacent to a wall, i.e. MapEx's
   dilation of the walls by a 3 x 3 square (``dilate_diam_for_planning: 3``).
 * UNKNOWN cells are never traversable (MapEx's ``unknown_as_occ``), but only observed walls are inflated:
   frontier cells border the unknown by definition and must stay reachable.
@@ -54,11 +55,12 @@ class MotionConfig:
         step_cells: path cells advanced per step (3 cells = 0.3 m, MapEx's ``ind_to_move_per_step``).
         goal_reached_m: a goal counts as reached within this straight-line distance (MapEx: 1 m); frontiers
             this close to the robot are not offered to the planner either.
-        drive_carved: whether paths may cross cells known free only by NLOS carving. False: never (paths cross
-            only cells the line of sight holds free with confidence; carved cells still count for coverage,
-            frontiers and prediction). True: always. None (the default): only while the pose is exact, i.e. the
-            observation carries no pose covariance (the noise-free protocol, where carving is proven sound and
-            the benchmark rows were made with carved cells drivable); with a covariance (a robot), never.
+        drive_carved: whether the explorer plans on cells known free only by NLOS carving. False: never, it plans
+            (frontiers, paths, goal checks) on the line-of-sight map, whose free cells the map holds free with
+            confidence; carved cells count for coverage and for the prediction only. True: always. None (the
+            default): only while the pose is exact, i.e. the observation carries no pose covariance (the
+            noise-free protocol, where carving is proven sound; the benchmark rows were made so); with a
+            covariance (a robot), never.
     """
 
     robot_radius_m: float = 0.15
@@ -291,16 +293,8 @@ def _check_observed_and_pose(observed: np.ndarray, pose_rc) -> tuple[np.ndarray,
     return observed, (r, c)
 
 
-def _check_drivable(drivable, shape) -> np.ndarray:
-    drivable = np.asarray(drivable)
-    if drivable.dtype != np.bool_ or drivable.shape != tuple(shape):
-        raise ValueError(f"drivable must be a bool array of shape {tuple(shape)}, got {drivable.dtype} "
-                         f"{drivable.shape}")
-    return drivable
-
-
 def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
-                 cfg: MotionConfig = MotionConfig(), drivable: Optional[np.ndarray] = None) -> PlanningMap:
+                 cfg: MotionConfig = MotionConfig()) -> PlanningMap:
     """Build the planning map and run Dijkstra from the robot's cell.
 
     Args:
@@ -308,8 +302,6 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
         pose_rc: robot cell (row, col).
         resolution_m: metres per cell.
         cfg: robot radius, proximity cost.
-        drivable: optional bool ``[H, W]``: only FREE cells marked here may be crossed (the cells the map holds
-            free with confidence, :meth:`~superex_deploy.onboard.mapper.Mapper.drivable`); None: every FREE cell.
 
     Returns:
         The :class:`PlanningMap` (full-map arrays; the search itself ran on the known bounding box).
@@ -318,8 +310,6 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
     if not (float(resolution_m) > 0.0 and np.isfinite(resolution_m)):
         raise ValueError(f"resolution_m must be positive and finite, got {resolution_m}")
     free = observed == FREE
-    if drivable is not None:
-        free &= _check_drivable(drivable, observed.shape)
     free[pr, pc] = True
     rows = np.flatnonzero(free.any(axis=1))
     cols = np.flatnonzero(free.any(axis=0))
@@ -344,14 +334,13 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
     return PlanningMap(traversable=traversable, travel_cost=travel_cost, origin_rc=(r0, c0), _parent=parent)
 
 
-def path_is_clear(observed: np.ndarray, path, radius_cells: float, drivable: Optional[np.ndarray] = None) -> bool:
+def path_is_clear(observed: np.ndarray, path, radius_cells: float) -> bool:
     """Whether a previously planned path is still safe on the current map, without a new search.
 
     Args:
         observed: int8 ``[H, W]`` current observed map.
         path: the remaining path cells ``[(row, col), ...]`` (the robot's own cell excluded).
         radius_cells: robot radius in cells.
-        drivable: optional bool ``[H, W]`` cells a path may cross (as in :func:`planning_map`).
 
     Returns:
         True when every path cell is known FREE with no observed wall within ``radius_cells`` (the traversable
@@ -361,8 +350,6 @@ def path_is_clear(observed: np.ndarray, path, radius_cells: float, drivable: Opt
         return True
     cells = np.asarray(path, np.int64).reshape(-1, 2)
     if np.any(observed[cells[:, 0], cells[:, 1]] != FREE):
-        return False
-    if drivable is not None and not np.all(_check_drivable(drivable, observed.shape)[cells[:, 0], cells[:, 1]]):
         return False
     reach = int(np.floor(radius_cells))
     for dr in range(-reach, reach + 1):
