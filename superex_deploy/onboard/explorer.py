@@ -120,7 +120,8 @@ class Explorer:
         frame, planner, predictor, spad_processing, cfg: as given.
         mapper: the explorer's map (:class:`~superex_deploy.onboard.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
-        frontiers: the latest step's frontier regions.
+        frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
+            when those may not be driven on, see the module docstring).
         goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
         path: cells from the robot to the goal.
         steps: observations processed so far.

@@ -118,12 +118,12 @@ def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top,
 @numba.njit(cache=True)
 def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, reliable, origin_y, origin_x,
                  cap_m, resolution_m, apex_margin_cells, cos_max_incidence, strip_cells, sigma_xy_cells,
-                 sigma_yaw_rad, pose_error_out):
+                 sigma_yaw_rad, strip_out):
     """Carve radius (cells) of each wall cell: the smallest empty radius of the rays that share it (rays sharing
     a wall-cell estimate may come from different true wall points), capped at ``cap_m`` and reduced by
     ``apex_margin_cells``, half a cell diagonal and the pose-error margin; zero for a wall cell with a ray that
     saw no late photon (at grazing incidence no three-bounce light exists however empty the space is), without
-    a ``reliable`` normal, or seen more obliquely than ``cos_max_incidence``. ``pose_error_out[u]`` (float64,
+    a ``reliable`` normal, or seen more obliquely than ``cos_max_incidence``. ``strip_out[u]`` (float64,
     preset to ``strip_cells``) gets the wall strip widened by the same margin: ``sigma_xy_cells + rho
     sigma_yaw_rad`` with ``rho`` the distance from the robot to the wall cell's centre plus the radius and a
     cell (both sigmas already multiplied by the margin factor; zero: no pose error)."""
@@ -149,7 +149,7 @@ def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, 
         if sigma_xy_cells > 0.0 or sigma_yaw_rad > 0.0:
             margin = sigma_xy_cells + (norm + max(radius, 0.0) + 1.0) * sigma_yaw_rad
         radius_cells[u] = radius - margin
-        pose_error_out[u] = strip_cells + margin
+        strip_out[u] = strip_cells + margin
     return radius_cells
 
 
@@ -195,7 +195,8 @@ def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=
     strip_cells = np.full(len(los.wall_cells), float(cfg.wall_strip_cells))
     reliable = los.normal_reliable
     if sigma_xy > 0.0 or sigma_yaw > 0.0:
-        distance = np.hypot(los.wall_cells[:, 0] + 0.5 - scan.origin_yx[0], los.wall_cells[:, 1] + 0.5 - scan.origin_yx[1])
+        distance = np.hypot(los.wall_cells[:, 0] + 0.5 - scan.origin_yx[0],
+                            los.wall_cells[:, 1] + 0.5 - scan.origin_yx[1])
         widened = cfg.normal_interior_cells + cfg.pose_sigma_margin * (sigma_xy / scan.resolution_m
                                                                        + distance * sigma_yaw)
         reliable = reliable & reliable_with_interior(los.wall_cells, cfg, widened)
