@@ -15,6 +15,10 @@ topic         type                                content
                                                   ``map_every`` steps and at the last one
 ============  ==================================  =====================================================================
 
+A robot's observation may carry two more inputs, recorded (and replayed) only when present: ``/slam_map``
+(``nav_msgs/msg/OccupancyGrid``, the SLAM map the explorer read; ``/scan`` is absent on a step without a scan) and
+``/pose_covariance`` (``geometry_msgs/msg/PoseWithCovarianceStamped``: x, y, yaw entries of the 6 x 6, the rest 0).
+
 A metadata record ``superex.episode`` holds what a replay needs to rebuild the explorer (map frame, planner and its
 options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string whose type is
 fixed (:data:`METADATA_TYPES`; checked when writing and when reading). The SPAD
@@ -45,7 +49,8 @@ from typing import Optional, Union
 
 import numpy as np
 
-from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, check_stamp
+from superex_deploy.messages import (Command, LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D,
+                                     PoseCovariance, SpadFrame, check_stamp)
 from superex_deploy.parallel import signals_deferred
 
 __all__ = ["FORMAT_VERSION", "SPAD_FRAME_MSG", "EXPLORER_COMMAND_MSG", "METADATA_TYPES", "EpisodeRecorder",
@@ -129,6 +134,9 @@ uint32 width
 uint32 height
 geometry_msgs/Pose origin
 """ + _SEPARATOR + _POSE
+POSE_WITH_COVARIANCE_STAMPED_MSG = ("std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n" + _SEPARATOR
+                                    + _HEADER + _SEPARATOR + "MSG: geometry_msgs/PoseWithCovariance\n"
+                                    "geometry_msgs/Pose pose\nfloat64[36] covariance\n" + _SEPARATOR + _POSE)
 SPAD_FRAME_MSG = """# One SPAD LiDAR frame: a time-of-flight histogram per ray, stored by its non-zero bins (compressed sparse rows).
 # Bin b of a ray counts photons whose round-trip path lies in [b, b + 1) * bin_width_s * c.
 std_msgs/Header header
@@ -160,8 +168,11 @@ _SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
             "/spad": ("superex_msgs/msg/SpadFrame", SPAD_FRAME_MSG),
             "/command": ("superex_msgs/msg/ExplorerCommand", EXPLORER_COMMAND_MSG),
             "/plan": ("nav_msgs/msg/Path", PATH_MSG),
-            "/map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG)}
-_REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/command")
+            "/map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
+            "/slam_map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
+            "/pose_covariance": ("geometry_msgs/msg/PoseWithCovarianceStamped", POSE_WITH_COVARIANCE_STAMPED_MSG)}
+_REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/slam_map", "/pose_covariance", "/command")
+_COVARIANCE_INDEX = (0, 1, 5)  # x, y and yaw among the 6 x 6 covariance's x, y, z, roll, pitch, yaw
 
 
 def _stamp(seconds: float) -> dict:
@@ -292,11 +303,13 @@ class EpisodeRecorder:
         pose = observation.pose
         self._write("/pose", {"header": _header(stamp, "map"), "pose": _pose(pose.x, pose.y, pose.yaw)}, stamp, step)
         scan = observation.scan
-        self._write("/scan", {"header": _header(stamp, "base_scan"), "angle_min": scan.angle_min,
-                              "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
-                              "time_increment": 0.0, "scan_time": 0.0, "range_min": scan.range_min,
-                              "range_max": scan.range_max, "ranges": scan.ranges.tolist(), "intensities": []},
-                    stamp, step)
+        if scan is not None:
+            self._write("/scan", {"header": _header(stamp, "base_scan"), "angle_min": scan.angle_min,
+                                  "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
+                                  "time_increment": 0.0, "scan_time": 0.0, "range_min": scan.range_min,
+                                  "range_max": scan.range_max, "ranges": scan.ranges.tolist(), "intensities": []},
+                        stamp, step)
+        self._write_robot_inputs(observation, stamp, step)
         spad = observation.spad
         if spad is not None:
             self._write("/spad", {"header": _header(stamp, "base_scan"), "bin_width_s": spad.bin_width_s,
@@ -319,6 +332,24 @@ class EpisodeRecorder:
                                         for x, y in command.path_xy]}, stamp, step)
         if observed is not None and (step % self.map_every == 0 or command.finished):
             self._write_map(observed, stamp, step)
+
+    def _write_robot_inputs(self, observation: Observation, stamp: float, step: int) -> None:
+        """The SLAM map and the pose covariance of an observation that carries them."""
+        grid = observation.occupancy_grid
+        if grid is not None:
+            self._write("/slam_map", {"header": _header(stamp, "map"),
+                                      "info": {"map_load_time": _stamp(0.0), "resolution": grid.resolution_m,
+                                               "width": grid.width, "height": grid.height,
+                                               "origin": _pose(grid.origin_xy[0], grid.origin_xy[1], 0.0)},
+                                      "data": grid.data.tolist()}, stamp, step)
+        covariance = observation.pose_covariance
+        if covariance is not None:
+            full = np.zeros((6, 6))
+            full[np.ix_(_COVARIANCE_INDEX, _COVARIANCE_INDEX)] = covariance.matrix
+            pose = observation.pose
+            self._write("/pose_covariance", {"header": _header(stamp, "map"),
+                                             "pose": {"pose": _pose(pose.x, pose.y, pose.yaw),
+                                                      "covariance": full.ravel().tolist()}}, stamp, step)
 
     def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None) -> None:
         """Record the explorer's int8 ``[H, W]`` map (rows flipped: ROS grids start at the bottom row), stamped
@@ -384,15 +415,35 @@ def _spad_frame(message) -> SpadFrame:
                      counts=np.frombuffer(bytes(message.counts_f32le), "<f4"))
 
 
-def _observation(parts: dict) -> Observation:
-    pose_message, scan_message = parts["/pose"], parts["/scan"]
+def _slam_map(message, frame: MapFrame) -> OccupancyGridMessage:
+    """The recorded SLAM map; its float32 resolution is read as the frame's when they agree at float32 (ROS stores
+    ``info.resolution`` as float32, the explorer's frame as float64)."""
+    info = message.info
+    resolution = float(info.resolution)
+    if np.float32(resolution) == np.float32(frame.resolution_m):
+        resolution = frame.resolution_m
+    return OccupancyGridMessage(resolution_m=resolution, width=int(info.width), height=int(info.height),
+                                origin_xy=(info.origin.position.x, info.origin.position.y),
+                                data=np.asarray(message.data, np.int8))
+
+
+def _observation(parts: dict, frame: MapFrame) -> Observation:
+    pose_message, scan_message = parts["/pose"], parts.get("/scan")
     yaw = float(parts["/command"].robot_yaw)
     pose = Pose2D(pose_message.pose.position.x, pose_message.pose.position.y, yaw)
-    scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
-                     range_min=scan_message.range_min, range_max=scan_message.range_max,
-                     ranges=np.asarray(scan_message.ranges, np.float32), angle_max=scan_message.angle_max)
+    scan = None
+    if scan_message is not None:
+        scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
+                         range_min=scan_message.range_min, range_max=scan_message.range_max,
+                         ranges=np.asarray(scan_message.ranges, np.float32), angle_max=scan_message.angle_max)
     spad = _spad_frame(parts["/spad"]) if "/spad" in parts else None
-    return Observation(stamp_s=_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad)
+    grid = _slam_map(parts["/slam_map"], frame) if "/slam_map" in parts else None
+    covariance = None
+    if "/pose_covariance" in parts:
+        full = np.asarray(parts["/pose_covariance"].pose.covariance, np.float64)
+        covariance = PoseCovariance.from_ros(full)
+    return Observation(stamp_s=_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad,
+                       pose_covariance=covariance, occupancy_grid=grid)
 
 
 def _metadata(data: bytes, path: Path) -> dict:
@@ -477,10 +528,11 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
                         parts, current = {}, sequence
                     parts[topic] = decoded
                     if topic == "/command":
-                        if "/pose" not in parts or "/scan" not in parts:
-                            raise ValueError("a command without the pose and scan of its step")
+                        if "/pose" not in parts or ("/scan" not in parts and "/slam_map" not in parts):
+                            raise ValueError("a command without the pose and scan (or SLAM map) of its step")
                         goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
-                        recording.steps.append(RecordedStep(step=int(decoded.step), observation=_observation(parts),
+                        recording.steps.append(RecordedStep(step=int(decoded.step),
+                                                            observation=_observation(parts, frame),
                                                             goal_rc=goal, new_goal=bool(decoded.new_goal),
                                                             finished=bool(decoded.finished)))
                 done += 1

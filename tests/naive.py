@@ -206,10 +206,13 @@ def naive_los_and_first_late_bins(histograms, threshold, guard):
 
 
 def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
-    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals)."""
+    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals);
+    ``interior``: one distance for every point, or one each."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
+    interiors = np.broadcast_to(np.asarray(interior, float), (len(points),))
     for u, p in enumerate(points):
+        interior = interiors[u]
         near = points[np.hypot(*(points - p).T) <= radius]
         if len(near) < 3:
             continue
@@ -224,9 +227,11 @@ def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_res
 
 
 def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_limit):
-    """Test every cell of the grid against every wall point's carve sector (nlos.carving._carve_sectors)."""
+    """Test every cell of the grid against every wall point's carve sector (nlos.carving._carve_sectors);
+    ``strip_cells``: one width for every wall point, or one each."""
     out = np.zeros(shape, bool)
-    for (ay, ax), (ny, nx), radius in zip(apex, normals, radius_cells):
+    strips = np.broadcast_to(np.asarray(strip_cells, float), (len(apex),))
+    for (ay, ax), (ny, nx), radius, strip_cells in zip(apex, normals, radius_cells, strips):
         if not radius > strip_cells:
             continue
         oy, ox = ay + 0.75 * ny, ax + 0.75 * nx
@@ -512,3 +517,18 @@ def naive_open_tour_first(between, from_robot):
         if length < best - 1e-9:
             best, best_first = length, order[0]
     return best_first, best
+
+
+# --- onboard.mapper ---
+
+
+def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest):
+    """onboard.mapper._integrate_log_odds from the crossing lists of :func:`naive_mark_ranges`: every cell the scan
+    touched gets one update, ``hit`` where any ray returned in it, else ``miss``, clamped; returns a new float32
+    grid."""
+    free, hit_mask = naive_mark_ranges(log_odds.shape, y0, x0, angles, ranges_cells, max_t)
+    out = log_odds.copy()
+    for r, c in np.argwhere(free | hit_mask):
+        delta = hit if hit_mask[r, c] else miss
+        out[r, c] = np.float32(min(max(float(out[r, c]) + delta, lowest), highest))
+    return out

@@ -97,12 +97,15 @@ def test_hit_normals_match_naive():
         points = points[np.argsort(points[:, 0], kind="stable")]  # the kernel's contract: sorted by row
         max_residual = [np.inf, 0.9, 0.6][trial % 3]
         max_gap = [np.inf, 2.0, 1.0, 1.5][trial % 4]
-        ref_normals, ref_reliable = naive_hit_normals(points, 5.0, max_residual=max_residual, max_gap=max_gap)
+        # One interior distance per point (widened by the pose-error margin in carving), on some trials.
+        interior = np.full(60, 1.5) if trial < 6 else rng.uniform(1.0, 4.0, size=60)
+        ref_normals, ref_reliable = naive_hit_normals(points, 5.0, interior=interior, max_residual=max_residual,
+                                                      max_gap=max_gap)
         results = []
         for n_parts in (1, 4, 70):  # sequential, uneven runs, more parts than points
             normals = np.zeros((60, 2))
             reliable = np.zeros(60, bool)
-            _hit_normals(points, 5.0, 0.1, max_residual, max_gap, 1.5, normals, reliable, n_parts)
+            _hit_normals(points, 5.0, 0.1, max_residual, max_gap, interior, normals, reliable, n_parts)
             np.testing.assert_array_equal(reliable, ref_reliable)
             np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
             results.append(normals)
@@ -119,16 +122,19 @@ def test_carve_sectors_match_naive():
     normals[6:] = np.round(normals[6:], 15)
     radius = rng.uniform(0, 12, size=10)
     radius[6:] = 9.0  # reaching past the grid's edges
-    expected = naive_carve_sectors((30, 32), apex, normals, radius, 1.5, np.cos(np.deg2rad(70)))
+    # One wall strip per wall point (the pose-error margin widens each by its own amount).
+    strip = np.full(10, 1.5)
+    strip[[1, 4]] = [2.7, 4.0]
+    expected = naive_carve_sectors((30, 32), apex, normals, radius, strip, np.cos(np.deg2rad(70)))
     assert expected.any()
     for n_parts in (1, 2, 5):  # rows dealt to parallel parts in blocks
         out = np.zeros((30, 32), bool)
-        _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
+        _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
         np.testing.assert_array_equal(out, expected)
         # A patch of the grid receives exactly its part of the carving.
         for top, left, height, width in [(7, 3, 12, 20), (0, 20, 30, 12), (29, 31, 1, 1), (10, 10, 0, 5)]:
             patch = np.zeros((height, width), bool)
-            _carve_sectors(apex, normals, radius, 1.5, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
+            _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
             np.testing.assert_array_equal(patch, expected[top:top + height, left:left + width])
 
 

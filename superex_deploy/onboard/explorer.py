@@ -2,18 +2,25 @@
 
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
-1. **scan**: the line-of-sight ranges are integrated into the explorer's own map (free along each ray, occupied at
-   its return; :func:`superex_deploy.geometry.mark_ranges`; invalid readings, REP 117's NaN and too-close ranges,
-   are skipped: see :class:`~superex_deploy.messages.LaserScan`);
-2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.spad_processing.SpadProcessing`):
-   carved free cells join the map, the back-projection evidence is kept for the predictor;
+1. **scan**: the line-of-sight ranges are integrated into the explorer's own log-odds map (misses along each ray,
+   a hit at its return: :mod:`superex_deploy.onboard.mapper`; invalid readings, REP 117's NaN and too-close ranges,
+   are skipped: see :class:`~superex_deploy.messages.LaserScan`); or, when the observation carries a SLAM map
+   (``nav_msgs/OccupancyGrid``), the line-of-sight layer is taken from it and the scan is not read;
+2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.spad_processing.SpadProcessing`,
+   its carving margins widened by the pose covariance when the observation carries one): carved cells join the
+   map as evidence towards free, the back-projection evidence is kept for the predictor;
 3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
    larger ones give no goal);
 4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and* in
    line of sight on the map, see :func:`~superex_deploy.onboard.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
    blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
    chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.goal_choice.choose_goal`), calling
-   the predictor lazily (once per step at most).
+   the predictor lazily (once per step at most). Paths cross only cells the map holds free with confidence
+   (log-odds at or below the free threshold). Cells known free only by carving count for coverage and for the
+   prediction; for frontiers, paths and goal checks only as ``MotionConfig.drive_carved`` allows (by default:
+   while the pose is exact, i.e. without a pose covariance). Otherwise the planning runs on the line-of-sight map
+   (:meth:`~superex_deploy.onboard.mapper.Mapper.observed` without carving): a planner then sees carved cells as
+   unknown, and the prediction it reads as free.
 
 How the predictor runs is configured, not fixed (issue #16): inside the asking step or in a worker thread
 (:class:`PredictionSchedule`), on the whole map or on a crop around what changed since the last prediction, and only
@@ -37,7 +44,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.onboard.mapper import Mapper, OccupancyConfig
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
 from superex_deploy.onboard.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
@@ -67,14 +74,22 @@ class ExplorerConfig:
         reuse: what the explorer keeps of its last prediction
             (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`: re-predict only when the map
             changed enough, and only a crop around the change).
+        occupancy: the map's log-odds parameters and the SLAM map's thresholds
+            (:class:`~superex_deploy.onboard.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
+            recording's metadata holds it).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
     frontier_min_cells: int = 10
     prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
 
     def __post_init__(self) -> None:
+        if isinstance(self.occupancy, dict):
+            object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
+        if not isinstance(self.occupancy, OccupancyConfig):
+            raise ValueError(f"occupancy must be an OccupancyConfig, got {type(self.occupancy).__name__}")
         if not isinstance(self.motion, MotionConfig):
             raise ValueError(f"motion must be a MotionConfig, got {type(self.motion).__name__}")
         if not isinstance(self.prediction, PredictionSchedule):
@@ -105,7 +120,8 @@ class Explorer:
         frame, planner, predictor, spad_processing, cfg: as given.
         mapper: the explorer's map (:class:`~superex_deploy.onboard.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
-        frontiers: the latest step's frontier regions.
+        frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
+            when those may not be driven on, see the module docstring).
         goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
         path: cells from the robot to the goal.
         steps: observations processed so far.
@@ -134,8 +150,9 @@ class Explorer:
         self.reusing: Optional[ReusingPredictor] = (ReusingPredictor(predictor, cfg.reuse, frame.resolution_m)
                                                     if cfg.reuse.reuses else None)
         self._predictor: MapPredictor = self.reusing if self.reusing is not None else predictor
-        self.mapper = Mapper(frame.shape)
+        self.mapper = Mapper(frame.shape, cfg.occupancy)
         self.observed = self.mapper.observed()
+        self._planning = self.observed  # the map the latest step planned on (see the module docstring)
         self.frontiers: tuple[Frontier, ...] = ()
         self.goal: Optional[tuple[int, int]] = None
         self.path: list[tuple[int, int]] = []
@@ -148,6 +165,7 @@ class Explorer:
         self._goal_tolerance = self._reach_cells
         self._goal_step = -1
         self._visited: set[tuple[int, int]] = set()
+        self._pose_exact = True  # the latest observation carried no pose covariance
         self._prediction: Optional[LazyPrediction] = None
         self._latest: Optional[Prediction] = None
         self._latest_step = -1
@@ -179,8 +197,8 @@ class Explorer:
         pose = (int(pose_rc[0]), int(pose_rc[1]))
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
-        not_free = self.observed != FREE
-        return tuple(f for f in find_frontiers(self.observed, 1) if not near_visited_goal(f.cell_rc, self._visited)
+        not_free = self._planning != FREE
+        return tuple(f for f in find_frontiers(self._planning, 1) if not near_visited_goal(f.cell_rc, self._visited)
                      and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
 
     def drop_goal(self) -> None:
@@ -283,22 +301,33 @@ class Explorer:
         if getattr(self, "_closed", False):
             raise RuntimeError("this explorer was closed")
         pose = self._pose_cell(obs)
+        self._pose_exact = obs.pose_covariance is None
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
 
         clock = time.perf_counter()
-        self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
+        if obs.occupancy_grid is not None:
+            self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
+        else:
+            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
         timings["scan"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         if self.spad_processing is not None and obs.spad is not None:
-            carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known())
+            if obs.pose_covariance is None:
+                carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known())
+            else:
+                carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known(),
+                                                 pose_covariance=obs.pose_covariance)
             self.mapper.merge_carved(carved)
         observed = self.mapper.observed()
+        # The map the planning reads: carved-only cells are free in it only when they may be driven on.
+        drive_carved = self._pose_exact if self.cfg.motion.drive_carved is None else self.cfg.motion.drive_carved
+        planning = observed if drive_carved else self.mapper.observed(include_carved=False)
         timings["map_update"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        frontiers = find_frontiers(observed, self.cfg.frontier_min_cells)
+        frontiers = find_frontiers(planning, self.cfg.frontier_min_cells)
         timings["frontiers"] = time.perf_counter() - clock
 
         waited = 0.0
@@ -308,9 +337,10 @@ class Explorer:
         else:
             prediction = LazyPrediction(self._predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
+        self._planning = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
-            new_goal = self._plan(observed, frontiers, pose, prediction, t, timings)
+            new_goal = self._plan(planning, frontiers, pose, prediction, t, timings)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished = False, False
         timings["prediction"] += waited

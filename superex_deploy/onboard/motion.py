@@ -2,8 +2,10 @@
 
 Planning map (after MapEx's ``inflate_map`` with ``use_distance_transform_for_planning``):
 
-* A cell is traversable when it is known FREE (observed or carved) and farther than the robot radius from
-  every observed wall. The default radius, 0.15 m, blocks exactly the cells 8-adjacent to a wall, i.e. MapEx's
+* A cell is traversable when it is known FREE and farther than the robot radius from every observed wall. FREE
+  cells are those the map holds free with confidence (log-odds at or below the free threshold); cells known free
+  only by NLOS carving are FREE in the map the explorer plans on only as ``MotionConfig.drive_carved`` allows.
+  The default radius, 0.15 m, blocks exactly the cells 8-adjacent to a wall, i.e. MapEx's
   dilation of the walls by a 3 x 3 square (``dilate_diam_for_planning: 3``).
 * UNKNOWN cells are never traversable (MapEx's ``unknown_as_occ``), but only observed walls are inflated:
   frontier cells border the unknown by definition and must stay reachable.
@@ -31,6 +33,7 @@ border. On the largest eval map late in an episode (437 x 915 window, 200 k reac
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numba
 import numpy as np
@@ -60,6 +63,12 @@ class MotionConfig:
         step_cells: path cells advanced per step (3 cells = 0.3 m, MapEx's ``ind_to_move_per_step``).
         goal_reached_m: a goal counts as reached within this straight-line distance (MapEx: 1 m); frontiers
             this close to the robot are not offered to the planner either.
+        drive_carved: whether the explorer plans on cells known free only by NLOS carving. False: never, it plans
+            (frontiers, paths, goal checks) on the line-of-sight map, whose free cells the map holds free with
+            confidence; carved cells count for coverage and for the prediction only. True: always. None (the
+            default): only while the pose is exact, i.e. the observation carries no pose covariance (the
+            noise-free protocol, where carving is proven sound; the benchmark rows were made so); with a
+            covariance (a robot), never.
 
     Raises:
         ValueError: ``MotionConfig: FIELD must ...``, for a field of another type, not finite or out of its range:
@@ -73,8 +82,11 @@ class MotionConfig:
     wall_cost_range_m: float = 1.0
     step_cells: int = 3
     goal_reached_m: float = 1.0
+    drive_carved: Optional[bool] = None
 
     def __post_init__(self) -> None:
+        if self.drive_carved is not None and not isinstance(self.drive_carved, bool):
+            raise ValueError(f"MotionConfig: drive_carved must be True, False or None, got {self.drive_carved!r}")
         # Imported here: the planners package imports this module.
         from superex_deploy.onboard.planners.config_checks import check_int, check_real
 

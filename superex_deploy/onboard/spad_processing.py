@@ -1,6 +1,7 @@
 """NLOS processing of measured SPAD frames on the robot: space carving and (filtered) back-projection evidence.
 
-Reads only the :class:`~superex_deploy.messages.SpadFrame`, the pose and the explorer's own map; the sensor model
+Reads only the :class:`~superex_deploy.messages.SpadFrame`, the pose (and its covariance, which widens the carving
+margins: :mod:`superex_deploy.onboard.nlos.carving`, point 4) and the explorer's own map; the sensor model
 (:class:`~superex_deploy.spad_types.SpadConfig`: bin width, range, noise model, secondary-ray count for the carving cap) is
 the robot's calibration of its sensor, not the simulator's truth.
 """
@@ -12,7 +13,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.messages import MapFrame, Pose2D, SpadFrame, grid_angles
+from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame, grid_angles
 from superex_deploy.onboard.nlos import (NlosConfig, back_project, carve, carve_radius_cap_m, estimate_los,
                                           process_scan)
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
@@ -135,9 +136,10 @@ class SpadProcessing:
                 return "no_unknown"
         return None
 
-    def process_scan(self, scan: SpadScan, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def process_scan(self, scan: SpadScan, known: np.ndarray, pose_sigma=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """Carving and evidence of one scan (simulated or built by :func:`scan_from_frame`); ``known``: bool
-        ``[H, W]`` cells the explorer already knows."""
+        ``[H, W]`` cells the explorer already knows; ``pose_sigma``: ``(sigma_xy_m, sigma_yaw_rad)`` of the pose
+        the scan was placed by (zeros: exact)."""
         if self._evidence is None or self._evidence.shape != tuple(scan.grid_shape):
             self._evidence = np.zeros(scan.grid_shape, np.float32)
         self.counts["frames"] += 1
@@ -146,7 +148,7 @@ class SpadProcessing:
             self.counts[reason] += 1
             return np.zeros(scan.grid_shape, bool), self._evidence
         if self.bp_filter is None:
-            result = process_scan(scan, self.nlos_cfg, known=known)
+            result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
@@ -158,9 +160,13 @@ class SpadProcessing:
             self.counts["no_votes"] += 1
         else:
             np.maximum(self._evidence, self.bp_filter(bp, scan.pose_rc), out=self._evidence)
-        return carve(scan, los, self.nlos_cfg), self._evidence
+        return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
 
-    def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Process a measured frame taken at ``pose`` (see the class docstring)."""
-        return self.process_scan(scan_from_frame(frame, map_frame, pose, self.sensor), known)
+    def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray,
+                 pose_covariance: Optional[PoseCovariance] = None) -> tuple[np.ndarray, np.ndarray]:
+        """Process a measured frame taken at ``pose`` (see the class docstring); ``pose_covariance``: the pose's
+        uncertainty, which widens the carving margins (None: the pose is exact)."""
+        if pose_covariance is not None and not isinstance(pose_covariance, PoseCovariance):
+            raise ValueError(f"pose_covariance must be a PoseCovariance or None, got {type(pose_covariance).__name__}")
+        sigma = (0.0, 0.0) if pose_covariance is None else (pose_covariance.sigma_xy_m, pose_covariance.sigma_yaw_rad)
+        return self.process_scan(scan_from_frame(frame, map_frame, pose, self.sensor), known, sigma)

@@ -46,10 +46,12 @@ __all__ = ["NlosConfig", "LosEstimate", "GridPatch", "NlosResult", "estimate_los
            "laplacian_filter", "process_scan", "carve_radius_cap_m"]
 
 
-def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional[np.ndarray] = None) -> NlosResult:
+def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional[np.ndarray] = None,
+                 pose_sigma=(0.0, 0.0)) -> NlosResult:
     """LOS estimates, carved free space, back-projection and its Laplacian-filtered version (as patches; the
-    result's ``carved``, ``bp`` and ``bp_filtered`` give whole maps)."""
+    result's ``carved``, ``bp`` and ``bp_filtered`` give whole maps). ``pose_sigma``: ``(sigma_xy_m,
+    sigma_yaw_rad)`` of the scan's pose, which widens the carving margins (:func:`carve`)."""
     los = estimate_los(scan, cfg)
     bp = _back_projection_patch(scan, los, cfg, known)
-    return NlosResult(carved_patch=_carved_patch(scan, los, cfg), bp_patch=bp,
+    return NlosResult(carved_patch=_carved_patch(scan, los, cfg, pose_sigma), bp_patch=bp,
                       bp_filtered_patch=_filtered_patch(bp, 1.0), los=los)

@@ -19,7 +19,8 @@ def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interio
     """Minor principal axis of the points within ``radius`` of each point (itself included); ``reliable`` where
     there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, every
     point lies within ``max_residual`` of the fitted line, no two neighbours along it are more than ``max_gap``
-    apart, and the point lies at least ``interior`` cells inside the extent of its neighbours along the wall.
+    apart, and the point lies at least ``interior[u]`` cells inside the extent of its neighbours along the wall
+    (float64 ``[U]``: one distance per point).
 
     ``points`` must be sorted by row (``points[:, 0]`` ascending, as row-major cell indices give them): each point
     then looks for neighbours only in the band of rows within ``radius``. The points are cut into ``n_parts``
@@ -99,7 +100,7 @@ def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, inte
         for k in range(1, count):
             if along[k] - along[k - 1] > max_gap:
                 contiguous = False
-        reliable[u] = straight and contiguous and along[0] <= -interior and along[count - 1] >= interior
+        reliable[u] = straight and contiguous and along[0] <= -interior[u] and along[count - 1] >= interior[u]
 
 
 @numba.njit(cache=True)
@@ -145,7 +146,21 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
         return normals, reliable, apex
     points = wall_cells + 0.5
     _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                 cfg.normal_max_residual_cells, cfg.normal_max_gap_cells, cfg.normal_interior_cells, normals,
-                 reliable, kernel_parts(cfg.threads))
+                 cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
+                 np.full(n_walls, float(cfg.normal_interior_cells)), normals, reliable, kernel_parts(cfg.threads))
     _face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, reliable, apex)
     return normals, reliable, apex
+
+
+def reliable_with_interior(wall_cells: np.ndarray, cfg: NlosConfig, interior_cells: np.ndarray) -> np.ndarray:
+    """bool ``[U]``: which wall cells' normals :func:`_observed_normals` would trust with a per-cell interior
+    distance ``interior_cells`` (float64 ``[U]``) in place of ``cfg.normal_interior_cells`` (the carving's stricter
+    test under pose uncertainty)."""
+    n_walls = len(wall_cells)
+    reliable = np.zeros(n_walls, bool)
+    if n_walls:
+        _hit_normals(wall_cells + 0.5, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
+                     cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
+                     np.ascontiguousarray(interior_cells, np.float64), np.zeros((n_walls, 2)), reliable,
+                     kernel_parts(cfg.threads))
+    return reliable

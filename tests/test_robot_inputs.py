@@ -1,0 +1,188 @@
+"""A robot's inputs: a SLAM map in place of the scan (the explorer's own map given back as a SLAM map chooses the
+same goals), the pose covariance (with one, paths cross only cells the line of sight holds free), and a recording
+of both that replays with the same goals."""
+
+import json
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+
+from superex_deploy.maps import OccupancyGrid, load_map, start_poses
+from superex_deploy.messages import Observation, OccupancyGridMessage, Pose2D, PoseCovariance
+from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
+from superex_deploy.onboard.motion import MotionConfig
+from superex_deploy.onboard.planners import make_planner
+from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.pipeline import PROFILES, make_sensing
+from superex_deploy.recording import EpisodeRecorder, read_recording
+from superex_deploy.sim.world import World, WorldConfig
+from superex_deploy.spad_types import SpadConfig
+
+MAP = "50052750"
+
+
+def _as_slam_map(frame, observed):
+    """The explorer's map as a ``nav_msgs/OccupancyGrid``: 0 free, 100 wall, -1 unknown."""
+    percent = np.where(observed == OCCUPIED, 100, np.where(observed == FREE, 0, -1)).astype(np.int8)
+    return OccupancyGridMessage.from_frame_grid(frame, percent)
+
+
+def _drive(world, explorer, steps, observe=None, after=None):
+    """Run ``steps`` steps; ``observe(observation) -> observation`` may change what the explorer gets; returns the
+    commands' (goal, new_goal, finished, path)."""
+    out = []
+    for _ in range(steps):
+        observation = world.observe()
+        if observe is not None:
+            observation = observe(observation)
+        command = explorer.step(observation)
+        if after is not None:
+            after(observation, command, explorer)
+        out.append((command.goal_rc, command.new_goal, command.finished, command.path_rc.tolist()))
+        if command.finished:
+            break
+        world.apply(command)
+    return out
+
+
+@pytest.mark.parametrize("planner,spad", [("nearest", False), ("mapex", True)])
+def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner, spad):
+    grid = load_map(MAP)
+    start = start_poses(MAP)[1]
+    sensing = make_sensing("observed", spad, 0)
+    world = World(grid, start, WorldConfig(spad=None if sensing is None else sensing.spad))
+    own = Explorer(world.frame, make_planner(planner), ObservedAsPrediction(),
+                   spad_processing=None if sensing is None else sensing.processing(), seed=4)
+    recorded = []
+
+    def keep(observation, command, explorer):
+        # The line-of-sight map after this step's scan (carving is the SPAD processing's, redone below).
+        recorded.append((observation, _as_slam_map(explorer.frame, explorer.mapper.observed(include_carved=False))))
+
+    commands = _drive(world, own, 40 if spad else 80, after=keep)
+    assert sum(c[1] for c in commands) >= 2  # several goals were chosen
+
+    second_sensing = make_sensing("observed", spad, 0)
+    fed = Explorer(world.frame, make_planner(planner), ObservedAsPrediction(),
+                   spad_processing=None if second_sensing is None else second_sensing.processing(), seed=4)
+    replayed = []
+    for observation, slam in recorded:
+        command = fed.step(Observation(observation.stamp_s, observation.pose, None, spad=observation.spad,
+                                       occupancy_grid=slam))
+        replayed.append((command.goal_rc, command.new_goal, command.finished, command.path_rc.tolist()))
+    assert replayed == commands
+    np.testing.assert_array_equal(fed.observed, own.observed)
+    np.testing.assert_array_equal(fed.mapper.carved, own.mapper.carved)
+
+
+def test_a_slam_map_on_another_lattice_or_resolution_is_refused_and_may_cover_another_area():
+    grid = load_map(MAP)
+    world = World(grid, start_poses(MAP)[0])
+    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
+    observation = world.observe()
+    data = np.zeros(100, np.int8)
+    bad = OccupancyGridMessage(resolution_m=0.05, width=10, height=10, origin_xy=(0.0, 0.0), data=data)
+    with pytest.raises(ValueError, match="resolution"):
+        explorer.step(Observation(0.0, observation.pose, None, occupancy_grid=bad))
+    # A SLAM map covering only a 10 x 10 patch around the robot: the rest of the explorer's frame is unknown.
+    x, y = observation.pose.x, observation.pose.y
+    patch = OccupancyGridMessage(resolution_m=0.1, width=10, height=10, origin_xy=(round(x - 0.55, 1),
+                                                                                   round(y - 0.55, 1)), data=data)
+    command = explorer.step(Observation(0.0, observation.pose, None, occupancy_grid=patch))
+    assert np.count_nonzero(explorer.observed == FREE) == 100 and np.count_nonzero(explorer.observed != UNKNOWN) == 100
+    assert command.goal_rc is not None
+
+
+def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goals(tmp_path):
+    from superex_deploy.cli import main
+
+    grid = load_map(MAP)
+    sensing = make_sensing("observed", True, 0)
+    world = World(grid, start_poses(MAP)[2], WorldConfig(spad=sensing.spad))
+    cfg = ExplorerConfig()
+    own = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction(), spad_processing=sensing.processing(),
+                   cfg=cfg, seed=1)
+    rng = np.random.default_rng(5)
+    covariance = PoseCovariance.from_sigmas(0.02, np.deg2rad(0.5))
+    slam = {"map": None}
+
+    def noisy(observation):
+        # A belief a little off the truth (within the robot's cell), with its covariance; every other step the
+        # explorer reads the SLAM map (its own map of the step before) instead of the scan.
+        pose = observation.pose
+        belief = Pose2D(pose.x + rng.uniform(-0.02, 0.02), pose.y + rng.uniform(-0.02, 0.02),
+                        rng.normal(0.0, np.deg2rad(0.5)))
+        use_map = slam["map"] is not None and world.steps % 2 == 0
+        return Observation(observation.stamp_s, belief, None if use_map else observation.scan, spad=observation.spad,
+                           pose_covariance=covariance, occupancy_grid=slam["map"] if use_map else None)
+
+    record_path = tmp_path / "robot.mcap"
+    metadata = {"map": MAP, "planner": "nearest", "planner_options": {}, "predictor": "observed", "seed": 1,
+                "spad": True, "models": None, "sensor": asdict(sensing.spad), "nlos": asdict(sensing.nlos_cfg),
+                "explorer": asdict(cfg), "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+    with EpisodeRecorder(record_path, world.frame, metadata) as recorder:
+        def record(observation, command, explorer):
+            recorder.write(observation, command, explorer.observed)
+            slam["map"] = _as_slam_map(explorer.frame, explorer.mapper.observed(include_carved=False))
+
+        commands = _drive(world, own, 20, observe=noisy, after=record)
+    recording = read_recording(record_path)
+    assert recording.error is None and len(recording.steps) == len(commands)
+    with_map = [s.observation for s in recording.steps if s.observation.occupancy_grid is not None]
+    assert with_map and all(o.scan is None for o in with_map)
+    assert all(s.observation.pose_covariance is not None for s in recording.steps)
+    np.testing.assert_allclose(recording.steps[0].observation.pose_covariance.matrix, covariance.matrix)
+    assert main(["replay", str(record_path), "--out", str(tmp_path / "replay")]) == 0
+    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
+    assert replay["goals_match"] and replay["steps"] == len(commands)
+    assert replay["goals"]["cells"] == [list(c[0]) for c in commands if c[1]]
+
+
+class _CarveAcrossTheDoor(SpadProcessing):
+    """A stand-in for the SPAD processing: carves a block through the door into the hidden room at every frame."""
+
+    def __init__(self, shape, sensor):
+        super().__init__(sensor=sensor)
+        self.block = np.zeros(shape, bool)
+        self.block[8:22, 12:32] = True
+
+    def __call__(self, frame, map_frame, pose, known, pose_covariance=None):
+        self._evidence = np.zeros(map_frame.shape, np.float32)
+        return self.block & ~known, self._evidence
+
+
+def _two_rooms():
+    walls = np.zeros((30, 40), bool)
+    walls[[0, -1], :] = walls[:, [0, -1]] = True
+    walls[:, 20] = True
+    walls[12:18, 20] = False
+    return OccupancyGrid(walls, ~walls, 0.1, "two rooms")
+
+
+@pytest.mark.parametrize("drive_carved", [None, True])
+def test_with_a_pose_covariance_paths_cross_only_cells_the_line_of_sight_holds_free(drive_carved):
+    grid = _two_rooms()
+    sensor = SpadConfig(n_rays=100, range_m=3.0)
+    world = World(grid, (5, 5), WorldConfig(spad=sensor))
+    cfg = ExplorerConfig(motion=MotionConfig(drive_carved=drive_carved))
+    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction(),
+                        spad_processing=_CarveAcrossTheDoor(grid.shape, sensor), cfg=cfg)
+    covariance = PoseCovariance.from_sigmas(0.01, 0.001)
+    crossed_carved = 0
+    for _ in range(300):
+        observation = world.observe()
+        command = explorer.step(Observation(observation.stamp_s, observation.pose, observation.scan,
+                                            spad=observation.spad, pose_covariance=covariance))
+        path = command.path_rc[1:]
+        crossed_carved += int(np.count_nonzero(~explorer.mapper.seen_free[path[:, 0], path[:, 1]]))
+        if command.finished:
+            break
+        world.apply(command)
+    assert command.finished and world.coverage(explorer.mapper.known(include_carved=False)) > 0.95
+    assert world.collisions == 0
+    if drive_carved is None:  # the default with a covariance: never through carved-only cells
+        assert crossed_carved == 0
+    else:  # allowed: the planner takes the carved shortcut
+        assert crossed_carved > 0
