@@ -277,17 +277,18 @@ def test_a_recording_with_a_huge_map_frame_is_refused(tmp_path):
 @pytest.mark.parametrize("key, value", [("planner_options", [1, 2]), ("planner_options", "x"), ("seed", "3"),
                                         ("seed", True), ("planner", 3), ("explorer", []), ("frame", None)])
 def test_recording_metadata_of_the_wrong_type_is_refused(tmp_path, monkeypatch, key, value, capsys):
-    import superex_deploy.recording as recording
+    import superex_deploy.recording.writer as writer
     from superex_deploy.cli import main
+    from superex_deploy.recording import read_recording
 
     path = tmp_path / "bad.mcap"
     with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
         _record(path, {key: value})  # the writer refuses it
-    monkeypatch.setattr(recording, "check_metadata", lambda metadata, where: metadata)
+    monkeypatch.setattr(writer, "check_metadata", lambda metadata, where: metadata)
     _record(path, {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}, key: value})
     monkeypatch.undo()
     with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
-        recording.read_recording(path)
+        read_recording(path)
     assert main(["replay", str(path), "--out", str(tmp_path / "out")]) == 2
     assert f"metadata value '{key}' must be" in capsys.readouterr().err
 

@@ -1,0 +1,197 @@
+"""Reading a recording back: :func:`read_recording` returns a :class:`Recording` of :class:`RecordedStep`\ s, the
+observations exactly as the explorer saw them; a damaged file keeps its whole steps and says where it broke."""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance,
+                                     SpadFrame)
+from superex_deploy.recording.schemas import _REPLAYED_TOPICS, FORMAT_VERSION, METADATA_NAME, _seconds, check_metadata
+
+__all__ = ["RecordedStep", "Recording", "read_recording"]
+
+
+@dataclass
+class RecordedStep:
+    """One step of a recording.
+
+    Attributes:
+        step: the explorer's step counter.
+        observation: what the explorer received.
+        goal_rc: the recorded command's goal cell, or None.
+        new_goal, finished: the recorded command's flags.
+    """
+
+    step: int
+    observation: Observation
+    goal_rc: Optional[tuple[int, int]]
+    new_goal: bool
+    finished: bool
+
+
+@dataclass
+class Recording:
+    """What :func:`read_recording` read.
+
+    Attributes:
+        metadata: the ``superex.episode`` record, JSON values decoded.
+        frame: the explorer's map frame.
+        steps: the complete steps, in order.
+        error: None, or what stopped the reading (the broken message and why).
+    """
+
+    metadata: dict
+    frame: MapFrame
+    steps: list = field(default_factory=list)
+    error: Optional[str] = None
+
+
+def _spad_frame(message) -> SpadFrame:
+    return SpadFrame(angles=np.frombuffer(bytes(message.angles_f64le), "<f8"), bin_width_s=message.bin_width_s,
+                     n_bins=int(message.n_bins), row_start=np.frombuffer(bytes(message.row_start_i64le), "<i8"),
+                     bins=np.frombuffer(bytes(message.bins_i32le), "<i4"),
+                     counts=np.frombuffer(bytes(message.counts_f32le), "<f4"))
+
+
+def _slam_map(message, frame: MapFrame) -> OccupancyGridMessage:
+    """The recorded SLAM map; its float32 resolution is read as the frame's when they agree at float32 (ROS stores
+    ``info.resolution`` as float32, the explorer's frame as float64)."""
+    info = message.info
+    resolution = float(info.resolution)
+    if np.float32(resolution) == np.float32(frame.resolution_m):
+        resolution = frame.resolution_m
+    return OccupancyGridMessage(resolution_m=resolution, width=int(info.width), height=int(info.height),
+                                origin_xy=(info.origin.position.x, info.origin.position.y),
+                                data=np.asarray(message.data, np.int8))
+
+
+def _observation(parts: dict, frame: MapFrame) -> Observation:
+    pose_message, scan_message = parts["/pose"], parts.get("/scan")
+    yaw = float(parts["/command"].robot_yaw)
+    pose = Pose2D(pose_message.pose.position.x, pose_message.pose.position.y, yaw)
+    scan = None
+    if scan_message is not None:
+        scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
+                         range_min=scan_message.range_min, range_max=scan_message.range_max,
+                         ranges=np.asarray(scan_message.ranges, np.float32), angle_max=scan_message.angle_max)
+    spad = _spad_frame(parts["/spad"]) if "/spad" in parts else None
+    grid = _slam_map(parts["/slam_map"], frame) if "/slam_map" in parts else None
+    covariance = None
+    if "/pose_covariance" in parts:
+        full = np.asarray(parts["/pose_covariance"].pose.covariance, np.float64)
+        covariance = PoseCovariance.from_ros(full)
+    return Observation(stamp_s=_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad,
+                       pose_covariance=covariance, occupancy_grid=grid)
+
+
+def _metadata(data: bytes, path: Path) -> dict:
+    from mcap.reader import NonSeekingReader
+
+    reader = NonSeekingReader(io.BytesIO(data))
+    try:
+        for record in reader.iter_metadata():
+            if record.name == METADATA_NAME:
+                try:
+                    metadata = {key: json.loads(value) for key, value in record.metadata.items()}
+                except json.JSONDecodeError as error:
+                    raise ValueError(f"{path}: the {METADATA_NAME!r} metadata is not JSON ({error})") from None
+                return check_metadata(metadata, str(path))
+    except ValueError:
+        raise
+    except Exception:  # the metadata comes first: a file broken before it holds nothing usable
+        pass
+    raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
+
+
+def _message_count(data: bytes) -> Optional[int]:
+    """The number of messages the file's summary section states, or None (no summary: a cut file)."""
+    from mcap.reader import make_reader
+
+    try:
+        summary = make_reader(io.BytesIO(data)).get_summary()
+        return None if summary is None or summary.statistics is None else int(summary.statistics.message_count)
+    except Exception:  # noqa: BLE001 - a broken summary only costs the progress bar its total
+        return None
+
+
+def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
+    """Read a recording written by :class:`EpisodeRecorder`.
+
+    Reading stops at the first message that cannot be decoded or is inconsistent (a truncated file, a corrupt
+    record); :attr:`Recording.error` then names it (a file that ends inside a record is said to be truncated, at
+    its size in bytes), and :attr:`Recording.steps` holds every complete step before it.
+
+    Args:
+        path: the ``.mcap`` file.
+        progress: show a progress bar (tqdm, on stderr) over the messages read, from the first one.
+
+    Raises:
+        ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, metadata values of
+            the wrong type (:data:`METADATA_TYPES`), another format version, a map frame beyond the size limits
+            (:func:`superex_deploy.messages.check_map_size`).
+    """
+    from mcap.exceptions import EndOfFile
+    from mcap.reader import NonSeekingReader
+    from mcap_ros2.decoder import DecoderFactory
+    from tqdm import tqdm
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"recording {path} does not exist or is not a file")
+    data = path.read_bytes()
+    metadata = _metadata(data, path)
+    if metadata.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path} has recording format {metadata.get('format_version')!r}, this package reads "
+                         f"{FORMAT_VERSION!r}")
+    try:
+        frame_fields = metadata["frame"]
+        frame = MapFrame(tuple(frame_fields["shape"]), frame_fields["resolution_m"], tuple(frame_fields["origin_xy"]))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: the map frame in the metadata is unusable ({error})") from None
+    recording = Recording(metadata=metadata, frame=frame)
+    stream = io.BytesIO(data)
+    reader = NonSeekingReader(stream, validate_crcs=True, decoder_factories=[DecoderFactory()])
+    parts: dict = {}
+    current = -1
+    done = 0  # messages fully read
+    topic, sequence = "?", -1
+    # In file order: sorting by time would read the whole file before yielding, and a cut one not at all.
+    with tqdm(reader.iter_decoded_messages(log_time_order=False), desc=f"reading {path.name}", unit="msg",
+              total=_message_count(data) if progress else None, disable=not progress) as messages:
+        try:
+            for _, channel, message, decoded in messages:
+                topic, sequence = channel.topic, message.sequence
+                if topic in _REPLAYED_TOPICS:
+                    if sequence != current:
+                        parts, current = {}, sequence
+                    parts[topic] = decoded
+                    if topic == "/command":
+                        if "/pose" not in parts or ("/scan" not in parts and "/slam_map" not in parts):
+                            raise ValueError("a command without the pose and scan (or SLAM map) of its step")
+                        goal = (int(decoded.goal_row), int(decoded.goal_col)) if decoded.has_goal else None
+                        recording.steps.append(RecordedStep(step=int(decoded.step),
+                                                            observation=_observation(parts, frame),
+                                                            goal_rc=goal, new_goal=bool(decoded.new_goal),
+                                                            finished=bool(decoded.finished)))
+                done += 1
+                topic, sequence = "?", -1
+        except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
+            steps = recording.steps
+            if topic != "?":
+                where = f"topic {topic}, step {sequence}"
+            else:
+                where = f"after step {steps[-1].step}" if steps else "before the first step"
+            if isinstance(error, EndOfFile) or stream.tell() >= len(data):
+                why = f"the file is truncated: it ends at byte {len(data):,}, inside a record"
+            else:
+                why = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+            recording.error = f"message {done + 1} ({where}) is broken: {why}; kept the {len(steps)} complete " \
+                              f"steps before it"
+    return recording
