@@ -106,10 +106,15 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
                 continue
             seed = zlib.crc32(f"{name}:{start[0]}:{start[1]}".encode())
             path = _floor_file(work, name, start, cfg)
+            nothing = path.with_suffix(".none")  # a start where no dead end qualified, kept so that reruns skip it
+            if nothing.is_file():
+                continue
             if not path.is_file():
                 clock = time.perf_counter()
                 record = alter_floor_with_record(grid, start, seed, cfg)
                 if not record.alterations:
+                    nothing.parent.mkdir(parents=True, exist_ok=True)
+                    nothing.touch()
                     continue
                 _save_floor(path, record)
                 print(f"{name} {start}: {len(record.alterations)} dead ends "
@@ -260,7 +265,7 @@ def main() -> None:
     from superex_deploy.parallel import run_tasks
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--maps", type=int, default=12, help="train floors")
+    parser.add_argument("--maps", type=int, default=18, help="train floors")
     parser.add_argument("--starts", type=int, default=1, help="start cells per floor")
     parser.add_argument("--min-area", type=int, default=40000, help="smallest floor (valid cells)")
     parser.add_argument("--min-reach", type=float, default=0.5,

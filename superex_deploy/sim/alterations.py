@@ -16,9 +16,10 @@ from where a planner drives:
    kind: a *door* up to ``door_max_half_width_m`` (closed: a thin wall), a *corridor* up to
    ``corridor_max_half_width_m`` (debris: a thick wall and a pile at the centre), a *room* up to
    ``room_max_half_width_m`` (split: a partition wall). A segment that crosses another wall is skipped.
-3. **Order.** The seed's generator shuffles the candidates; one at most is tried in every disc of
-   ``candidate_spacing_m``; candidates closer than ``protect_radius_m`` (any cut cell, straight line) to the start,
-   or farther from it than ``max_start_distance_m`` (geodesic), are never tried.
+3. **Order.** The seed's generator shuffles the candidates; those within ``prefer_within_m`` of the start
+   (geodesic, at the segment's middle) are tried first, then those up to ``max_start_distance_m``, farther ones
+   never; one at most is tried in every disc of ``candidate_spacing_m``; no cut cell may lie within
+   ``protect_radius_m`` of the start (straight line).
 4. **Acceptance.** A cut is kept when all of these hold on the floor altered so far plus the cut:
 
    * it seals the passage locally: the free cells on its two faces fall into different 4-connected pieces within
@@ -78,6 +79,8 @@ class AlterationConfig:
         max_pocket_fraction: the largest dead end, as a share of the robot cells the start reaches.
         min_continuation_m2: the robot cells the branch led to beyond the dead end before the cut (when not back
             to the start).
+        prefer_within_m: candidates this close to the start (geodesic) are tried first, so that the robot meets the
+            dead ends early in an episode.
         max_start_distance_m: candidates farther than this from the start (geodesic) are not tried.
         candidate_spacing_m: one candidate at most per disc of this radius; the distance kept from earlier dead ends.
         seal_window_m: the margin around a cut within which it must seal the passage.
@@ -101,6 +104,7 @@ class AlterationConfig:
     min_kept_fraction: float = 0.6
     max_pocket_fraction: float = 0.2
     min_continuation_m2: float = 20.0
+    prefer_within_m: float = 20.0
     max_start_distance_m: float = 40.0
     candidate_spacing_m: float = 2.0
     seal_window_m: float = 1.5
@@ -337,10 +341,13 @@ def alter_floor_with_record(grid: OccupancyGrid, start_rc, seed: int,
     reach0 = robot_cells(occupied, valid, start, radius_cells)
     reach = reach0
     rng = np.random.default_rng(int(seed))
-    candidates = _passages(occupied, reach0, resolution, cfg)
+    candidates = _passages(occupied, reach0, resolution, cfg) if cfg.alterations else np.zeros((0, 5))
     candidates = candidates[rng.permutation(len(candidates))]
-    unit_costs = np.where(reach0, 1.0, np.inf)
-    from_start = dijkstra(unit_costs, start)[0] * resolution
+    from_start = dijkstra(np.where(reach0, 1.0, np.inf), start)[0] * resolution
+    middle = np.clip(np.rint((candidates[:, :2] + candidates[:, 2:4]) / 2).astype(int), 0, np.array(grid.shape) - 1)
+    distance = from_start[middle[:, 0], middle[:, 1]]
+    near = distance <= cfg.prefer_within_m
+    candidates = np.concatenate([candidates[near], candidates[~near & (distance <= cfg.max_start_distance_m)]])
     rr, cc = np.mgrid[:grid.shape[0], :grid.shape[1]]
     protected = np.hypot(rr - start[0], cc - start[1]) * resolution <= cfg.protect_radius_m
     tried = np.zeros(grid.shape, bool)
@@ -353,7 +360,7 @@ def alter_floor_with_record(grid: OccupancyGrid, start_rc, seed: int,
             break
         centre = tuple(np.clip(np.rint((candidate[:2] + candidate[2:4]) / 2).astype(int), 0,
                                np.array(grid.shape) - 1))
-        if tried[centre] or from_start[centre] > cfg.max_start_distance_m:
+        if tried[centre]:
             continue
         n_tried += 1
         tried |= np.hypot(rr - centre[0], cc - centre[1]) <= spacing
