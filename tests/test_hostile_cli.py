@@ -550,3 +550,42 @@ def test_a_benchmark_stopped_by_a_signal_leaks_nothing_and_keeps_its_journal(tmp
     held = len(read_journal(out / "episodes.jsonl"))
     assert 1 <= held < 8 and f"{held} of 8 episodes are in" in line and "rerun with --resume" in line
     assert not (out / "results.json").exists()
+
+
+def test_a_recording_stopped_before_its_first_step_leaves_no_file(tmp_path):
+    """Second hostile pass: a signal before the first whole step must not leave a 'replayable' file that replay
+    then refuses; the recording is removed and the one line says so."""
+    from superex_deploy.commands.explore import _StepsDone, _keep_interrupted
+    from superex_deploy.maps import load_map
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.recording import EpisodeRecorder
+
+    grid = load_map("50052750")
+    path = tmp_path / "early.mcap"
+    record = EpisodeRecorder(path, MapFrame(grid.shape, grid.resolution_m),
+                             {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}})
+    args = argparse.Namespace(record=path, out=tmp_path, planner="nearest", predictor="observed", seed=0,
+                              profile="full")
+    kept = _keep_interrupted(args, grid, (0, 0), _StepsDone(), record, "SIGINT")
+    assert "no whole step was recorded" in kept
+    assert not path.exists() and not path.with_name(path.name + ".part").exists()
+    assert json.loads((tmp_path / "metrics.json").read_text())["interrupted"] == "SIGINT"
+
+
+@pytest.mark.parametrize("seed", [-1, True, 2.5])
+def test_replay_names_a_bad_recorded_seed(seed):
+    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.messages import MapFrame
+
+    metadata = {"planner": "nearest", "predictor": "observed", "seed": seed, "explorer": {}}
+    with pytest.raises(ValueError, match="the recording's seed must be an integer >= 0"):
+        build_explorer(metadata, MapFrame((10, 10), 0.1), None)
+
+
+def test_replay_names_a_missing_configuration_field():
+    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.messages import MapFrame
+
+    metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
+    with pytest.raises(ValueError, match="cannot be rebuilt: it lacks the field 'motion'"):
+        build_explorer(metadata, MapFrame((10, 10), 0.1), None)

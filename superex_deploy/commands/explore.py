@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                          "record with another predictor")
     from superex_deploy.commands.warmup import numba_cache_is_warm
 
-    if not numba_cache_is_warm():
+    if args.spad and not numba_cache_is_warm():  # the SPAD kernels are the slow ones to compile
         print("superex explore: first run here: compiling the numba kernels (about half a minute, once; numba caches "
               "them; `superex warmup` does it ahead)", file=sys.stderr, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -114,7 +114,10 @@ def run(args: argparse.Namespace) -> int:
         if record is not None:
             record.abort()
         raise
-    return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
+    from superex_deploy.parallel import signals_deferred
+
+    with signals_deferred():  # a signal now waits until every output is whole, then ends the run as usual
+        return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
 
 
 def _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record):
@@ -155,7 +158,10 @@ def _keep_interrupted(args, grid, start, done: _StepsDone, record, signal_name: 
     from superex_deploy.files import write_atomically
 
     kept = []
-    if record is not None:
+    if record is not None and record.steps_written == 0:  # nothing to replay: a file would only be refused
+        record.abort()
+        kept.append(f"no whole step was recorded, so {args.record} was not written")
+    elif record is not None:
         record.close()
         kept.append(f"{args.record} holds the {record.steps_written} whole steps recorded (replayable)")
     steps = len(done.coverage)

@@ -58,8 +58,13 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
                          f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
                          "a replay would not rebuild its explorer")
-    planner = make_planner(planner_name, **options)
-    predictor = make_predictor(predictor_name, None, models, profile)
+    if isinstance(metadata["seed"], bool) or seed != metadata["seed"] or seed < 0:
+        raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
+    try:
+        planner = make_planner(planner_name, **options)
+        predictor = make_predictor(predictor_name, None, models, profile)
+    except ValueError as error:
+        raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     try:
         explorer_fields = dict(metadata["explorer"])
         schedule = PredictionSchedule(**explorer_fields.pop("prediction", {}))
@@ -73,8 +78,11 @@ def build_explorer(metadata: dict, frame, models=None):
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
             spad_processing = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
-    except (KeyError, TypeError) as error:
-        raise ValueError(f"the recording's configuration cannot be rebuilt ({type(error).__name__}: {error})") from None
+    except KeyError as error:
+        raise ValueError(f"the recording's configuration cannot be rebuilt: it lacks the field {error}") from None
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"the recording's configuration cannot be rebuilt: a field has the wrong type or value "
+                         f"({error})") from None
     return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg, seed=seed)
 
 
