@@ -9,7 +9,10 @@ than that, paired mean >= -0.3 points). The variants (:data:`VARIANTS`):
 * ``*_expected``: ``gain="expected"``: the expected number of unknown cells seen (transmittance through the
   predicted wall probabilities; :mod:`superex_deploy.onboard.expected_visibility`); MapEx's expected variance;
 * ``*_expected_support``: the same with ``wall_support=WallSupport(min_scale=--min-scale)``: a predicted wall that
-  neither NLOS evidence nor an observed wall within 1 m supports is scaled down.
+  neither NLOS evidence nor an observed wall within 1 m supports is scaled down;
+* ``*_expected_correlated``: the expected gain with ``transmittance="correlated"`` (a ray passes with probability
+  ``1 - max p`` over the cells it crossed: cells that are walls together rather than independently), added after
+  the first run showed the independent product cutting the rays short on the learned maps.
 
 A support variant on the observed map is the expected variant's run (the observed prediction holds no wall on an
 unknown cell, so there is nothing to scale): it is not run twice. Only train floors are used, never ``eval/``: the
@@ -44,9 +47,11 @@ VARIANTS = {
     "superex": ("superex", {}),
     "superex_expected": ("superex", {"gain": "expected"}),
     "superex_expected_support": ("superex", {"gain": "expected", "wall_support": "MIN_SCALE"}),
+    "superex_expected_correlated": ("superex", {"gain": "expected", "transmittance": "correlated"}),
     "mapex": ("mapex", {}),
     "mapex_expected": ("mapex", {"gain": "expected"}),
     "mapex_expected_support": ("mapex", {"gain": "expected", "wall_support": "MIN_SCALE"}),
+    "mapex_expected_correlated": ("mapex", {"gain": "expected", "transmittance": "correlated"}),
 }
 """Name -> (planner, config overrides); ``"MIN_SCALE"`` stands for ``--min-scale``."""
 PREDICTORS = ("observed", "lama_los", "lama_bp", "oracle")
@@ -193,6 +198,22 @@ def summarise(episodes: list[dict], variants: list[str], predictors: list[str]) 
     return rows
 
 
+def calibration_rows(episodes: list[dict]) -> list[dict]:
+    """The shipped planners' learned runs' :func:`support_calibration` sums, per predictor and support group: cells,
+    mean predicted wall probability and the share of true walls."""
+    rows = []
+    for predictor in ("lama_los", "lama_bp"):
+        for group in ("none", "partial", "full"):
+            sums = [e["support_calibration"][group] for e in episodes if e["predictor"] == predictor
+                    and e.get("support_calibration") and group in e["support_calibration"]]
+            cells = sum(s["cells"] for s in sums)
+            if cells:
+                rows.append({"predictor": predictor, "support": group, "cells": cells,
+                             "mean_predicted": sum(s["predicted"] for s in sums) / cells,
+                             "true_wall_rate": sum(s["true"] for s in sums) / cells})
+    return rows
+
+
 def _paired(p: dict) -> str:
     if not p["n"]:
         return "-"
@@ -217,6 +238,16 @@ def table(rows: list[dict], setting: dict) -> str:
                      f"{100 * r['los_auc_first_half']:.1f} | {_paired(r['vs_observed'])} | {ok} | "
                      f"{_paired(r['vs_shipped_same_predictor'])} | {r['scoring_ms_per_goal']:.1f} | "
                      f"{r['goals']:.1f} |")
+    calibration = setting.get("support_calibration") or []
+    if calibration:
+        lines += ["", "Does the support tell true predicted walls from false ones? Unknown cells predicted walls "
+                  "(mean >= 0.5) at the goal choices of the shipped planners' learned runs (one every "
+                  f"{DIAGNOSTIC_EVERY} steps or more), by their WallSupport (min_scale {setting['min_scale']}): "
+                  "`none` is scaled by min_scale, `full` kept. A group whose true-wall share is below its mean "
+                  "predicted probability is over-predicted (shrinking it is right); above, under-predicted.", "",
+                  "| predictor | support | cells | mean predicted p | true-wall share |", "|---|---|---:|---:|---:|"]
+        lines += [f"| {c['predictor']} | {c['support']} | {c['cells']} | {c['mean_predicted']:.3f} | "
+                  f"{c['true_wall_rate']:.3f} |" for c in calibration]
     return "\n".join(lines) + "\n"
 
 
@@ -252,7 +283,8 @@ def main() -> None:
     setting = {"scenarios": [[n, list(s)] for n, s in places], "scenarios_run": len(places), "steps": args.steps,
                "min_scale": args.min_scale, "variants": {v: VARIANTS[v] for v in variants},
                "predictors": predictors, "profile": "full, one ONNX Runtime thread, no spinning",
-               "episode_seconds": float(sum(e["seconds"] for e in episodes))}
+               "episode_seconds": float(sum(e["seconds"] for e in episodes)),
+               "support_calibration": calibration_rows(episodes)}
     (args.out / "expected_gain.json").write_text(json.dumps({"setting": setting, "rows": rows,
                                                              "episodes": episodes}, indent=1))
     text = table(rows, setting)

@@ -517,11 +517,13 @@ def naive_open_tour_first(between, from_robot):
 # --- expected visibility ---
 
 
-def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance=0.0, variance=None):
+def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance=0.0, variance=None,
+                        correlated=False):
     """Expected unknown cells seen from each group of viewpoint cells (expected_visibility.expected_visible_gains),
     from a sorted list of every grid-line crossing per ray (no DDA stepping): along each ray the transmittance
     before a cell is the product of (1 - p) over the cells crossed (p = mean on unknown cells, 0 on known free,
-    1 on known walls); a group's cell counts once with the largest transmittance of any ray of any viewpoint."""
+    1 on known walls), or with ``correlated`` 1 - max(p); a group's cell counts once with the largest
+    transmittance of any ray of any viewpoint."""
     n_rows, n_cols = mean.shape
     variance = np.zeros(mean.shape) if variance is None else variance
     out, out_variance = [], []
@@ -534,13 +536,15 @@ def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance
                 best[(r0, c0)] = 1.0
             for k in range(n_rays):
                 angle = 2.0 * np.pi * k / n_rays
+                crossed = []
                 transmittance = 1.0
                 for t, r, c in _naive_cells_along_ray(n_rows, n_cols, r0 + 0.5, c0 + 0.5, angle):
                     if t >= max_t or not (0 <= r < n_rows and 0 <= c < n_cols) or observed[r, c] == 1:
                         break
                     if observed[r, c] == -1:
                         best[(r, c)] = max(best.get((r, c), 0.0), transmittance)
-                        transmittance *= 1.0 - float(mean[r, c])
+                        crossed.append(float(mean[r, c]))
+                        transmittance = 1.0 - max(crossed) if correlated else float(np.prod(1.0 - np.array(crossed)))
                     if transmittance <= min_transmittance:
                         break
         out.append(sum(best.values()))

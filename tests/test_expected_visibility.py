@@ -53,6 +53,11 @@ def test_single_ray_corridor_is_exact_against_brute_force():
     by_hand = 1 + 0.7 + 0.7 * 0.4 + 0.7 * 0.4 * 0.8 + 0.7 * 0.4 * 0.8 * 0.1
     assert exact == pytest.approx(by_hand, abs=1e-6)  # float32 probabilities
     assert _gain(mean, observed, (2, 0)) == pytest.approx(exact, abs=1e-6)
+    # Correlated cells (walls together): a ray passes a cell with probability 1 - max p over those before it.
+    correlated = ExpectedVisibility(n_rays=N_RAYS, range_m=RANGE_CELLS, min_transmittance=0.0,
+                                    transmittance="correlated")
+    assert expected_visible_gains(mean, observed, [[(2, 0)]], correlated, 1.0)[0][0] == pytest.approx(
+        1 + 0.7 + 0.4 + 0.4 + 0.1, abs=1e-6)
 
 
 def test_one_uncertain_cell_per_ray_is_exact_against_brute_force():
@@ -98,12 +103,15 @@ def test_kernel_matches_its_slow_twin_on_random_maps(seed):
     cells = [tuple(int(v) for v in rng.integers(0, shape)) for _ in range(5)]
     groups = [cells[:2], [cells[2]], [], cells[1:] + [cells[1]]]
     n_rays, max_t, cut = int(rng.integers(5, 40)) * 2 + 1, float(rng.uniform(3, 15)), [0.0, 1e-3, 0.2, 0.5][seed]
-    cfg = ExpectedVisibility(n_rays=n_rays, range_m=max_t * 0.1, min_transmittance=cut)
-    expected, expected_variance = expected_visible_gains(mean, observed, groups, cfg, 0.1, variance)
-    ref, ref_variance = naive_expected_gain(mean, observed, groups, n_rays, max_t, cut, variance)
-    np.testing.assert_allclose(expected, ref, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(expected_variance, ref_variance, rtol=1e-6, atol=1e-6)
-    assert expected[2] == 0.0
+    for transmittance in ("independent", "correlated"):
+        cfg = ExpectedVisibility(n_rays=n_rays, range_m=max_t * 0.1, min_transmittance=cut,
+                                 transmittance=transmittance)
+        expected, expected_variance = expected_visible_gains(mean, observed, groups, cfg, 0.1, variance)
+        ref, ref_variance = naive_expected_gain(mean, observed, groups, n_rays, max_t, cut, variance,
+                                                transmittance == "correlated")
+        np.testing.assert_allclose(expected, ref, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(expected_variance, ref_variance, rtol=1e-6, atol=1e-6)
+        assert expected[2] == 0.0
 
 
 def test_viewpoint_rules_and_bad_inputs():
@@ -125,7 +133,7 @@ def test_viewpoint_rules_and_bad_inputs():
         expected_visible_gains(mean, observed[:4], [[(2, 2)]], cfg, 0.1)
     with pytest.raises(ValueError, match="resolution_m"):
         expected_visible_gains(mean, observed, [[(2, 2)]], cfg, 0.0)
-    for bad in ({"n_rays": 2}, {"range_m": float("inf")}, {"min_transmittance": 1.0}):
+    for bad in ({"n_rays": 2}, {"range_m": float("inf")}, {"min_transmittance": 1.0}, {"transmittance": "max"}):
         with pytest.raises(ValueError):
             ExpectedVisibility(**bad)
     for bad in ({"min_scale": 1.5}, {"evidence_full": 0.0}, {"radius_m": -1.0}):

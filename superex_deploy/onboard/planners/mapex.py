@@ -7,9 +7,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.expected_visibility import (ExpectedVisibility, WallSupport, check_wall_support,
-                                                        context_evidence, expected_visible_gains,
-                                                        supported_prediction)
+from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+                                                        check_wall_support, context_evidence,
+                                                        expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_real
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
 from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers, visible_gains
@@ -37,6 +37,9 @@ class MapexConfig:
             :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
             first.
+        transmittance: how ``gain="expected"`` combines the wall probabilities along a ray: ``"independent"``
+            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
+            :mod:`~superex_deploy.onboard.expected_visibility`).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
@@ -48,12 +51,14 @@ class MapexConfig:
     min_distance_cells: float = 1.0
     gain: str = "visible"
     wall_support: Optional[WallSupport] = None
+    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
         check_instance("visibility", self.visibility, VisibilityConfig)
         check_choice("distance", self.distance, ("travel", "euclidean"))
         check_choice("gain", self.gain, ("visible", "expected"))
         object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
+        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         object.__setattr__(self, "min_distance_cells",
                            check_real("min_distance_cells", self.min_distance_cells, 0.0, low_open=True))
 
@@ -85,7 +90,8 @@ class MapexPlanner(Planner):
         """float64 ``[N]``: visible-unknown variance of each viewpoint, or the visible unknown count when the
         prediction has no variance anywhere (both expected ones with ``cfg.gain="expected"``)."""
         if self.cfg.gain == "expected":
-            rays = ExpectedVisibility(n_rays=self.cfg.visibility.n_rays, range_m=self.cfg.visibility.range_m)
+            rays = ExpectedVisibility(n_rays=self.cfg.visibility.n_rays, range_m=self.cfg.visibility.range_m,
+                                      transmittance=self.cfg.transmittance)
             cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
             counts, var_sums = expected_visible_gains(prediction.mean, observed, [[cell] for cell in cells], rays,
                                                       resolution_m, prediction.variance)

@@ -37,9 +37,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.expected_visibility import (ExpectedVisibility, WallSupport, check_wall_support,
-                                                        context_evidence, expected_visible_gains,
-                                                        supported_prediction)
+from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+                                                        check_wall_support, context_evidence,
+                                                        expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
@@ -84,6 +84,9 @@ class SuperexConfig:
             :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
             first, for every gain and rollout.
+        transmittance: how the expected gains combine the wall probabilities along a ray: ``"independent"``
+            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
+            :mod:`~superex_deploy.onboard.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
     ``[3, MAX_RAYS]``, ``rollout_cell_m`` at most :data:`MAX_ROLLOUT_CELL_M`.
@@ -107,10 +110,12 @@ class SuperexConfig:
     rollout_frontier_cells: int = 3
     tour_frontiers: int = 18
     wall_support: Optional[WallSupport] = None
+    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
         check_choice("gain", self.gain, ("path", "goal", "expected", "expected_goal"))
         object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
+        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         check_choice("choice", self.choice, ("greedy", "rollout", "tour"))
         values = {"wall_threshold": check_real("wall_threshold", self.wall_threshold, 0.0, 1.0, low_open=True),
                   "drop_resolved_m": check_real("drop_resolved_m", self.drop_resolved_m, 0.0, allow_none=True),
@@ -353,7 +358,8 @@ class SuperexPlanner(Planner):
                 path = descend(ctx.travel_cost, frontier.cell_rc)
                 viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
         if self.cfg.gain in ("expected", "expected_goal"):
-            rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m)
+            rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
+                                      transmittance=self.cfg.transmittance)
             return expected_visible_gains(prediction.mean, ctx.observed, viewpoints, rays, ctx.resolution_m)[0]
         visibility = VisibilityConfig(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
                                       hit_threshold=self.cfg.wall_threshold)
