@@ -532,3 +532,77 @@ def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit,
         delta = hit if hit_mask[r, c] else miss
         out[r, c] = np.float32(min(max(float(out[r, c]) + delta, lowest), highest))
     return out
+
+
+# --- expected visibility ---
+
+
+def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance=0.0, variance=None,
+                        correlated=False):
+    """Expected unknown cells seen from each group of viewpoint cells (expected_visibility.expected_visible_gains),
+    from a sorted list of every grid-line crossing per ray (no DDA stepping): along each ray the transmittance
+    before a cell is the product of (1 - p) over the cells crossed (p = mean on unknown cells, 0 on known free,
+    1 on known walls), or with ``correlated`` 1 - max(p); a group's cell counts once with the largest
+    transmittance of any ray of any viewpoint."""
+    n_rows, n_cols = mean.shape
+    variance = np.zeros(mean.shape) if variance is None else variance
+    out, out_variance = [], []
+    for group in groups:
+        best = {}
+        for r0, c0 in group:
+            if observed[r0, c0] == 1:
+                continue
+            if observed[r0, c0] == -1:
+                best[(r0, c0)] = 1.0
+            for k in range(n_rays):
+                angle = 2.0 * np.pi * k / n_rays
+                crossed = []
+                transmittance = 1.0
+                for t, r, c in _naive_cells_along_ray(n_rows, n_cols, r0 + 0.5, c0 + 0.5, angle):
+                    if t >= max_t or not (0 <= r < n_rows and 0 <= c < n_cols) or observed[r, c] == 1:
+                        break
+                    if observed[r, c] == -1:
+                        best[(r, c)] = max(best.get((r, c), 0.0), transmittance)
+                        crossed.append(float(mean[r, c]))
+                        transmittance = 1.0 - max(crossed) if correlated else float(np.prod(1.0 - np.array(crossed)))
+                    if transmittance <= min_transmittance:
+                        break
+        out.append(sum(best.values()))
+        out_variance.append(sum(value * float(variance[cell]) for cell, value in best.items()))
+    return np.array(out), np.array(out_variance)
+
+
+def brute_force_expected_visible(mean, observed, viewpoint, n_rays, max_t):
+    """The exact expected number of unknown cells seen from ``viewpoint``: every unknown cell with 0 < p < 1 is
+    a wall or not, independently; for each of the 2^k configurations (weight: the product of p or 1 - p) the
+    same rays are cast on the binary map (a ray sees every cell it enters up to and including the first wall)
+    and the unknown cells seen by at least one ray are counted; returns the weighted mean (over the
+    configurations where the viewpoint is free: the robot stands there)."""
+    from itertools import product
+
+    n_rows, n_cols = mean.shape
+    unknown = observed == -1
+    uncertain = [tuple(cell) for cell in np.argwhere(unknown & (mean > 0.0) & (mean < 1.0))]
+    rays = [_naive_cells_along_ray(n_rows, n_cols, viewpoint[0] + 0.5, viewpoint[1] + 0.5, 2.0 * np.pi * k / n_rays)
+            for k in range(n_rays)]
+    expected, total = 0.0, 0.0
+    for config in product((False, True), repeat=len(uncertain)):
+        walls = (observed == 1) | (unknown & (mean >= 1.0))
+        weight = 1.0
+        for cell, wall in zip(uncertain, config):
+            walls[cell] = wall
+            weight *= float(mean[cell]) if wall else 1.0 - float(mean[cell])
+        if walls[viewpoint]:  # the robot stands in a free cell: the configurations with a wall there are excluded
+            continue
+        total += weight
+        seen = np.zeros(mean.shape, bool)
+        seen[viewpoint] = True
+        for cells in rays:
+            for t, r, c in cells:
+                if t >= max_t or not (0 <= r < n_rows and 0 <= c < n_cols):
+                    break
+                seen[r, c] = True
+                if walls[r, c]:
+                    break
+        expected += weight * np.count_nonzero(seen & unknown)
+    return expected / total

@@ -185,7 +185,8 @@ def test_superex_episodes_run_and_are_deterministic():
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("gain", "view", "gain must be 'path' or 'goal'"),
+    ("gain", "view", "gain must be 'path', 'goal', 'expected' or 'expected_goal'"),
+    ("wall_support", "yes", "wall_support must be None, a WallSupport"),
     ("choice", "best", "choice must be 'greedy', 'rollout' or 'tour'"),
     ("wall_threshold", 0.0, "wall_threshold must lie in"),
     ("sense_every_m", 0.0, "sense_every_m must be positive"),

@@ -65,6 +65,11 @@ class LazyPrediction:
         self.value: Optional[Prediction] = None
         self.seconds = 0.0
 
+    @property
+    def evidence(self) -> Optional[np.ndarray]:
+        """The evidence the prediction is asked with (float32 ``[H, W]``), or None (read it, do not modify it)."""
+        return self._evidence
+
     def __call__(self) -> Prediction:
         return self._compute(commit=True)
 

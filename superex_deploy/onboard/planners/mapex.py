@@ -7,6 +7,9 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+                                                        check_wall_support, context_evidence,
+                                                        expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_real
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
 from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers, visible_gains
@@ -25,6 +28,18 @@ class MapexConfig:
             frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
         min_distance_cells: floor on the divisor (positive, finite). Frontiers within the goal tolerance (1 m)
             are never offered, so it only guards against a zero distance.
+        gain: ``"visible"`` (MapEx): the cells of the thresholded raycast's filled polygon; ``"expected"``: every
+            unknown cell weighted by the probability that a ray reaches it through the predicted walls
+            (:func:`~superex_deploy.onboard.expected_visibility.expected_visible_gains`, with ``visibility``'s
+            rays and range; its threshold and ``accumulate`` are then unused): the expected variance, or the
+            expected count without variance.
+        wall_support: None reads the prediction as it is; a
+            :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
+            scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
+            first.
+        transmittance: how ``gain="expected"`` combines the wall probabilities along a ray: ``"independent"``
+            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
+            :mod:`~superex_deploy.onboard.expected_visibility`).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
@@ -34,10 +49,16 @@ class MapexConfig:
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
     distance: str = "travel"
     min_distance_cells: float = 1.0
+    gain: str = "visible"
+    wall_support: Optional[WallSupport] = None
+    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
         check_instance("visibility", self.visibility, VisibilityConfig)
         check_choice("distance", self.distance, ("travel", "euclidean"))
+        check_choice("gain", self.gain, ("visible", "expected"))
+        object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
+        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         object.__setattr__(self, "min_distance_cells",
                            check_real("min_distance_cells", self.min_distance_cells, 0.0, low_open=True))
 
@@ -67,8 +88,15 @@ class MapexPlanner(Planner):
     def information(self, prediction: Prediction, observed: np.ndarray, cells_rc, resolution_m: float
                     ) -> np.ndarray:
         """float64 ``[N]``: visible-unknown variance of each viewpoint, or the visible unknown count when the
-        prediction has no variance anywhere."""
-        counts, var_sums = visible_gains(prediction, observed, cells_rc, self.cfg.visibility, resolution_m)
+        prediction has no variance anywhere (both expected ones with ``cfg.gain="expected"``)."""
+        if self.cfg.gain == "expected":
+            rays = ExpectedVisibility(n_rays=self.cfg.visibility.n_rays, range_m=self.cfg.visibility.range_m,
+                                      transmittance=self.cfg.transmittance)
+            cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
+            counts, var_sums = expected_visible_gains(prediction.mean, observed, [[cell] for cell in cells], rays,
+                                                      resolution_m, prediction.variance)
+        else:
+            counts, var_sums = visible_gains(prediction, observed, cells_rc, self.cfg.visibility, resolution_m)
         if np.any(prediction.variance > 0.0):
             return var_sums
         return counts.astype(np.float64)
@@ -80,7 +108,11 @@ class MapexPlanner(Planner):
         if not frontiers:
             return [], costs, np.zeros(0)
         cells = np.array([f.cell_rc for f in frontiers], np.float64)
-        information = self.information(ctx.predict(), ctx.observed, cells.astype(np.int64), ctx.resolution_m)
+        prediction = ctx.predict()
+        if self.cfg.wall_support is not None:
+            prediction = supported_prediction(prediction, ctx.observed, context_evidence(ctx), ctx.resolution_m,
+                                              self.cfg.wall_support)
+        information = self.information(prediction, ctx.observed, cells.astype(np.int64), ctx.resolution_m)
         if self.cfg.distance == "euclidean":
             distance = np.hypot(cells[:, 0] - ctx.pose_rc[0], cells[:, 1] - ctx.pose_rc[1])
         else:

@@ -19,6 +19,15 @@ docs/benchmarks/better-map.md) and kept as options because each answers a questi
   (``fast-tsp``, exact up to 20 nodes), travel between them priced on the predicted map;
 * ``gain="goal"``: MapEx's gain (the view from the goal cell only);
 * ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
+
+Reading the prediction as probabilities (issue #26, "do no harm"; ``scripts/bench_expected_gain.py``):
+
+* ``gain="expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path / from the
+  goal, each ray's transmittance the product of ``1 - p`` over the cells it crosses
+  (:mod:`~superex_deploy.onboard.expected_visibility`), instead of the count on the map thresholded at
+  ``wall_threshold``;
+* ``wall_support``: a :class:`~superex_deploy.onboard.expected_visibility.WallSupport` shrinks each predicted wall
+  that neither NLOS evidence nor an observed wall nearby supports, before any gain reads the prediction.
 """
 
 from __future__ import annotations
@@ -28,6 +37,9 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+                                                        check_wall_support, context_evidence,
+                                                        expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
@@ -47,7 +59,9 @@ class SuperexConfig:
 
     Attributes:
         gain: ``"path"``: unknown cells predicted visible from the goal or along the path to it; ``"goal"``:
-            from the goal cell only (MapEx).
+            from the goal cell only (MapEx); ``"expected"`` / ``"expected_goal"``: the expected number of unknown
+            cells seen along the path / from the goal (transmittance through the predicted wall probabilities,
+            no threshold; ``n_rays`` and ``range_m`` as for the others).
         choice: ``"greedy"``: the best gain per unit of travel; ``"rollout"``: the best of ``candidates``
             rollouts; ``"tour"``: the first goal of the shortest tour through the nearest frontiers.
         wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.5 was chosen on
@@ -66,6 +80,13 @@ class SuperexConfig:
         rollout_cell_m: side of a rollout cell (metres; a whole number of map cells).
         rollout_frontier_cells: smallest frontier region (rollout cells) and gain a rollout goes for.
         tour_frontiers: frontiers in a tour (``choice="tour"``; at most 18 keeps the solver exact).
+        wall_support: None reads the prediction as it is; a
+            :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
+            scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
+            first, for every gain and rollout.
+        transmittance: how the expected gains combine the wall probabilities along a ray: ``"independent"``
+            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
+            :mod:`~superex_deploy.onboard.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
     ``[3, MAX_RAYS]``, ``rollout_cell_m`` at most :data:`MAX_ROLLOUT_CELL_M`.
@@ -88,9 +109,13 @@ class SuperexConfig:
     rollout_cell_m: float = 0.3
     rollout_frontier_cells: int = 3
     tour_frontiers: int = 18
+    wall_support: Optional[WallSupport] = None
+    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
-        check_choice("gain", self.gain, ("path", "goal"))
+        check_choice("gain", self.gain, ("path", "goal", "expected", "expected_goal"))
+        object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
+        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         check_choice("choice", self.choice, ("greedy", "rollout", "tour"))
         values = {"wall_threshold": check_real("wall_threshold", self.wall_threshold, 0.0, 1.0, low_open=True),
                   "drop_resolved_m": check_real("drop_resolved_m", self.drop_resolved_m, 0.0, allow_none=True),
@@ -322,17 +347,25 @@ class SuperexPlanner(Planner):
 
     def gains(self, ctx: PlanningContext, prediction: Prediction, frontiers) -> np.ndarray:
         """float64 ``[N]`` gain of each frontier (``cfg.gain``): unknown cells predicted visible from its goal
-        cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it."""
+        cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it; counted on the
+        thresholded prediction, or expected (``"expected"``, ``"expected_goal"``)."""
+        if self.cfg.gain in ("goal", "expected_goal"):
+            viewpoints = [[f.cell_rc] for f in frontiers]
+        else:
+            every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
+            viewpoints = []
+            for frontier in frontiers:
+                path = descend(ctx.travel_cost, frontier.cell_rc)
+                viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
+        if self.cfg.gain in ("expected", "expected_goal"):
+            rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
+                                      transmittance=self.cfg.transmittance)
+            return expected_visible_gains(prediction.mean, ctx.observed, viewpoints, rays, ctx.resolution_m)[0]
         visibility = VisibilityConfig(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
                                       hit_threshold=self.cfg.wall_threshold)
         if self.cfg.gain == "goal":
             cells = np.array([f.cell_rc for f in frontiers], np.int64)
             return visible_gains(prediction, ctx.observed, cells, visibility, ctx.resolution_m)[0].astype(float)
-        every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
-        viewpoints = []
-        for frontier in frontiers:
-            path = descend(ctx.travel_cost, frontier.cell_rc)
-            viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
         return union_visible_unknown(prediction.mean, ctx.observed, viewpoints, visibility,
                                      ctx.resolution_m).astype(float)
 
@@ -342,6 +375,9 @@ class SuperexPlanner(Planner):
         if not frontiers:
             return None
         prediction = ctx.predict()
+        if self.cfg.wall_support is not None:
+            prediction = supported_prediction(prediction, ctx.observed, context_evidence(ctx), ctx.resolution_m,
+                                              self.cfg.wall_support)
         gains = self.gains(ctx, prediction, frontiers)
         ratio = gains / np.maximum(costs, 1.0)
         order = sorted(range(len(frontiers)), key=lambda i: (-ratio[i], costs[i], frontiers[i].cell_rc))
