@@ -85,5 +85,5 @@ def test_paper_suite_runs_rows_resumes_and_refuses_other_settings(tmp_path, caps
     assert main(argv[:8] + ["30"] + argv[9:]) == 2  # the same folder with other settings
     assert "other settings" in capsys.readouterr().err
     assert main(argv[:4] + ["nearest,frontier"] + argv[5:]) == 2
-    assert "unknown row(s) ['frontier']" in capsys.readouterr().err
+    assert "--rows: unknown row(s) frontier;" in capsys.readouterr().err
     assert set(PAPER_ROWS) >= {"mapex_lama_los", "superex", "no_lama", "no_pix2pix", "superex_oracle"}

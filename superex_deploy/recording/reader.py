@@ -1,4 +1,4 @@
-"""Reading a recording back: :func:`read_recording` returns a :class:`Recording` of :class:`RecordedStep`\ s, the
+"""Reading a recording back: :func:`read_recording` returns a :class:`Recording` of :class:`RecordedStep` objects, the
 observations exactly as the explorer saw them; a damaged file keeps its whole steps and says where it broke."""
 
 from __future__ import annotations
