@@ -57,29 +57,23 @@ def naive_mark_rays(occupied, y0, x0, angles, max_t):
             hit[r, c] = True
     return free, hit
 
-def naive_mark_ranges(shape, y0, x0, angles, ranges_cells, max_t, tolerance=1e-6, miss_until=None, hit_ok=None):
+def naive_mark_ranges(shape, y0, x0, angles, ranges_cells, max_t, tolerance=1e-6):
     """Free and hit masks of a measured scan, from a sorted list of every grid-line crossing (no DDA stepping):
-    cells left before ``range + tolerance`` are free, the cell holding that point is hit; ``inf``: no return.
-    ``miss_until[i]``: ray ``i``'s cells left beyond it are not free (None: no limit); ``hit_ok[i]`` False: its
-    return's cell is not hit (None: every return hits)."""
+    cells left before ``range + tolerance`` are free, the cell holding that point is hit; ``inf``: no return."""
     n_rows, n_cols = shape
     free = np.zeros(shape, bool)
     hit = np.zeros(shape, bool)
-    for i, (angle, distance) in enumerate(zip(angles, ranges_cells)):
+    for angle, distance in zip(angles, ranges_cells):
         cells = [(0.0, int(np.floor(y0)), int(np.floor(x0)))] + _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle)
         hit_at = distance + tolerance if np.isfinite(distance) else None
-        until = np.inf if miss_until is None else miss_until[i]
-        may_hit = True if hit_ok is None else bool(hit_ok[i])
         for k, (t_in, r, c) in enumerate(cells):
             if t_in > max_t or not (0 <= r < n_rows and 0 <= c < n_cols):
                 break
             t_out = cells[k + 1][0] if k + 1 < len(cells) else np.inf
             if hit_at is not None and t_out > hit_at:
-                if may_hit:
-                    hit[r, c] = True
+                hit[r, c] = True
                 break
-            if t_out <= until:
-                free[r, c] = True
+            free[r, c] = True
     return free, hit
 
 
@@ -528,20 +522,11 @@ def naive_open_tour_first(between, from_robot):
 # --- onboard.mapper ---
 
 
-def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest,
-                             uncertainty_cells=None, keep_out=2.0, hit_max_cells=2.0):
+def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest):
     """onboard.mapper._integrate_log_odds from the crossing lists of :func:`naive_mark_ranges`: every cell the scan
     touched gets one update, ``hit`` where any ray returned in it, else ``miss``, clamped; returns a new float32
-    grid. ``uncertainty_cells`` (``[N]``, cells): a return's misses stop ``keep_out * u`` before it, and it hits
-    only where ``u <= hit_max_cells``."""
-    miss_until = hit_ok = None
-    if uncertainty_cells is not None:
-        u = np.asarray(uncertainty_cells, float)
-        ranges = np.asarray(ranges_cells, float)
-        miss_until = [r - keep_out * ui if np.isfinite(r) else np.inf for r, ui in zip(ranges, u)]
-        hit_ok = [ui <= hit_max_cells for ui in u]
-    free, hit_mask = naive_mark_ranges(log_odds.shape, y0, x0, angles, ranges_cells, max_t, miss_until=miss_until,
-                                       hit_ok=hit_ok)
+    grid."""
+    free, hit_mask = naive_mark_ranges(log_odds.shape, y0, x0, angles, ranges_cells, max_t)
     out = log_odds.copy()
     for r, c in np.argwhere(free | hit_mask):
         delta = hit if hit_mask[r, c] else miss

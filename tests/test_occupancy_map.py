@@ -39,44 +39,6 @@ def test_the_log_odds_kernel_matches_its_naive_twin_on_random_scans():
             np.testing.assert_array_equal(log_odds, expected)
 
 
-def test_the_uncertain_log_odds_kernel_matches_its_naive_twin_on_random_scans():
-    rng = np.random.default_rng(2424)
-    cfg = OccupancyConfig()
-    for _ in range(30):
-        shape = tuple(int(n) for n in rng.integers(5, 30, 2))
-        occupied = rng.random(shape) < 0.2
-        log_odds = rng.choice(np.array([cfg.lowest, -0.8, -0.4, 0.0, 0.1, 0.5, 2.5, cfg.highest], np.float32),
-                              size=shape)
-        for _ in range(3):
-            y0, x0 = rng.uniform(0, shape[0]), rng.uniform(0, shape[1])
-            occupied[int(y0), int(x0)] = False
-            angles = rng.uniform(-np.pi, np.pi, 40)
-            max_t = float(rng.uniform(2, 40))
-            hits = cast_rays(occupied, (y0, x0), angles, max_t)
-            ranges = np.where(hits.hit_mask, hits.distance_cells, np.inf)
-            ranges[rng.random(40) < 0.2] = np.inf
-            uncertainty = rng.uniform(0.0, 3.0, 40)  # some returns too uncertain to hit
-            expected = naive_integrate_log_odds(log_odds, y0, x0, angles, ranges, max_t, cfg.uncertain_hit,
-                                                cfg.miss, cfg.lowest, cfg.highest, uncertainty,
-                                                cfg.uncertain_keep_out, cfg.uncertain_hit_max_cells)
-            integrate_log_odds(log_odds, (y0, x0), angles, ranges, max_t, cfg, uncertainty_cells=uncertainty)
-            np.testing.assert_array_equal(log_odds, expected)
-
-
-def test_an_uncertain_return_keeps_its_misses_away_from_the_wall():
-    cfg = OccupancyConfig()
-    grid = np.zeros((1, 20), np.float32)
-    integrate_log_odds(grid, (0.5, 0.5), [0.0], [9.5], 30.0, cfg, uncertainty_cells=[1.0])
-    assert np.all(grid[0, :8] == np.float32(cfg.miss))  # cells left by 7.5 = 9.5 - 2 * 1.0
-    assert np.all(grid[0, 8:10] == 0.0)  # within k * u of the return (at x = 10): untouched
-    assert grid[0, 10] == np.float32(cfg.uncertain_hit)
-    grid[...] = 0.0
-    integrate_log_odds(grid, (0.5, 0.5), [0.0], [9.5], 30.0, cfg, uncertainty_cells=[2.5])  # too uncertain to hit
-    assert np.all(grid[0, :5] == np.float32(cfg.miss)) and np.all(grid[0, 5:] == 0.0)  # left by 4.5
-    with pytest.raises(ValueError, match="uncertainty_cells"):
-        integrate_log_odds(grid, (0.5, 0.5), [0.0], [9.5], 30.0, cfg, uncertainty_cells=[-1.0])
-
-
 def test_the_log_odds_wrapper_refuses_bad_input():
     grid = np.zeros((5, 5), np.float32)
     with pytest.raises(ValueError, match="float32"):

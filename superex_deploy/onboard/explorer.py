@@ -309,7 +309,7 @@ class Explorer:
         if obs.occupancy_grid is not None:
             self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
         else:
-            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan, obs.pose_covariance)
+            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
         timings["scan"] = time.perf_counter() - clock
 
         clock = time.perf_counter()

@@ -15,12 +15,6 @@ an unknown cell free, one hit makes any cell occupied (a wall wins over a free h
 a wall hit once stays occupied through 5 scans that cross it (through 8 once confirmed). Measured on noise-free
 episodes, no cell is ever both hit and crossed, so the thresholded map is exactly the old one.
 
-**Pose uncertainty.** A scan that comes with a pose covariance is integrated with :meth:`Mapper.integrate_scan`'s
-uncertainty-aware update (#24): when the belief is off, a ray's end lands a little in front of or behind the true
-wall face, and the cells just before it may be wall; so each ray's misses stop ``k * u(r)`` before its return
-(``u(r)``: how far off the return may be), its hit is softer, and a return too uncertain to place gives no hit
-(:class:`OccupancyConfig`'s ``uncertain_*`` values). Without a covariance the update is the one above, unchanged.
-
 **SLAM map.** :meth:`Mapper.set_line_of_sight` replaces the line-of-sight layer by a published map
 (``nav_msgs/OccupancyGrid`` percentages, thresholded as costmap_2d does: occupied at or above
 ``slam_occupied_percent``, free at or below ``slam_free_percent``).
@@ -34,13 +28,12 @@ the line of sight holds a wall (``l >= occupied_threshold``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numba
 import numpy as np
 
 from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, dda_start, dda_step
-from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance, grid_angles
+from superex_deploy.messages import LaserScan, MapFrame, Pose2D, grid_angles
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
 __all__ = ["OccupancyConfig", "Mapper", "integrate_log_odds"]
@@ -64,18 +57,6 @@ class OccupancyConfig:
             much in all, and never frees a cell the line of sight holds occupied.
         slam_occupied_percent: a SLAM map's cell is occupied at or above this (costmap_2d: 65).
         slam_free_percent: ... and free at or below this (costmap_2d's ``free_thresh`` 0.25: 25).
-
-    Under pose uncertainty (a scan integrated with a :class:`~superex_deploy.messages.PoseCovariance`; without
-    one none of these is used and the update is the one above, bit for bit), a return at range ``r`` lies within
-    ``u(r) = sigma_xy + r * sigma_yaw + range_sigma_m`` (metres) of where the belief puts it:
-
-        uncertain_keep_out: ``k``: a ray's misses stop ``k * u(r)`` before its return (2.0), so a ray whose end the
-            belief puts behind a wall face does not clear the wall.
-        uncertain_hit: the hit under uncertainty (0.85, OctoMap's): a spurious return is cleared by a few scans,
-            a true wall is confirmed by the next ones.
-        uncertain_hit_max_cells: a return is hit only while ``u(r)`` is at most this many cells (2.0); further out
-            the ray gives its misses (up to ``r - k * u(r)``) and no hit.
-        range_sigma_m: the range noise added to ``u(r)`` (0.02 m, metres).
     """
 
     hit: float = 2.5
@@ -88,10 +69,6 @@ class OccupancyConfig:
     carve_lowest: float = -1.0
     slam_occupied_percent: int = 65
     slam_free_percent: int = 25
-    uncertain_keep_out: float = 2.0
-    uncertain_hit: float = 0.85
-    uncertain_hit_max_cells: float = 2.0
-    range_sigma_m: float = 0.02
 
     def __post_init__(self) -> None:
         values = [getattr(self, name) for name in ("hit", "miss", "lowest", "highest", "occupied_threshold",
@@ -106,13 +83,6 @@ class OccupancyConfig:
         if not (self.carve_lowest <= self.carve_step < 0.0):
             raise ValueError(f"OccupancyConfig: need carve_lowest <= carve_step < 0, got {self.carve_lowest}, "
                              f"{self.carve_step}")
-        for name in ("uncertain_keep_out", "uncertain_hit", "uncertain_hit_max_cells", "range_sigma_m"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value)
-                                                                                     and value >= 0.0):
-                raise ValueError(f"OccupancyConfig.{name} must be a finite number >= 0, got {value!r}")
-        if not self.uncertain_hit > 0.0:
-            raise ValueError(f"OccupancyConfig: need uncertain_hit > 0, got {self.uncertain_hit}")
         for name in ("slam_occupied_percent", "slam_free_percent"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= 100:
@@ -123,13 +93,11 @@ class OccupancyConfig:
 
 
 @numba.njit(cache=True)
-def _integrate_log_odds(y0, x0, angles, ranges, miss_until, hit_ok, max_t, tolerance, log_odds, touched, hit, miss,
-                        lowest, highest):
+def _integrate_log_odds(y0, x0, angles, ranges, max_t, tolerance, log_odds, touched, hit, miss, lowest, highest):
     """One scan's log-odds update: walk every ray as :func:`superex_deploy.geometry._mark_ranges` does, noting in
     ``touched`` (int8, zero on entry and on return) 1 for a crossed cell and 2 for a return's cell, then give each
     touched cell one update (``hit`` where any ray returned, else ``miss``), clamped to ``[lowest, highest]``.
-    ``ranges[i] < 0``: no return. Ray ``i`` marks no cell it leaves beyond ``miss_until[i]`` (``inf``: no limit) and
-    its return's cell only if ``hit_ok[i]``."""
+    ``ranges[i] < 0``: no return."""
     n_rows, n_cols = log_odds.shape
     top, left, bottom, right = n_rows, n_cols, -1, -1
     for i in range(angles.shape[0]):
@@ -141,13 +109,9 @@ def _integrate_log_odds(y0, x0, angles, ranges, miss_until, hit_ok, max_t, toler
             left, right = min(left, c), max(right, c)
             t_exit = min(t_next_c, t_next_r)
             if hit_at >= 0.0 and t_exit > hit_at:
-                if hit_ok[i]:
-                    touched[r, c] = 2
+                touched[r, c] = 2
                 break
-            if t_exit > miss_until[i]:
-                if not hit_ok[i]:
-                    break  # nothing left to mark on this ray
-            elif touched[r, c] == 0:
+            if touched[r, c] == 0:
                 touched[r, c] = 1
             r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
                                                       t_delta_c)
@@ -164,8 +128,7 @@ def _integrate_log_odds(y0, x0, angles, ranges, miss_until, hit_ok, max_t, toler
 
 
 def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, max_range_cells: float,
-                       cfg: OccupancyConfig = OccupancyConfig(), touched: np.ndarray = None,
-                       uncertainty_cells=None) -> None:
+                       cfg: OccupancyConfig = OccupancyConfig(), touched: np.ndarray = None) -> None:
     """Update a log-odds grid with one measured scan (see the module docstring), in grid units.
 
     Args:
@@ -176,9 +139,6 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
         max_range_cells: the sensor's maximum range (cells, > 0).
         cfg: the update and its clamps.
         touched: optional int8 ``[H, W]`` all-zero scratch grid (kept all zero); None: one is made.
-        uncertainty_cells: None (an exact pose: the plain update), or float ``[N]`` each return's position
-            uncertainty ``u`` (cells, >= 0): the ray's misses stop ``cfg.uncertain_keep_out * u`` before its
-            return, the hit is ``cfg.uncertain_hit`` and only where ``u <= cfg.uncertain_hit_max_cells``.
 
     Raises:
         ValueError: a grid that is not float32 ``[H, W]`` C-contiguous and writeable, a bad scratch grid, an origin
@@ -206,23 +166,9 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
         raise ValueError(f"ranges_cells has shape {ranges.shape}, the angles {angles.shape}")
     if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
         raise ValueError("ranges_cells must be >= 0 (inf for no return), got NaN or a negative range")
-    returned = np.isfinite(ranges)
-    hit = float(cfg.hit)
-    if uncertainty_cells is None:
-        miss_until = np.full(ranges.shape, np.inf)
-        hit_ok = np.ones(ranges.shape, np.bool_)
-    else:
-        uncertainty = np.asarray(uncertainty_cells, dtype=np.float64)
-        if uncertainty.shape != ranges.shape or not np.all(np.isfinite(uncertainty) & (uncertainty >= 0.0)):
-            raise ValueError(f"uncertainty_cells must be finite and >= 0 with the ranges' shape {ranges.shape}")
-        # No return: nothing at the end to keep out of, free up to the range.
-        miss_until = np.where(returned, ranges - cfg.uncertain_keep_out * uncertainty, np.inf)
-        hit_ok = uncertainty <= cfg.uncertain_hit_max_cells
-        hit = float(cfg.uncertain_hit)
-    ranges = np.ascontiguousarray(np.where(returned, ranges, -1.0))
-    _integrate_log_odds(y0, x0, angles, ranges, np.ascontiguousarray(miss_until), np.ascontiguousarray(hit_ok),
-                        max_t, RETURN_TOLERANCE_CELLS, log_odds, touched, hit, float(cfg.miss), float(cfg.lowest),
-                        float(cfg.highest))
+    ranges = np.ascontiguousarray(np.where(np.isfinite(ranges), ranges, -1.0))
+    _integrate_log_odds(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, log_odds, touched, float(cfg.hit),
+                        float(cfg.miss), float(cfg.lowest), float(cfg.highest))
 
 
 class Mapper:
@@ -278,10 +224,8 @@ class Mapper:
         carved = self.carve_log_odds < 0.0
         return carved & ~self.seen_wall & (self.log_odds + self.carve_log_odds <= self.cfg.free_threshold)
 
-    def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan,
-                       pose_covariance: Optional[PoseCovariance] = None) -> None:
-        """Update the map with a measured scan taken at ``pose``; with a ``pose_covariance``, the uncertainty-aware
-        update (see :class:`OccupancyConfig`), else the plain one.
+    def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan) -> None:
+        """Update the map with a measured scan taken at ``pose``.
 
         A range in ``[range_min, range_max]`` is a return; ``+inf`` or a range above ``range_max`` is no return
         (free up to ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
@@ -299,19 +243,10 @@ class Mapper:
         valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
         returned = valid & (ranges <= scan.range_max)
         angles = grid_angles(pose.yaw, scan.angles())
-        uncertainty = None
-        if pose_covariance is not None:
-            if not isinstance(pose_covariance, PoseCovariance):
-                raise ValueError(f"pose_covariance must be a PoseCovariance or None, got "
-                                 f"{type(pose_covariance).__name__}")
-            reach = np.where(returned, ranges, 0.0)[valid]
-            uncertainty = (pose_covariance.sigma_xy_m + reach * pose_covariance.sigma_yaw_rad
-                           + self.cfg.range_sigma_m) / resolution
         self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
-                              scan.range_max / resolution, uncertainty)
+                              scan.range_max / resolution)
 
-    def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float,
-                         uncertainty_cells=None) -> None:
+    def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float) -> None:
         """Update the map with a measured scan, in grid units: see :func:`integrate_log_odds`.
 
         Args:
@@ -319,10 +254,8 @@ class Mapper:
             angles: float64 ``[N]`` ray angles (radians, grid convention: ``(dy, dx) = (sin, cos)``).
             ranges_cells: float64 ``[N]`` measured ranges (cells), ``inf`` for no return.
             max_range_cells: the sensor's maximum range (cells).
-            uncertainty_cells: None, or float64 ``[N]`` each return's position uncertainty (cells).
         """
-        integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
-                           uncertainty_cells)
+        integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched)
 
     def set_line_of_sight(self, occupancy_percent: np.ndarray) -> None:
         """Replace the line-of-sight layer by a SLAM map on this grid (the carving layer is kept).
