@@ -26,7 +26,7 @@ import numba
 import numpy as np
 
 __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
-           "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2",
+           "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2", "check_measured_rays",
            "RETURN_TOLERANCE_CELLS"]
 
 RETURN_TOLERANCE_CELLS = 1e-6
@@ -195,12 +195,17 @@ def _check_grid_and_origin(occupied: np.ndarray, origin_yx) -> tuple[np.ndarray,
         raise ValueError(f"occupied must be a bool array, got dtype {occupied.dtype}")
     if occupied.ndim != 2 or occupied.shape[0] == 0 or occupied.shape[1] == 0:
         raise ValueError(f"occupied must be a non-empty 2-D [rows, cols] array, got shape {occupied.shape}")
+    y0, x0 = _check_origin(occupied.shape, origin_yx)
+    return np.ascontiguousarray(occupied), y0, x0
+
+
+def _check_origin(shape, origin_yx) -> tuple[float, float]:
     y0, x0 = (float(v) for v in origin_yx)
     if not (np.isfinite(y0) and np.isfinite(x0)):
         raise ValueError(f"ray origin must be finite, got {(y0, x0)}")
-    if not (0.0 <= y0 < occupied.shape[0] and 0.0 <= x0 < occupied.shape[1]):
-        raise ValueError(f"ray origin (y, x) = {(y0, x0)} lies outside the grid of shape {occupied.shape}")
-    return np.ascontiguousarray(occupied), y0, x0
+    if not (0.0 <= y0 < shape[0] and 0.0 <= x0 < shape[1]):
+        raise ValueError(f"ray origin (y, x) = {(y0, x0)} lies outside the grid of shape {tuple(shape)}")
+    return y0, x0
 
 
 def _check_angles_and_range(angles, max_range_cells) -> tuple[np.ndarray, float]:
@@ -310,15 +315,29 @@ def mark_ranges(origin_yx, angles, ranges_cells, max_range_cells: float, free_ou
             raise ValueError(f"{name} must be C-contiguous and writeable (it is updated in place)")
     if hit_out.shape != free_out.shape:
         raise ValueError(f"free_out has shape {free_out.shape} but hit_out has {hit_out.shape}")
-    _, y0, x0 = _check_grid_and_origin(free_out, origin_yx)
+    y0, x0, angles, ranges, max_t = check_measured_rays(free_out.shape, origin_yx, angles, ranges_cells,
+                                                        max_range_cells)
+    _mark_ranges(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, free_out, hit_out)
+
+
+def check_measured_rays(shape, origin_yx, angles, ranges_cells, max_range_cells: float
+                        ) -> tuple[float, float, np.ndarray, np.ndarray, float]:
+    """Check the arguments of a measured scan for a grid of ``shape`` (what :func:`mark_ranges` and the mapper's
+    log-odds update take) and return them as the kernels want them: ``(y0, x0, angles, ranges, max_t)``, angles
+    and ranges C-contiguous float64, a range of ``inf`` (no return) as ``-1``.
+
+    Raises:
+        ValueError: an origin outside the grid or not finite, non-finite angles, a non-positive or infinite range
+            limit, ranges of another length, NaN or negative ranges.
+    """
+    y0, x0 = _check_origin(shape, origin_yx)
     angles, max_t = _check_angles_and_range(angles, max_range_cells)
     ranges = np.asarray(ranges_cells, dtype=np.float64)
     if ranges.shape != angles.shape:
         raise ValueError(f"ranges_cells has shape {ranges.shape}, the angles {angles.shape}")
     if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
         raise ValueError("ranges_cells must be >= 0 (inf for no return), got NaN or a negative range")
-    ranges = np.ascontiguousarray(np.where(np.isfinite(ranges), ranges, -1.0))
-    _mark_ranges(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, free_out, hit_out)
+    return y0, x0, angles, np.ascontiguousarray(np.where(np.isfinite(ranges), ranges, -1.0)), max_t
 
 
 def line_of_sight(blocked: np.ndarray, a_rc, b_rc) -> bool:

@@ -26,6 +26,15 @@ def _real(name: str, value) -> float:
     return float(value)
 
 
+def _check_reals(owner: str, obj, names, positive: bool = False) -> None:
+    """Each field ``names`` of ``obj`` a finite real number, ``>= 0`` (or ``> 0`` with ``positive``)."""
+    for name in names:
+        value = _real(f"{owner}.{name}", getattr(obj, name))
+        if not (np.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
+            raise ValueError(f"{owner}.{name} must be {'positive and finite' if positive else 'finite and >= 0'}, "
+                             f"got {value}")
+
+
 @dataclass(frozen=True)
 class SpadNoise:
     """Detector noise. Disabled by default (the paper simulates noise-free histograms).
@@ -45,10 +54,7 @@ class SpadNoise:
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
             raise ValueError(f"SpadNoise.enabled must be a bool, got {self.enabled!r}")
-        for name in ("ambient_per_bin", "dark_per_bin", "jitter_s"):
-            value = _real(f"SpadNoise.{name}", getattr(self, name))
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"SpadNoise.{name} must be finite and >= 0, got {value}")
+        _check_reals("SpadNoise", self, ("ambient_per_bin", "dark_per_bin", "jitter_s"))
 
     @property
     def background_per_bin(self) -> float:
@@ -165,14 +171,8 @@ class PhotonBudget:
                 not isinstance(self.pulses_per_histogram, (int, np.integer)) or self.pulses_per_histogram < 1:
             raise ValueError(f"PhotonBudget.pulses_per_histogram must be a positive integer, got "
                              f"{self.pulses_per_histogram!r}")
-        for name in ("pulse_energy_j", "aperture_m2", "reference_range_m"):
-            value = _real(f"PhotonBudget.{name}", getattr(self, name))
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"PhotonBudget.{name} must be positive and finite, got {value}")
-        for name in ("ambient_rate_hz", "dark_count_rate_hz", "jitter_s"):
-            value = _real(f"PhotonBudget.{name}", getattr(self, name))
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"PhotonBudget.{name} must be finite and >= 0, got {value}")
+        _check_reals("PhotonBudget", self, ("pulse_energy_j", "aperture_m2", "reference_range_m"), positive=True)
+        _check_reals("PhotonBudget", self, ("ambient_rate_hz", "dark_count_rate_hz", "jitter_s"))
 
     @property
     def model_pulse_energy_j(self) -> float:

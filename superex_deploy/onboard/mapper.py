@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, dda_start, dda_step
+from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, check_measured_rays, dda_start, dda_step
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, grid_angles
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
@@ -152,21 +152,8 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
     elif not isinstance(touched, np.ndarray) or touched.dtype != np.int8 or touched.shape != log_odds.shape \
             or not touched.flags.c_contiguous or not touched.flags.writeable:
         raise ValueError(f"touched must be a C-contiguous, writeable int8 array of shape {log_odds.shape}")
-    y0, x0 = (float(v) for v in origin_yx)
-    if not (np.isfinite(y0) and np.isfinite(x0) and 0.0 <= y0 < log_odds.shape[0] and 0.0 <= x0 < log_odds.shape[1]):
-        raise ValueError(f"scan origin (y, x) = {(y0, x0)} lies outside the grid of shape {log_odds.shape}")
-    angles = np.ascontiguousarray(np.asarray(angles, dtype=np.float64))
-    if angles.ndim != 1 or not np.all(np.isfinite(angles)):
-        raise ValueError(f"angles must be a 1-D array of finite values, got shape {angles.shape}")
-    max_t = float(max_range_cells)
-    if not (max_t > 0.0 and np.isfinite(max_t)):
-        raise ValueError(f"max_range_cells must be positive and finite, got {max_range_cells}")
-    ranges = np.asarray(ranges_cells, dtype=np.float64)
-    if ranges.shape != angles.shape:
-        raise ValueError(f"ranges_cells has shape {ranges.shape}, the angles {angles.shape}")
-    if np.any(np.isnan(ranges)) or np.any(ranges < 0.0):
-        raise ValueError("ranges_cells must be >= 0 (inf for no return), got NaN or a negative range")
-    ranges = np.ascontiguousarray(np.where(np.isfinite(ranges), ranges, -1.0))
+    y0, x0, angles, ranges, max_t = check_measured_rays(log_odds.shape, origin_yx, angles, ranges_cells,
+                                                        max_range_cells)
     _integrate_log_odds(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, log_odds, touched, float(cfg.hit),
                         float(cfg.miss), float(cfg.lowest), float(cfg.highest))
 
