@@ -108,7 +108,7 @@ def _episode(task: tuple) -> dict:
     profile = PROFILES[profile_name]
     if profile.reuse.crop_margin_m is None:
         raise ValueError(f"the {profile_name} profile predicts no crops: nothing to measure")
-    every = profile.schedule.every_steps or 1
+    every = profile.explorer_config("simulated").prediction.every_steps or 1  # the benchmarks' (simulated) clock
     resolution = grid.resolution_m
     margin = int(np.ceil(profile.reuse.crop_margin_m / resolution - 1e-9))
     band_cells = int(round((margin - margin // 2) if band_m is None else band_m / resolution))
@@ -307,7 +307,7 @@ def main() -> None:
         parser.error(f"--ramps: choose from {', '.join(RAMPS)}")
     if args.profile not in PROFILES:
         parser.error(f"--profile: choose from {', '.join(PROFILES)}")
-    every = PROFILES[args.profile].schedule.every_steps or 1
+    every = PROFILES[args.profile].explorer_config("simulated").prediction.every_steps or 1
     samples = tuple(t - t % every for t in range(args.sample_every, args.steps, args.sample_every))
     places = scenarios(args.split, args.scenarios or (12 if args.split == "train" else 4))
     args.out.mkdir(parents=True, exist_ok=True)

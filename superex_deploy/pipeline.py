@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Optional
 
 from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.inference import SessionConfig, check_member_options
+from superex_deploy.onboard.inference import SessionConfig, ThreadBudget, check_member_options
 from superex_deploy.onboard.predictors import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
                                                models_dir)
 from superex_deploy.onboard.prediction_reuse import PredictionReuse
@@ -30,7 +30,12 @@ class RealtimeProfile:
     step whose planner asks, every SPAD frame processed in full.
 
     Attributes:
-        schedule: when the predictor runs (:class:`~superex_deploy.onboard.explorer.PredictionSchedule`).
+        schedule: when the predictor runs on the robot (:class:`~superex_deploy.onboard.explorer.PredictionSchedule`;
+            :meth:`explorer_config`, ``superex explore``).
+        simulated_schedule: when it runs in simulated benchmark episodes (:meth:`episode_config`: ``superex
+            benchmark``, the scripts), or None: ``schedule``. A never-waiting robot schedule (``free``) depends on
+            the machine's speed; benchmarks replace it by the ``simulated`` clock, on which the worker's latency is
+            a fixed number of steps, so that their rows are reproducible on any machine.
         reuse: what is kept of the last prediction (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
         nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
         max_members: LaMa ensemble members run (None: all; see ``LamaEnsemble.with_members``).
@@ -41,6 +46,7 @@ class RealtimeProfile:
     """
 
     schedule: PredictionSchedule = field(default_factory=PredictionSchedule)
+    simulated_schedule: Optional[PredictionSchedule] = None
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     nlos_skips: NlosSkips = field(default_factory=NlosSkips)
     max_members: Optional[int] = None
@@ -52,20 +58,43 @@ class RealtimeProfile:
                            ("session", SessionConfig)):
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
+        if self.simulated_schedule is not None and not isinstance(self.simulated_schedule, PredictionSchedule):
+            raise ValueError(f"simulated_schedule must be a PredictionSchedule or None, got "
+                             f"{type(self.simulated_schedule).__name__}")
         check_member_options(self.max_members, self.agreement_stop)
 
-    def explorer_config(self) -> ExplorerConfig:
-        """The explorer's configuration under this profile: its prediction schedule and reuse, the defaults
-        otherwise (motion, frontier size)."""
-        return ExplorerConfig(prediction=self.schedule, reuse=self.reuse)
+    def explorer_config(self, clock: str = "robot") -> ExplorerConfig:
+        """The explorer's configuration under this profile: its prediction schedule (``clock="robot"``:
+        ``schedule``; ``"simulated"``: ``simulated_schedule``, or ``schedule`` where that is None) and reuse, the
+        defaults otherwise (motion, frontier size).
 
-    def episode_config(self, **episode):
+        Raises:
+            ValueError: another clock.
+        """
+        if clock not in ("robot", "simulated"):
+            raise ValueError(f"clock must be 'robot' or 'simulated', got {clock!r}")
+        schedule = self.schedule
+        if clock == "simulated" and self.simulated_schedule is not None:
+            schedule = self.simulated_schedule
+        return ExplorerConfig(prediction=schedule, reuse=self.reuse)
+
+    def episode_config(self, clock: str = "simulated", **episode):
         """A simulated episode's :class:`~superex_deploy.sim.episode.ExplorationConfig` under this profile: the
-        explorer of :meth:`explorer_config`, and ``episode``'s fields (``lidar``, ``iou_every``,
-        ``iou_dense_until``) or their defaults."""
+        explorer of :meth:`explorer_config` on the simulated clock (the benchmarks: reproducible on any machine;
+        ``clock="robot"``: the robot's schedule, as ``superex explore`` runs it), and ``episode``'s fields
+        (``lidar``, ``iou_every``, ``iou_dense_until``) or their defaults."""
         from superex_deploy.sim.episode import ExplorationConfig
 
-        return ExplorationConfig(explorer=self.explorer_config(), **episode)
+        return ExplorationConfig(explorer=self.explorer_config(clock), **episode)
+
+    def session_config(self, cores: Optional[int] = None) -> SessionConfig:
+        """The ONNX Runtime settings of the predictor's sessions: ``session``, with ``cores`` given and a schedule
+        that runs a prediction worker, its intra-op threads set to the worker's share of the
+        :class:`~superex_deploy.onboard.inference.ThreadBudget` (2 cores: 1), so that the worker never takes the
+        control loop's core. Without ``cores`` (the benchmarks) the fixed ``session``."""
+        if cores is None or not self.schedule.threaded:
+            return self.session
+        return ThreadBudget.for_cores(cores, worker=True).session(self.session)
 
     def to_json(self) -> dict:
         """The profile's values as JSON (recorded beside its name in settings and recordings: a later version may
@@ -76,15 +105,18 @@ class RealtimeProfile:
 PROFILES: dict[str, RealtimeProfile] = {
     "full": RealtimeProfile(),
     "realtime": RealtimeProfile(
-        schedule=PredictionSchedule(asynchronous=True, every_steps=2, apply_after_steps=2, wait_first=True),
+        schedule=PredictionSchedule("free", wait_first=True),
+        simulated_schedule=PredictionSchedule("simulated", every_steps=2, apply_after_steps=2, wait_first=True),
         reuse=PredictionReuse(crop_margin_m=6.4), max_members=1,
         session=SessionConfig(intra_op_threads=1, allow_spinning=False)),
 }
 """Named profiles: ``full`` (the unskipped pipeline, what the paper table measured) and ``realtime`` (chosen on the
 held-out train floors with ``scripts/bench_realtime.py``: the lowest p99 step time of the settings measured; the
-predictor runs in the explorer's worker thread on one ONNX Runtime thread, every 2 steps, on a crop around what
-changed with 6.4 m of context, one ensemble member, applied 2 steps later; the first step waits for its own
-prediction)."""
+predictor runs on a crop around what changed with 6.4 m of context, one ensemble member, one ONNX Runtime thread).
+On the robot it runs in the explorer's worker thread and no step waits for it (``free``: a step takes the newest
+finished prediction; only the first step waits for its own, while the robot stands at its start); in simulated
+benchmarks on the simulated clock: the map of every 2nd step is predicted and applied 2 steps later (the worker's
+latency as 2 steps, as the deterministic thread mode the profile was measured in)."""
 
 DEFAULT_PROFILE = "realtime"
 """The profile ``superex explore`` and ``superex benchmark`` use unless told otherwise."""
@@ -121,9 +153,11 @@ def _pix2pix_filter(models=None):
     return load_model("pix2pix", models_dir(models)).filter_map
 
 
-def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile = RealtimeProfile()):
+def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile = RealtimeProfile(),
+                   cores: Optional[int] = None):
     """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only;
-    ``profile`` sets the ensemble's members and sessions. Every predictor but ``oracle`` is the robot's own
+    ``profile`` sets the ensemble's members and sessions (:meth:`RealtimeProfile.session_config` of ``cores``: on
+    the robot, give the cores the explorer gets). Every predictor but ``oracle`` is the robot's own
     (:func:`~superex_deploy.onboard.predictors.make_onboard_predictor`).
 
     Raises:
@@ -134,7 +168,8 @@ def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile =
 
         return OraclePredictor(grid)
     # The oracle without a grid and unknown names are refused there.
-    return make_onboard_predictor(name, models, profile.session, profile.max_members, profile.agreement_stop)
+    return make_onboard_predictor(name, models, profile.session_config(cores), profile.max_members,
+                                  profile.agreement_stop)
 
 
 def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: RealtimeProfile = RealtimeProfile()):

@@ -421,7 +421,7 @@ def _async_run(schedule, steps=60, planner="mapex"):
 def test_asynchronous_prediction_never_runs_in_the_step_and_the_deterministic_mode_is_reproducible():
     from superex_deploy.onboard import PredictionSchedule
 
-    schedule = PredictionSchedule(asynchronous=True, every_steps=5, apply_after_steps=2)
+    schedule = PredictionSchedule("thread", every_steps=5, apply_after_steps=2)
     first, commands, predictor = _async_run(schedule)
     again, _, _ = _async_run(schedule)
     assert first.goals == again.goals and first.coverage.tolist() == again.coverage.tolist()
@@ -434,13 +434,13 @@ def test_asynchronous_prediction_never_runs_in_the_step_and_the_deterministic_mo
         else:
             assert command.prediction_step % 5 == 0 and 2 <= command.step - command.prediction_step <= 6
     with pytest.raises(ValueError, match="apply_after_steps must lie in"):
-        PredictionSchedule(asynchronous=True, every_steps=3, apply_after_steps=4)
+        PredictionSchedule("thread", every_steps=3, apply_after_steps=4)
 
 
 def test_free_running_prediction_keeps_the_loop_going():
     from superex_deploy.onboard import PredictionSchedule
 
-    result, commands, predictor = _async_run(PredictionSchedule(asynchronous=True, every_steps=0), steps=40)
+    result, commands, predictor = _async_run(PredictionSchedule("free"), steps=40)
     assert result.steps == 40 and len(result.goals) >= 1
     landed = [c.prediction_step for c in commands if c.prediction_step >= 0]
     assert landed and landed == sorted(landed) and all(c.step >= c.prediction_step for c in commands)

@@ -84,8 +84,12 @@ def run(args: argparse.Namespace) -> int:
     profile = check_profile(args.profile, planner, args.predictor)
     sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
                               noise["spad_noise"])
-    predictor = make_predictor(args.predictor, grid, args.models, profile)
-    cfg = with_noise(profile.episode_config(), noise["pose_noise"], noise["lidar_noise"], args.seed)
+    # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
+    # replay follows it); the sessions get the worker's share of this machine's cores.
+    from superex_deploy.onboard.inference import available_cores
+
+    predictor = make_predictor(args.predictor, grid, args.models, profile, cores=available_cores())
+    cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")

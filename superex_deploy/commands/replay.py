@@ -54,7 +54,7 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
                          f"({', '.join(PROFILES)})")
     profile = PROFILES[profile_name]
-    if "profile_settings" in metadata and metadata["profile_settings"] != profile.to_json():
+    if "profile_settings" in metadata and _settings_as_now(metadata["profile_settings"]) != profile.to_json():
         raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
                          f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
                          "a replay would not rebuild its explorer")
@@ -67,7 +67,7 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     try:
         explorer_fields = dict(metadata["explorer"])
-        schedule = PredictionSchedule(**explorer_fields.pop("prediction", {}))
+        schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
         reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
         cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
@@ -86,6 +86,27 @@ def build_explorer(metadata: dict, frame, models=None):
     return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg, seed=seed)
 
 
+def _settings_as_now(settings):
+    """A recording's profile settings in this version's form: a schedule written before the schedule's modes
+    converted (``PredictionSchedule.from_json``), fields added since filled in with their defaults (the values
+    that behave as the version before them did)."""
+    from dataclasses import asdict
+
+    from superex_deploy.onboard import PredictionSchedule
+    from superex_deploy.pipeline import RealtimeProfile
+
+    if not isinstance(settings, dict):
+        return settings
+    settings = {**RealtimeProfile().to_json(), **settings}
+    for key in ("schedule", "simulated_schedule"):
+        if isinstance(settings[key], dict):
+            try:
+                settings[key] = asdict(PredictionSchedule.from_json(settings[key]))
+            except (TypeError, ValueError):
+                pass  # left as recorded: it differs from this version's, which the caller reports
+    return settings
+
+
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.commands._options import check_output_folder
     from superex_deploy.recording import read_recording
@@ -98,6 +119,10 @@ def run(args: argparse.Namespace) -> int:
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
     with build_explorer(recording.metadata, recording.frame, args.models) as explorer:
+        if explorer.scheduled is not None:
+            # The predictions land where they landed in the recorded run (a never-waiting run: when its CPU had
+            # finished them), computed inline, so that the replay is exact on any machine.
+            explorer.follow_recorded_predictions([recorded.prediction_step for recorded in recording.steps])
         return _replay(args, recording, explorer)
 
 

@@ -73,9 +73,14 @@ class Command:
         new_goal: True when the goal was chosen at this step.
         prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
             the planner has not needed one yet.
-        prediction_step: the step the prediction was made at (its age is ``step - prediction_step``), or -1.
+        prediction_step: the step whose map the prediction was made from, or -1.
         step: the explorer's step counter (0 for the first observation).
         timings_s: seconds spent per stage of this step (see :data:`superex_deploy.onboard.explorer.STAGES`).
+        prediction_age_steps: steps since the map the prediction was made from (``step - prediction_step``: 0
+            when it is this step's own), or None without a prediction.
+        prediction_age_s: seconds since that map, between the observations' time stamps (``stamp_s`` minus the
+            stamp of step ``prediction_step``), or None without a prediction. With a never-waiting schedule this is
+            how stale the map the planner read is, on the robot's clock.
     """
 
     stamp_s: float
@@ -89,3 +94,5 @@ class Command:
     prediction_step: int = -1
     step: int = 0
     timings_s: dict = field(default_factory=dict)
+    prediction_age_steps: Optional[int] = None
+    prediction_age_s: Optional[float] = None

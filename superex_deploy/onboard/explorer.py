@@ -22,9 +22,12 @@
    (:meth:`~superex_deploy.onboard.mapper.Mapper.observed` without carving): a planner then sees carved cells as
    unknown, and the prediction it reads as free.
 
-How the predictor runs is configured, not fixed (issue #16): inside the asking step or in a worker thread
-(:class:`PredictionSchedule`), on the whole map or on a crop around what changed since the last prediction, and only
-when enough changed (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
+How the predictor runs is configured, not fixed (issue #16): inside the asking step, in a worker thread that a step
+never waits for, or on a simulated clock (:class:`PredictionSchedule`), on the whole map or on a crop around what
+changed since the last prediction, and only when enough changed
+(:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`). The explorer sets its own numba threads, and
+those of its prediction worker, from the cores it is given (:class:`~superex_deploy.onboard.inference.ThreadBudget`),
+so that the two never oversubscribe them; it restores the caller's numba threads when a step returns.
 
 The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell; the robot
 drives along it and sends the next observation from wherever it stopped. Exploration is **finished** when the map
@@ -37,7 +40,6 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -48,7 +50,9 @@ from superex_deploy.onboard.mapper import Mapper, OccupancyConfig
 from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
 from superex_deploy.onboard.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.prediction_schedule import LazyPrediction, PredictionSchedule, StalePrediction
+from superex_deploy.onboard.inference.sessions import ThreadBudget
+from superex_deploy.onboard.prediction_schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
+                                                        StalePrediction, set_numba_threads)
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
 from superex_deploy.messages import Command, MapFrame, Observation
@@ -115,6 +119,10 @@ class Explorer:
         spad_processing: SPAD processing for observations that carry a SPAD frame; None: SPAD frames are ignored.
         cfg: onboard parameters.
         seed: seed of the generator handed to the planner.
+        cores: the cores the explorer may use (None: the process's CPU affinity,
+            :func:`~superex_deploy.onboard.inference.available_cores`): its steps run on
+            ``budget.control_threads`` numba threads, its prediction worker on ``budget.worker_threads`` (give the
+            predictor's ONNX Runtime sessions the same: ``pipeline.make_predictor(..., cores=...)``).
 
     Attributes:
         frame, planner, predictor, spad_processing, cfg: as given.
@@ -128,11 +136,15 @@ class Explorer:
         finished: whether the latest step found the exploration finished (see above).
         reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
+        budget: the :class:`~superex_deploy.onboard.inference.ThreadBudget` of ``cores``.
+        scheduled: the :class:`~superex_deploy.onboard.prediction_schedule.ScheduledPredictions` that runs the
+            predictor when the schedule is not ``inline`` (its ``blocking_waits`` count the steps that waited for an
+            unfinished prediction), else None.
     """
 
     def __init__(self, frame: MapFrame, planner: Planner, predictor: MapPredictor,
                  spad_processing: Optional[SpadProcessing] = None, cfg: ExplorerConfig = ExplorerConfig(),
-                 seed: int = 0):
+                 seed: int = 0, cores: Optional[int] = None):
         if not isinstance(frame, MapFrame):
             raise ValueError(f"frame must be a MapFrame, got {type(frame).__name__}")
         if not isinstance(planner, Planner):
@@ -169,11 +181,12 @@ class Explorer:
         self._prediction: Optional[LazyPrediction] = None
         self._latest: Optional[Prediction] = None
         self._latest_step = -1
-        schedule = cfg.prediction
-        self._worker = ThreadPoolExecutor(1, thread_name_prefix="superex-predict") if schedule.asynchronous else None
-        self._pending: Optional[Future] = None
+        self._stamps: list[float] = []  # the observations' stamps, per step: the prediction's age in seconds
         self._no_evidence: Optional[np.ndarray] = None
-        self._pending_step = -1
+        self.budget = ThreadBudget.for_cores(cores, worker=cfg.prediction.threaded)
+        self.scheduled: Optional[ScheduledPredictions] = None
+        if cfg.prediction.asynchronous:
+            self.scheduled = ScheduledPredictions(cfg.prediction, self._run_prediction, self.budget.worker_threads)
         planner.reset()
         if spad_processing is not None:
             spad_processing.reset()
@@ -220,8 +233,8 @@ class Explorer:
         return self.spad_processing.evidence
 
     def predict(self) -> Prediction:
-        """What the planners read at the latest step: synchronously, the prediction of that step's map (computed
-        once per step; a planner that asked already paid); asynchronously, the newest finished prediction merged
+        """What the planners read at the latest step: inline, the prediction of that step's map (computed
+        once per step; a planner that asked already paid); otherwise, the newest applied prediction merged
         with that map. For evaluation: it does not change what :class:`Command` reports.
 
         Raises:
@@ -232,11 +245,26 @@ class Explorer:
         return self._prediction.look()
 
     def close(self) -> None:
-        """Stop the prediction worker (asynchronous mode); the explorer cannot step afterwards."""
-        if self._worker is not None:
-            self._worker.shutdown(wait=True, cancel_futures=True)
-            self._worker = None
+        """Stop the prediction worker (``free`` and ``thread`` schedules); the explorer cannot step afterwards."""
+        if self.scheduled is not None:
+            self.scheduled.close()
         self._closed = True
+
+    def follow_recorded_predictions(self, prediction_steps) -> None:
+        """For a replay: apply at step ``t`` the prediction of the map of step ``prediction_steps[t]`` (a recording's
+        ``prediction_step`` per command), computed inline, instead of the schedule's own timing, so that a
+        ``free`` run (whose predictions landed when the robot's CPU finished them) replays exactly. Call it before
+        the first step.
+
+        Raises:
+            ValueError: an inline schedule (its predictions are the steps' own), or steps outside ``-1..t``.
+            RuntimeError: after the first step.
+        """
+        if self.scheduled is None:
+            raise ValueError("an inline schedule predicts each step's own map: there is nothing to follow")
+        if self.steps:
+            raise RuntimeError("follow_recorded_predictions must be called before the first step")
+        self.scheduled.follow(prediction_steps)
 
     def __enter__(self) -> "Explorer":
         return self
@@ -246,29 +274,6 @@ class Explorer:
 
     def _run_prediction(self, observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
         return self._predictor.predict(observed, evidence)
-
-    def _schedule_predictions(self, observed: np.ndarray, t: int) -> float:
-        """Asynchronous mode: take a finished prediction (in the deterministic mode: wait for the one due at this
-        step) and start the next; returns the seconds this step waited."""
-        schedule, waited = self.cfg.prediction, 0.0
-        if self._pending is not None:
-            due = schedule.every_steps and t >= self._pending_step + schedule.apply_after_steps
-            if due or (not schedule.every_steps and self._pending.done()):
-                clock = time.perf_counter()
-                pending, self._pending = self._pending, None  # a failed prediction is raised once, not every step
-                self._latest, self._latest_step = pending.result(), self._pending_step
-                waited = time.perf_counter() - clock
-        start = t % schedule.every_steps == 0 if schedule.every_steps else True
-        if self._pending is None and start:
-            evidence = None if self.evidence is None else self.evidence.copy()
-            self._pending = self._worker.submit(self._run_prediction, observed.copy(), evidence)
-            self._pending_step = t
-            if t == 0 and schedule.wait_first:
-                clock = time.perf_counter()
-                pending, self._pending = self._pending, None
-                self._latest, self._latest_step = pending.result(), 0
-                waited += time.perf_counter() - clock
-        return waited
 
     @property
     def step_prediction(self) -> Optional[Prediction]:
@@ -292,9 +297,14 @@ class Explorer:
         if not self._stepping.acquire(blocking=False):
             raise RuntimeError("Explorer.step() is already running (called from another thread): an explorer takes "
                                "one caller at a time; serialise the calls or use one explorer per thread")
+        import numba
+
+        callers_threads = numba.get_num_threads()
         try:
+            set_numba_threads(self.budget.control_threads)
             return self._step(obs)
         finally:
+            numba.set_num_threads(callers_threads)
             self._stepping.release()
 
     def _step(self, obs: Observation) -> Command:
@@ -331,8 +341,10 @@ class Explorer:
         timings["frontiers"] = time.perf_counter() - clock
 
         waited = 0.0
-        if self._worker is not None:
-            waited = self._schedule_predictions(observed, t)
+        self._stamps.append(obs.stamp_s)
+        if self.scheduled is not None:
+            waited = self.scheduled.advance(t, observed, self.evidence)
+            self._latest, self._latest_step = self.scheduled.latest, self.scheduled.latest_step
             prediction = StalePrediction(self._latest, observed)
         else:
             prediction = LazyPrediction(self._predictor, observed, self.evidence)
@@ -344,14 +356,17 @@ class Explorer:
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished = False, False
         timings["prediction"] += waited
-        if self._worker is None and prediction.value is not None:
+        if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
         path_rc = np.asarray(self.path, np.int64).reshape(-1, 2)
+        aged = self._latest is not None
         return Command(stamp_s=obs.stamp_s,
                        goal_xy=None if self.goal is None else self.frame.centre_xy(self.goal),
                        goal_rc=self.goal, path_xy=self.frame.centres_xy(path_rc), path_rc=path_rc,
                        finished=self.finished, new_goal=new_goal, prediction=self._latest,
-                       prediction_step=self._latest_step, step=t, timings_s=timings)
+                       prediction_step=self._latest_step, step=t, timings_s=timings,
+                       prediction_age_steps=t - self._latest_step if aged else None,
+                       prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None)
 
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
               prediction: LazyPrediction, t: int, timings: dict) -> bool:

@@ -1,57 +1,120 @@
-"""When and on what the explorer runs its map predictor: the schedule (inside the step that asks, or in a worker
-thread) and the two views a planner reads through (:class:`LazyPrediction` computes on request;
+"""When and on what the explorer runs its map predictor: the schedule (inside the step that asks, in a worker
+thread that is never waited for, or on a simulated clock) and the two views a planner reads through (:class:`LazyPrediction` computes on request;
 :class:`StalePrediction` serves the newest finished one, merged with this step's map)."""
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Optional
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
 from superex_deploy.onboard.prediction_reuse import ReusingPredictor, merge_with_map
 from superex_deploy.onboard.types import OCCUPIED, Prediction
 
-__all__ = ["PredictionSchedule", "LazyPrediction", "StalePrediction"]
+__all__ = ["MODES", "PredictionSchedule", "LazyPrediction", "StalePrediction", "ScheduledPredictions",
+           "set_numba_threads"]
+
+
+MODES = ("inline", "free", "simulated", "thread")
+"""The schedule's modes (see :class:`PredictionSchedule`)."""
 
 
 @dataclass(frozen=True)
 class PredictionSchedule:
-    """When the explorer runs its map predictor.
+    """When the explorer runs its map predictor, and on which step's map.
 
     Attributes:
-        asynchronous: False (default): inside the step whose planner asks for it; the step waits for the whole
-            ensemble (up to ~0.9 s on 2 cores on the largest eval map). True: in a worker thread, never inside a
-            step; planners read the newest finished prediction, with the cells known since overwritten by the
-            current map (:func:`merge_with_map`).
-        every_steps: with ``asynchronous``: 0 runs free (a new prediction of the newest map starts as soon as the
-            last one finished; fast, but the steps at which predictions land depend on the machine, so episodes are
-            not reproducible). ``N >= 1`` is the deterministic mode for benchmarks and tests: the map of every
-            step ``k N`` is predicted, and the result is applied at step ``k N + apply_after_steps``, waiting for it
-            there if it is not done; episodes are reproducible on any machine.
-        apply_after_steps: the deterministic delay (``1 <= apply_after_steps <= every_steps``).
-        wait_first: with ``asynchronous``: the first step waits for the prediction of its own map (the robot
-            stands at its start; without it the planners and the first evaluations see no prediction at all until
-            one lands: -29 % IoU at 10 % coverage on the train floors with ``every_steps=5``).
+        mode: ``"inline"`` (default): inside the step whose planner asks for it; the step waits for the whole
+            ensemble (up to ~0.9 s on 2 cores on the largest eval map).
+            ``"free"``: the robot's mode. A worker thread predicts the newest map whenever it is idle; a step takes
+            the newest *finished* prediction and never waits for an unfinished one, whatever the CPU (the steps at
+            which predictions land depend on the machine, so episodes are not reproducible; a recording keeps them,
+            and ``superex replay`` follows them).
+            ``"simulated"``: the benchmarks' mode, no thread. The map (and evidence) of every step ``k N`` is kept
+            and its prediction is computed inside step ``k N + apply_after_steps`` and applied there: the worker's
+            latency is a fixed number of steps, so episodes are reproducible on any machine.
+            ``"thread"``: the same schedule as ``"simulated"`` in a worker thread; step ``k N + apply_after_steps``
+            waits for the prediction if it is not done. Its results are bit for bit those of ``"simulated"`` (the
+            tests check it); kept for that check and for timing the deterministic schedule.
+            In every mode but ``inline`` the planners read the newest applied prediction, with the cells known
+            since overwritten by the current map (:func:`merge_with_map`).
+        every_steps: ``N``, for ``simulated`` and ``thread`` (ignored otherwise): the map of every step ``k N`` is
+            predicted.
+        apply_after_steps: ``L``, for ``simulated`` and ``thread``: the delay in steps (``1 <= L <= N``).
+        wait_first: in every mode but ``inline``: the first step applies the prediction of its own map (in
+            ``free`` and ``thread`` mode it waits for it: the one wait a never-waiting schedule allows, taken while
+            the robot stands at its start). Without it the planners and the first evaluations see no prediction at
+            all until one lands: -29 % IoU at 10 % coverage on the train floors with ``every_steps=5``.
+
+    :meth:`from_json` also reads the fields this class had before the modes (``asynchronous``: False is
+    ``inline``; True with ``every_steps`` 0 is ``free``, with ``every_steps >= 1`` ``thread``), as older
+    recordings hold them.
     """
 
-    asynchronous: bool = False
+    mode: str = "inline"
     every_steps: int = 10
     apply_after_steps: int = 1
     wait_first: bool = False
 
     def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for name in ("every_steps", "apply_after_steps"):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 0:
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
-        for name in ("asynchronous", "wait_first"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if self.every_steps and not 1 <= self.apply_after_steps <= self.every_steps:
+        if not isinstance(self.wait_first, bool):
+            raise ValueError(f"wait_first must be True or False, got {self.wait_first!r}")
+        if self.deterministic and self.every_steps < 1:
+            raise ValueError(f"every_steps must be >= 1 in {self.mode} mode, got {self.every_steps} (the "
+                             "never-waiting mode that predicts whenever the worker is idle is mode='free')")
+        if self.deterministic and not 1 <= self.apply_after_steps <= self.every_steps:
             raise ValueError(f"apply_after_steps must lie in 1..every_steps = {self.every_steps}, got "
                              f"{self.apply_after_steps}")
+
+    @property
+    def asynchronous(self) -> bool:
+        """Whether the planners read the prediction of an earlier map (every mode but ``inline``)."""
+        return self.mode != "inline"
+
+    @property
+    def threaded(self) -> bool:
+        """Whether the explorer runs a prediction worker thread (``free`` and ``thread``)."""
+        return self.mode in ("free", "thread")
+
+    @property
+    def deterministic(self) -> bool:
+        """Whether the steps at which predictions land are fixed (``simulated`` and ``thread``)."""
+        return self.mode in ("simulated", "thread")
+
+    def to_json(self) -> dict:
+        """The schedule's fields as JSON values."""
+        return {"mode": self.mode, "every_steps": int(self.every_steps),
+                "apply_after_steps": int(self.apply_after_steps), "wait_first": self.wait_first}
+
+    @classmethod
+    def from_json(cls, fields: dict) -> "PredictionSchedule":
+        """The schedule that JSON ``fields`` describe, in this version's form or the one before the modes
+        (``asynchronous``, see the class docstring).
+
+        Raises:
+            ValueError: unknown fields, or both ``mode`` and ``asynchronous``.
+        """
+        fields = dict(fields)
+        if "asynchronous" in fields:
+            if "mode" in fields:
+                raise ValueError("a schedule gives either mode or the older asynchronous, not both")
+            asynchronous = fields.pop("asynchronous")
+            if not isinstance(asynchronous, bool):
+                raise ValueError(f"asynchronous must be True or False, got {asynchronous!r}")
+            fields["mode"] = ("thread" if fields.get("every_steps", 10) else "free") if asynchronous else "inline"
+        unknown = sorted(set(fields) - {"mode", "every_steps", "apply_after_steps", "wait_first"})
+        if unknown:
+            raise ValueError(f"unknown schedule field(s) {unknown}")
+        return cls(**fields)
 
 
 class LazyPrediction:
@@ -108,3 +171,137 @@ class StalePrediction:
         return self.value
 
     look = __call__
+
+
+def set_numba_threads(threads: int) -> int:
+    """Set numba's thread count for the calling thread (numba keeps one per thread), capped at the threads numba
+    launched (``NUMBA_NUM_THREADS``); returns the count set."""
+    import numba
+
+    threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(threads)
+    return threads
+
+
+class ScheduledPredictions:
+    """Runs the predictor of an explorer whose schedule is not ``inline``, and holds the newest applied prediction.
+
+    Args:
+        schedule: the :class:`PredictionSchedule` (``free``, ``simulated`` or ``thread``).
+        predict: ``predict(observed, evidence) -> Prediction``, called in the worker thread or inline.
+        worker_threads: numba threads of the worker thread (set in it when it starts); unused without a worker.
+
+    Attributes:
+        latest: the newest applied prediction, or None.
+        latest_step: the step whose map it was made from, or -1.
+        blocking_waits: steps that waited for an unfinished prediction (``free`` mode: at most the first, with
+            ``wait_first``; ``thread`` mode: whenever the worker is slower than the schedule).
+    """
+
+    def __init__(self, schedule: PredictionSchedule, predict: Callable, worker_threads: int = 1):
+        if not schedule.asynchronous:
+            raise ValueError("ScheduledPredictions runs the free, simulated and thread schedules, not inline")
+        self.schedule, self._predict = schedule, predict
+        self._worker: Optional[ThreadPoolExecutor] = None
+        if schedule.threaded:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="superex-predict", initializer=set_numba_threads,
+                                              initargs=(worker_threads,))
+        self._pending: Optional[Future] = None
+        self._pending_step = -1
+        self._kept: dict[int, tuple[np.ndarray, Optional[np.ndarray]]] = {}  # inline: step -> its map, evidence
+        self._recorded: Optional[tuple[int, ...]] = None
+        self.latest: Optional[Prediction] = None
+        self.latest_step = -1
+        self.blocking_waits = 0
+
+    def follow(self, prediction_steps: Sequence[int]) -> None:
+        """Replay a recording: at step ``t`` apply the prediction of the map of step ``prediction_steps[t]`` (the
+        recorded commands' ``prediction_step``; -1: none yet), computed inline in the order the recorded run
+        computed them, instead of this schedule's own timing. Call it before the first step."""
+        steps = tuple(int(s) for s in prediction_steps)
+        if any(not -1 <= s <= t for t, s in enumerate(steps)):
+            raise ValueError("recorded prediction steps must lie in -1..step (a prediction of a later map)")
+        self.close()
+        self._recorded = steps
+        self._needed = {s for s in steps if s >= 0}
+
+    def close(self) -> None:
+        """Stop the worker thread, if any (a running prediction finishes first)."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True, cancel_futures=True)
+            self._worker = None
+
+    def advance(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> float:
+        """Step ``t``'s share: apply what is due (or, in ``free`` mode, finished), start or keep what the schedule
+        says on ``observed`` (int8 ``[H, W]``, copied when kept) and ``evidence`` (float32 ``[H, W]`` or None);
+        returns the seconds spent waiting for the worker or computing inline."""
+        clock = time.perf_counter()
+        if self._recorded is not None:
+            self._advance_recorded(t, observed, evidence)
+        elif self.schedule.mode == "free":
+            self._advance_free(t, observed, evidence)
+        elif self.schedule.mode == "thread":
+            self._advance_thread(t, observed, evidence)
+        else:
+            self._advance_simulated(t, observed, evidence)
+        return time.perf_counter() - clock
+
+    @staticmethod
+    def _copies(observed: np.ndarray, evidence: Optional[np.ndarray]):
+        return observed.copy(), None if evidence is None else evidence.copy()
+
+    def _take(self) -> None:
+        pending, self._pending = self._pending, None  # a failed prediction is raised once, not every step
+        if not pending.done():
+            self.blocking_waits += 1
+        self.latest, self.latest_step = pending.result(), self._pending_step
+
+    def _submit(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
+        self._pending = self._worker.submit(self._predict, *self._copies(observed, evidence))
+        self._pending_step = t
+
+    def _advance_free(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
+        # Never waits: only a finished prediction is taken (done() first), a new one starts when the worker is idle.
+        if self._pending is not None and self._pending.done():
+            self._take()
+        if self._pending is None:
+            self._submit(t, observed, evidence)
+            if t == 0 and self.schedule.wait_first:  # the start-up exception: the robot stands at its start
+                self._take()
+
+    def _advance_thread(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
+        schedule = self.schedule
+        if self._pending is not None and t >= self._pending_step + schedule.apply_after_steps:
+            self._take()  # waits if the worker is slower than the schedule
+        if self._pending is None and t % schedule.every_steps == 0:
+            self._submit(t, observed, evidence)
+            if t == 0 and schedule.wait_first:
+                self._take()
+
+    def _advance_simulated(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
+        # The thread mode's schedule with the worker's latency as apply_after_steps steps: computed inline on the
+        # kept map at the step it would have been taken, so the results are the thread mode's, bit for bit.
+        schedule = self.schedule
+        due = [s for s in self._kept if t >= s + schedule.apply_after_steps]
+        for step in due:
+            self._apply_kept(step)
+        if not self._kept and t % schedule.every_steps == 0:
+            self._kept[t] = self._copies(observed, evidence)
+            if t == 0 and schedule.wait_first:
+                self._apply_kept(0)
+
+    def _advance_recorded(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
+        if t in self._needed:
+            self._kept[t] = self._copies(observed, evidence)
+        source = self._recorded[t] if t < len(self._recorded) else self.latest_step
+        if source >= 0 and source != self.latest_step:
+            if source not in self._kept:
+                raise RuntimeError(f"the recording applies the prediction of step {source} at step {t}, after one "
+                                   f"of step {self.latest_step}: not a schedule this explorer ran")
+            for step in [s for s in self._kept if s < source]:
+                del self._kept[step]
+            self._apply_kept(source)
+
+    def _apply_kept(self, step: int) -> None:
+        observed, evidence = self._kept.pop(step)
+        self.latest, self.latest_step = self._predict(observed, evidence), step

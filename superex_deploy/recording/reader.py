@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Union
@@ -27,6 +28,9 @@ class RecordedStep:
         observation: what the explorer received.
         goal_rc: the recorded command's goal cell, or None.
         new_goal, finished: the recorded command's flags.
+        prediction_step: the step whose map the command's prediction was made from, -1 for none.
+        prediction_age_s: the command's ``prediction_age_s``, or None (no prediction, or a file written before
+            the field existed).
     """
 
     step: int
@@ -34,6 +38,8 @@ class RecordedStep:
     goal_rc: Optional[tuple[int, int]]
     new_goal: bool
     finished: bool
+    prediction_step: int = -1
+    prediction_age_s: Optional[float] = None
 
 
 @dataclass
@@ -179,7 +185,9 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
                         recording.steps.append(RecordedStep(step=int(decoded.step),
                                                             observation=_observation(parts, frame),
                                                             goal_rc=goal, new_goal=bool(decoded.new_goal),
-                                                            finished=bool(decoded.finished)))
+                                                            finished=bool(decoded.finished),
+                                                            prediction_step=int(decoded.prediction_step),
+                                                            prediction_age_s=_age(decoded)))
                 done += 1
                 topic, sequence = "?", -1
         except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part
@@ -195,3 +203,9 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
             recording.error = f"message {done + 1} ({where}) is broken: {why}; kept the {len(steps)} complete " \
                               f"steps before it"
     return recording
+
+
+def _age(decoded) -> Optional[float]:
+    """A command's ``prediction_age_s``: None for NaN (no prediction) and for files written before the field."""
+    age = float(getattr(decoded, "prediction_age_s", math.nan))
+    return None if math.isnan(age) else age

@@ -111,8 +111,9 @@ float64 goal_x           # goal in the map frame (metres); NaN without a goal
 float64 goal_y
 bool new_goal            # the goal was chosen at this step
 bool finished            # no reachable frontier is left
-int32 prediction_step    # step of the newest prediction, -1 for none
+int32 prediction_step    # step whose map the newest prediction was made from, -1 for none
 float64 robot_yaw        # the observation's yaw (rad), exactly: the /pose quaternion rounds it
+float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older files)
 """ + _SEPARATOR + _HEADER
 
 _SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),

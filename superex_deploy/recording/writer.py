@@ -116,7 +116,9 @@ class EpisodeRecorder:
                                  "goal_x": math.nan if goal is None else command.goal_xy[0],
                                  "goal_y": math.nan if goal is None else command.goal_xy[1],
                                  "new_goal": bool(command.new_goal), "finished": bool(command.finished),
-                                 "prediction_step": int(command.prediction_step), "robot_yaw": pose.yaw},
+                                 "prediction_step": int(command.prediction_step), "robot_yaw": pose.yaw,
+                                 "prediction_age_s": (math.nan if command.prediction_age_s is None
+                                                      else float(command.prediction_age_s))},
                     stamp, step)
         self._write("/plan", {"header": _header(stamp, "map"),
                               "poses": [{"header": _header(stamp, "map"), "pose": _pose(float(x), float(y), 0.0)}

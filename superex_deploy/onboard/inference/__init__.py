@@ -31,11 +31,13 @@ from superex_deploy.onboard.inference.manifest import (DEFAULT_MODEL_DIR, FORMAT
                                                        read_manifest, sha256_file)
 from superex_deploy.onboard.inference.encoding import (NORMALISATION, RESOLUTION_M, BpEncoding, crop_window,
                                                        encode_bp_windows, encode_map)
-from superex_deploy.onboard.inference.sessions import GraphOptimization, SessionConfig, make_session
+from superex_deploy.onboard.inference.sessions import (GraphOptimization, SessionConfig, ThreadBudget, available_cores,
+                                                      make_session)
 from superex_deploy.onboard.inference.pix2pix import Pix2PixFilter
 from superex_deploy.onboard.inference.lama import LamaEnsemble, check_member_options
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
-           "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "make_session", "sha256_file", "ManifestEntry",
+           "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "ThreadBudget", "available_cores", "make_session",
+           "sha256_file", "ManifestEntry",
            "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble",
            "check_member_options", "NORMALISATION", "RESOLUTION_M", "PathLike"]

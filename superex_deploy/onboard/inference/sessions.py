@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import enum
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
@@ -20,7 +21,8 @@ import numpy as np
 from superex_deploy.onboard.inference.encoding import NORMALISATION, RESOLUTION_M, BpEncoding
 from superex_deploy.onboard.inference.manifest import FORMAT_VERSION, MODEL_CHANNELS, ModelKind, PathLike, sha256_file
 
-__all__ = ["GraphOptimization", "SessionConfig", "make_session", "LoadedModel", "load_model"]
+__all__ = ["GraphOptimization", "SessionConfig", "make_session", "LoadedModel", "load_model", "available_cores",
+           "ThreadBudget"]
 
 
 class GraphOptimization(enum.Enum):
@@ -64,6 +66,60 @@ class SessionConfig:
             raise ValueError("SessionConfig.providers must name at least one execution provider")
         if not isinstance(self.graph_optimization, GraphOptimization):
             raise ValueError(f"graph_optimization must be a GraphOptimization, got {self.graph_optimization!r}")
+
+
+def available_cores() -> int:
+    """The cores this process may run on (``os.sched_getaffinity``; ``os.cpu_count`` where that does not
+    exist): a container's or ``taskset``'s limit, not the machine's."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class ThreadBudget:
+    """How the cores given to the explorer are split between its control loop and its prediction worker, so that
+    the two never ask for more threads than there are cores (issue #25, item 4).
+
+    With a worker thread, the worker gets ``max(1, cores // 2)`` threads (ONNX Runtime's intra-op threads of the
+    predictor's sessions, numba's in the worker thread) and the control loop the rest, at least one (numba's
+    threads in the thread that calls ``Explorer.step``): 2 cores give 1 and 1. Without one (the ``inline`` and
+    ``simulated`` schedules) the control loop does everything and gets every core.
+
+    Attributes:
+        cores: the cores given (``available_cores()`` by default: the process's CPU affinity).
+        worker: whether a prediction worker thread runs beside the control loop.
+    """
+
+    cores: int
+    worker: bool
+
+    def __post_init__(self) -> None:
+        if isinstance(self.cores, bool) or not isinstance(self.cores, int) or self.cores < 1:
+            raise ValueError(f"cores must be an integer >= 1, got {self.cores!r}")
+
+    @classmethod
+    def for_cores(cls, cores: Optional[int], worker: bool) -> "ThreadBudget":
+        """The budget of ``cores`` cores (None: :func:`available_cores`)."""
+        return cls(available_cores() if cores is None else cores, bool(worker))
+
+    @property
+    def worker_threads(self) -> int:
+        """Threads of the prediction worker (0 without one)."""
+        return max(1, self.cores // 2) if self.worker else 0
+
+    @property
+    def control_threads(self) -> int:
+        """numba threads of the control loop."""
+        return max(1, self.cores - self.worker_threads)
+
+    def session(self, cfg: SessionConfig) -> SessionConfig:
+        """``cfg`` with the intra-op threads of this budget's predictor: the worker's threads, or every core
+        without a worker."""
+        from dataclasses import replace
+
+        return replace(cfg, intra_op_threads=self.worker_threads if self.worker else self.cores)
 
 
 def make_session(path: PathLike, cfg: SessionConfig = SessionConfig()):
