@@ -8,15 +8,26 @@ Two measurements, each against the unskipped pipeline (``full``):
   and the map IoU at 10 / 20 / 30 % coverage are paired by scenario with ``full`` (mean difference, bootstrap
   95 % interval, ratio of means). Episodes are journaled per setting (``OUT/error_SPLIT/NAME.episodes.jsonl``):
   an interrupted run resumes.
+  The default's free-running mode is measured against its simulated clock: ``--free-repeats`` repeats of its
+  error episodes on the robot clock (``realtime@freeR``: predictions land when this machine finishes them),
+  paired by scenario with the simulated-clock episodes, and the spread of their means over the repeats.
 * **timing** (``--timing``): every setting explores the largest eval map (50015847, start 0) for 500 steps,
   paced at the sensor's 10 Hz (the loop sleeps until the next frame, as on the robot, so an asynchronous
-  predictor has the time between frames), contenders alternated, each in a fresh worker process with the
-  numba cache and the sessions warm (a 3-step episode first). Step = what the control loop waits inside
-  ``Explorer.step``: p50 / p90 / p99 / max / mean, the first step, per-stage means. Then 1000-step episodes of
-  ``full``, the chosen default and MapEx on the observed map, unpaced, alternated: the episode's wall time.
+  predictor has the time between frames), on its robot clock (the default never waits), contenders alternated,
+  each in a fresh worker process with the numba cache and the sessions warm (a 3-step episode first). Step =
+  what the control loop waits inside ``Explorer.step``: p50 / p90 / p99 / max / mean, the first step, per-stage
+  means, and the prediction wait after the first step (p99, max). Then the same paced run of ``full`` and the
+  default (``--loaded-settings``) while a busy-loop process pinned to one core holds it (a robot's SLAM), and
+  1000-step episodes of ``full``, the default and MapEx on the observed map, unpaced, alternated: the episode's
+  wall time.
 
     NUMBA_NUM_THREADS=1 python scripts/bench_realtime.py --error train --out benchmarks/realtime   # choose
     NUMBA_NUM_THREADS=1 python scripts/bench_realtime.py --error eval --timing --out benchmarks/realtime
+
+A quick check (one scenario, a few steps; minutes):
+
+    python scripts/bench_realtime.py --error eval --scenarios 1 --steps 6 --settings full,realtime \
+        --free-repeats 2 --jobs 1 --timing --timing-steps 5 --wall-steps 5 --out /tmp/bench_realtime_check
 
 Writes ``OUT/realtime.json``, ``OUT/realtime.md`` and ``OUT/pareto.png`` (p99 step time against the AUC loss,
 the chosen default marked) from whatever the folder holds.
@@ -57,37 +68,52 @@ SETTINGS: dict[str, RealtimeProfile] = {
     "members_2": RealtimeProfile(max_members=2),
     "agreement_0.05": RealtimeProfile(agreement_stop=0.05),
     "nlos_skips": RealtimeProfile(nlos_skips=ALL_NLOS_SKIPS),
-    "async_crop_5_3": RealtimeProfile(schedule=PredictionSchedule(True, 5, 3), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_1_1": RealtimeProfile(schedule=PredictionSchedule(True, 1, 1), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_2_1": RealtimeProfile(schedule=PredictionSchedule(True, 2, 1), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_1_1_first": RealtimeProfile(schedule=PredictionSchedule(True, 1, 1, wait_first=True), reuse=CROP,
+    "async_crop_5_3": RealtimeProfile(schedule=PredictionSchedule("thread", 5, 3), reuse=CROP, session=ASYNC_SESSION),
+    "async_crop_1_1": RealtimeProfile(schedule=PredictionSchedule("thread", 1, 1), reuse=CROP, session=ASYNC_SESSION),
+    "async_crop_2_1": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1), reuse=CROP, session=ASYNC_SESSION),
+    "async_crop_1_1_first": RealtimeProfile(schedule=PredictionSchedule("thread", 1, 1, wait_first=True), reuse=CROP,
                                             session=ASYNC_SESSION),
-    "async_crop_2_1_first": RealtimeProfile(schedule=PredictionSchedule(True, 2, 1, wait_first=True), reuse=CROP,
+    "async_crop_2_1_first": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1, wait_first=True), reuse=CROP,
                                             session=ASYNC_SESSION),
-    "async_crop_2_1_first_skips": RealtimeProfile(schedule=PredictionSchedule(True, 2, 1, wait_first=True),
+    "async_crop_2_1_first_skips": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1, wait_first=True),
                                                   reuse=replace(CROP, min_changed_cells=50), nlos_skips=ALL_NLOS_SKIPS,
                                                   session=ASYNC_SESSION),
-    "async_crop_2_2_first": RealtimeProfile(schedule=PredictionSchedule(True, 2, 2, wait_first=True), reuse=CROP,
+    "async_crop_2_2_first": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True), reuse=CROP,
                                             session=ASYNC_SESSION),
-    "async_crop_2_2_first_members_1": RealtimeProfile(schedule=PredictionSchedule(True, 2, 2, wait_first=True),
+    "async_crop_2_2_first_members_1": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True),
                                                       reuse=CROP, max_members=1, session=ASYNC_SESSION),
-    "async_crop_2_2_first_agreement": RealtimeProfile(schedule=PredictionSchedule(True, 2, 2, wait_first=True),
+    "async_crop_2_2_first_agreement": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True),
                                                       reuse=CROP, agreement_stop=0.05, session=ASYNC_SESSION),
-    "async_crop_10_10": RealtimeProfile(schedule=PredictionSchedule(True, 10, 10), reuse=CROP,
+    "async_crop_10_10": RealtimeProfile(schedule=PredictionSchedule("thread", 10, 10), reuse=CROP,
                                         session=ASYNC_SESSION),
-    "async_crop_5_3_skips": RealtimeProfile(schedule=PredictionSchedule(True, 5, 3), reuse=CROP,
+    "async_crop_5_3_skips": RealtimeProfile(schedule=PredictionSchedule("thread", 5, 3), reuse=CROP,
                                             nlos_skips=ALL_NLOS_SKIPS, agreement_stop=0.05, session=ASYNC_SESSION),
     "crop_skips": RealtimeProfile(reuse=replace(CROP, min_changed_cells=200), nlos_skips=ALL_NLOS_SKIPS,
                                   agreement_stop=0.05),
+    DEFAULT_PROFILE: PROFILES[DEFAULT_PROFILE],
 }
-"""Setting name -> profile: the unskipped pipeline, then one knob at a time, then combinations. Every setting
-here is deterministic (``PredictionSchedule.every_steps >= 1``): its episodes do not depend on the machine."""
+"""Setting name -> profile: the unskipped pipeline, then one knob at a time, then combinations, then the default
+profile. The error runs use each profile's simulated clock (``RealtimeProfile.episode_config``) and the timing runs
+its robot clock; the historical asynchronous settings run the threaded deterministic mode on both (their error
+episodes are those of the simulated clock, bit for bit), so every error episode is independent of the machine
+except the free-running repeats (``SETTING@freeR``)."""
 
-CHOSEN = next((n for n, p in SETTINGS.items() if n != "full" and p == PROFILES[DEFAULT_PROFILE]), "full")
-"""The setting that ``pipeline.PROFILES[DEFAULT_PROFILE]`` is (marked in the plot)."""
+CHOSEN = DEFAULT_PROFILE
+"""The setting that ``pipeline.PROFILES[DEFAULT_PROFILE]`` is (marked in the plot): on the robot it never waits
+(``free``), in error runs it predicts on the simulated clock (the ``async_crop_2_2_first_members_1`` episodes)."""
+
+FREE = "@free"
+"""``NAME@freeR``: repeat R of setting NAME's error episodes on its robot clock (free-running: where the
+predictions land depends on the machine and its load), paired with NAME's simulated-clock episodes."""
 
 MAPEX = "mapex_observed"
 """Timing contender without prediction or SPAD: the MapEx planner on the observed map."""
+
+
+def _setting(name: str) -> tuple[str, bool]:
+    """(setting name, whether the episode runs on the robot clock) of a run name (``NAME`` or ``NAME@freeR``)."""
+    base, free, _ = name.partition(FREE)
+    return base, bool(free)
 
 
 def _names(spec: str) -> list[str]:
@@ -100,26 +126,36 @@ def _names(spec: str) -> list[str]:
 
 def _episode(task: tuple) -> dict:
     """One episode in a worker: ``(map, start index, start cell, setting, steps, mode)``; mode ``error`` (IoU
-    evaluated, no timings kept), ``paced`` (10 Hz, timings kept) or ``wall`` (unpaced, wall time)."""
+    evaluated, no timings kept; the simulated clock, the robot's for ``NAME@freeR``), ``paced`` (10 Hz, timings
+    kept, the robot clock), ``loaded`` (``paced``, while another process holds a core: started by the caller) or
+    ``wall`` (unpaced, wall time, the robot clock)."""
     from superex_deploy.maps import load_map
+    from superex_deploy.onboard.inference import available_cores
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.pipeline import make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 
     map_name, start_index, start, name, steps, mode = task
     grid = load_map(map_name)
-    if name == MAPEX:
+    setting, free = _setting(name)
+    if setting == MAPEX:
         planner, predictor_name, spad, profile = "mapex", "observed", False, PROFILES["full"]
     else:
-        planner, predictor_name, spad, profile = "superex", "lama_bp", True, SETTINGS[name]
+        planner, predictor_name, spad, profile = "superex", "lama_bp", True, SETTINGS[setting]
     iou = {"iou_every": 10, "iou_dense_until": 0.35} if mode == "error" else {"iou_every": 0}
-    cfg = profile.episode_config(**iou)
+    robot = mode != "error" or free
+    cfg = profile.episode_config(clock="robot" if robot else "simulated", **iou)
+    cores = available_cores() if robot else None  # the robot's thread budget; the benchmarks' fixed sessions
     counters: dict = {}
+    waits: list[float] = []
 
     def episode(n_steps: int, pace_hz: float = 0.0):
         tick = [time.perf_counter()]
 
         def after_step(observation, command, explorer):
+            # What the control loop waited for the predictor: blocked on the worker or computing inline.
+            waits.append(command.timings_s["prediction"] if explorer.scheduled is None
+                         else explorer.scheduled.last_wait_s)
             counters["members"] = getattr(explorer.predictor, "members_run", None)
             if explorer.reusing is not None:
                 counters.update(runs=explorer.reusing.runs, reused=explorer.reusing.reused,
@@ -130,25 +166,29 @@ def _episode(task: tuple) -> dict:
                 tick[0] += 1.0 / pace_hz
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
-        return run_episode(grid, start, make_planner(planner), make_predictor(predictor_name, grid, profile=profile),
+        waits.clear()
+        return run_episode(grid, start, make_planner(planner),
+                           make_predictor(predictor_name, grid, profile=profile, cores=cores),
                            steps=n_steps, seed=0, cfg=cfg, sensing=make_sensing(predictor_name, spad, 0, profile=profile),
                            on_observation=after_step)
 
     if mode != "error":
         episode(3)  # compiled kernels, loaded sessions: the measured episode starts warm
     clock = time.perf_counter()
-    result = episode(steps, PACE_HZ if mode == "paced" else 0.0)
+    result = episode(steps, PACE_HZ if mode in ("paced", "loaded") else 0.0)
     wall = time.perf_counter() - clock
     summary = result.to_json()
     summary.pop("poses")
     summary["start_index"] = start_index
     summary["setting"] = name
+    summary["clock"] = "robot" if robot else "simulated"
     summary["wall_s"] = wall
     summary["counters"] = counters
     if mode == "error":
         summary.pop("timings_s")
     else:
         summary["step_ms"] = (np.sum([np.asarray(v) for v in result.timings_s.values()], axis=0) * 1e3).tolist()
+        summary["wait_ms"] = (np.asarray(waits) * 1e3).tolist()
     return summary
 
 
@@ -162,14 +202,20 @@ def _error_scenarios(split: str) -> list[tuple[str, int, tuple[int, int]]]:
     return [(m, 0, tuple(int(v) for v in start)) for m, start in scenarios(12, 1, 40000, heldout=True)]
 
 
-def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path) -> None:
+def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path, free_repeats: int = 0,
+              scenarios: int = 0) -> None:
+    """Error episodes of ``names`` (simulated clock), then ``free_repeats`` free-running repeats of the default
+    (``CHOSEN@freeR``, robot clock); ``scenarios`` > 0: only the first that many scenarios (a quick check)."""
     from superex_deploy.parallel import run_tasks
 
     folder = out / f"error_{split}"
     folder.mkdir(parents=True, exist_ok=True)
-    places = _error_scenarios(split)
-    for name in names:
-        setting = {"steps": steps, "profile": SETTINGS[name].to_json()}
+    places = _error_scenarios(split)[:scenarios or None]
+    if free_repeats and CHOSEN not in names:
+        names = [*names, CHOSEN]
+    for name in [*names, *(f"{CHOSEN}{FREE}{r}" for r in range(free_repeats))]:
+        setting = {"steps": steps, "profile": SETTINGS[_setting(name)[0]].to_json(),
+                   "clock": "robot" if _setting(name)[1] else "simulated"}
         recorded = folder / f"{name}.setting.json"
         if recorded.is_file() and json.loads(recorded.read_text()) != setting:
             raise ValueError(f"{recorded} holds a run of other settings; move it away")
@@ -180,20 +226,41 @@ def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path) ->
         (folder / f"{name}.json").write_text(json.dumps({"setting": setting, "episodes": episodes}))
 
 
-def run_timing(names: list[str], walls: list[str], repeats: int, out: Path) -> None:
+def _busy_core():
+    """A process that holds one core (a busy loop pinned to the last core this process may use): a robot's SLAM."""
+    import os
+    import subprocess
+
+    core = max(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    pin = (lambda: os.sched_setaffinity(0, {core})) if core is not None else None
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=pin)
+
+
+def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, steps: int = TIMING_STEPS,
+               wall_steps: int = 1000, loaded: list[str] = ()) -> None:
+    """Paced episodes of ``names``, the same of ``loaded`` while a busy-loop process holds one core, then unpaced
+    episodes of ``full``, ``walls`` and MapEx; one at a time, alternated."""
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
     folder = out / "timing"
     folder.mkdir(parents=True, exist_ok=True)
     start = start_poses(TIMING_MAP)[TIMING_START]
-    order = [(n, r, "paced", TIMING_STEPS) for r in range(repeats) for n in (names if r % 2 == 0 else names[::-1])]
+    order = [(n, r, "paced", steps) for r in range(repeats) for n in (names if r % 2 == 0 else names[::-1])]
+    loaded = list(loaded)
+    order += [(n, r, "loaded", steps) for r in range(repeats) for n in (loaded if r % 2 == 0 else loaded[::-1])]
     walls = list(dict.fromkeys(["full", *walls, MAPEX]))
-    order += [(n, r, "wall", 1000) for r in range(repeats) for n in (walls if r % 2 == 0 else walls[::-1])]
-    for name, repeat, mode, steps in order:  # one at a time: the two cores belong to the measured episode
+    order += [(n, r, "wall", wall_steps) for r in range(repeats) for n in (walls if r % 2 == 0 else walls[::-1])]
+    for name, repeat, mode, n_steps in order:  # one at a time: the two cores belong to the measured episode
         key = f"{name}/{mode}/{repeat}"
-        run_tasks(_episode, [(TIMING_MAP, TIMING_START, start, name, steps, mode)], [key], 1,
-                  folder / "episodes.jsonl")
+        busy = _busy_core() if mode == "loaded" else None
+        try:
+            run_tasks(_episode, [(TIMING_MAP, TIMING_START, start, name, n_steps, mode)], [key], 1,
+                      folder / "episodes.jsonl")
+        finally:
+            if busy is not None:
+                busy.kill()
+                busy.wait()
         print(f"timing {key} done", flush=True)
 
 
@@ -218,17 +285,22 @@ def _timing_rows(out: Path) -> dict[str, dict]:
         by_setting.setdefault((name, mode), []).append(episode)
     rows: dict[str, dict] = {}
     for (name, mode), episodes in by_setting.items():
-        row = rows.setdefault(name, {})
+        row = rows.setdefault(name if mode != "loaded" else f"{name} (1 core held)", {})
         if mode == "wall":
             row["episode_wall_s"] = float(np.median([e["wall_s"] for e in episodes]))
             continue
         steps = np.concatenate([e["step_ms"] for e in episodes])
+        # The prediction wait after the first step (the first may wait for its own prediction: wait_first).
+        waits = np.concatenate([e["wait_ms"][1:] for e in episodes]) if all("wait_ms" in e for e in episodes) \
+            else np.zeros(0)
+        row.update(wait_p99_ms=float(np.percentile(waits, 99)) if waits.size else float("nan"),
+                   wait_max_ms=float(waits.max()) if waits.size else float("nan"))
         row.update(p50_ms=float(np.percentile(steps, 50)), p90_ms=float(np.percentile(steps, 90)),
                    p99_ms=float(np.percentile(steps, 99)), max_ms=float(steps.max()), mean_ms=float(steps.mean()),
                    first_step_ms=float(np.median([e["step_ms"][0] for e in episodes])),
                    stages_mean_ms={k: float(np.mean([np.mean(e["timings_s"][k]) * 1e3 for e in episodes]))
                                    for k in episodes[0]["timings_s"]},
-                   counters=episodes[-1]["counters"], repeats=len(episodes))
+                   counters=episodes[-1]["counters"], repeats=len(episodes), steps=len(episodes[0]["step_ms"]))
     return rows
 
 
@@ -249,15 +321,21 @@ def report(out: Path) -> None:
         complete = {n: e for n, e in rows.items() if len(e) == len(rows["full"])}
         error[split] = {"summary": {n: row_summary(e, steps) for n, e in complete.items()},
                         "paired": {n: paired_summary(complete["full"], e, steps) for n, e in complete.items()
-                                   if n != "full"}, "scenarios": len(rows["full"]), "steps": steps}
+                                   if n != "full"}, "scenarios": len(rows["full"]), "steps": steps,
+                        "free_paired": {n: paired_summary(complete[CHOSEN], e, steps) for n, e in complete.items()
+                                        if FREE in n and CHOSEN in complete}}
     lines = []
     full_t = timing.get("full", {})
     if timing:
-        lines += [f"**Timing**: {TIMING_MAP} start {TIMING_START}, {TIMING_STEPS} steps paced at {PACE_HZ:.0f} Hz, "
-                  "2 cores, alternated; step = what the control loop waits (ms); ratios to `full` in the same run. "
-                  "Episode wall: 1000 steps unpaced.", "",
+        paced = next((r for r in timing.values() if "steps" in r), {})
+        lines += [f"**Timing**: {TIMING_MAP} start {TIMING_START}, {paced.get('steps', TIMING_STEPS)} steps paced at "
+                  f"{PACE_HZ:.0f} Hz, 2 cores, alternated, each profile on its robot clock (`realtime`: never waits); "
+                  "step = what the control loop waits (ms); prediction wait = what it waited for the predictor "
+                  "after the first step (blocked on the worker, or predicting inline); `(1 core held)`: while a "
+                  "busy-loop process holds one core; ratios to `full` in the same run. Episode wall: unpaced.", "",
                   "| setting | p50 | p90 | p99 | max | mean | first step | p99 / full | mean / full | map update | "
-                  "prediction | episode wall s |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                  "prediction | prediction wait p99 (max) | episode wall s |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for name, row in timing.items():
             if "p99_ms" not in row:
                 continue
@@ -266,11 +344,14 @@ def report(out: Path) -> None:
                          f"{_fmt(row['p99_ms'] / full_t.get('p99_ms', np.nan), 2)} | "
                          f"{_fmt(row['mean_ms'] / full_t.get('mean_ms', np.nan), 2)} | "
                          f"{_fmt(row['stages_mean_ms']['map_update'])} | {_fmt(row['stages_mean_ms']['prediction'])} "
+                         f"| {_fmt(row.get('wait_p99_ms', np.nan), 2)} ({_fmt(row.get('wait_max_ms', np.nan), 1)}) "
                          f"| {_fmt(row.get('episode_wall_s', np.nan), 0)} |")
         walls = {n: r["episode_wall_s"] for n, r in timing.items() if "episode_wall_s" in r}
         if MAPEX in walls:
-            lines += ["", "Episode wall time, 1000 steps unpaced, over MapEx on the observed map: " + ", ".join(
+            lines += ["", "Episode wall time, unpaced, over MapEx on the observed map: " + ", ".join(
                 f"{n} {w:.0f} s ({w / walls[MAPEX]:.1f}x)" for n, w in walls.items()), ""]
+    for split, data in error.items():
+        lines += _free_lines(split, data)
     for split, data in error.items():
         lines += ["", f"**Error** ({split}: {data['scenarios']} scenarios, {data['steps']} steps, deterministic): paired "
                   "with `full`, mean difference [bootstrap 95 %] (ratio of means - 1).", "",
@@ -280,6 +361,8 @@ def report(out: Path) -> None:
         lines.append(f"| full | {100 * full_row['auc_first_half']:.1f} | - | {full_row['iou@0.10']:.3f} | "
                      f"{full_row['iou@0.20']:.3f} | {full_row['iou@0.30']:.3f} | - |")
         for name, paired in data["paired"].items():
+            if FREE in name:
+                continue
             auc = paired["auc_first_half"]
             ious = [paired.get(f"iou@{lv:.2f}", {}).get("ratio", np.nan) for lv in (0.1, 0.2, 0.3)]
             lines.append(f"| {name} | {100 * data['summary'][name]['auc_first_half']:.1f} | "
@@ -293,6 +376,37 @@ def report(out: Path) -> None:
         "settings": {n: p.to_json() for n, p in SETTINGS.items()}}, indent=1))
     _pareto(out, timing, error)
     print(text)
+
+
+def _free_lines(split: str, data: dict) -> list[str]:
+    """The free-running repeats of the default against its simulated-clock episodes (paired by scenario), and
+    the spread of the free-running means over the repeats."""
+    free = sorted(n for n in data["summary"] if n.startswith(CHOSEN + FREE))
+    if not free or CHOSEN not in data["summary"]:
+        return []
+    from superex_deploy.sim.suite import paired_summary
+
+    metrics = ("auc_first_half", "iou@0.10", "iou@0.20", "iou@0.30")
+    lines = ["", f"**Free-running vs simulated clock** ({split}: {data['scenarios']} scenarios, {data['steps']} "
+             f"steps): `{CHOSEN}` on the robot clock (never waits: predictions land when this machine finished them) "
+             f"paired with the same profile on the simulated clock (every 2 steps, applied 2 later); mean difference "
+             "(ratio of means - 1).", "",
+             "| run | first-half AUC | AUC points | IoU@10% | IoU@20% | IoU@30% | better / worse / tied |",
+             "|---|---:|---|---:|---:|---:|---|"]
+    for name in free:
+        paired = data["free_paired"][name]
+        auc = paired["auc_first_half"]
+        ious = [paired.get(m, {}).get("ratio", np.nan) for m in metrics[1:]]
+        lines.append(f"| {name} | {100 * data['summary'][name]['auc_first_half']:.1f} | "
+                     f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
+                     f"({100 * auc['ratio']:+.1f} %) | " + " | ".join(f"{100 * r:+.1f} %" for r in ious)
+                     + f" | {auc['better']} / {auc['worse']} / {auc['tied']} |")
+    spread = {m: np.std([data["summary"][n][m] for n in free], ddof=1) if len(free) > 1 else np.nan
+              for m in metrics}
+    lines += ["", f"Spread of the free-running means over {len(free)} repeats (standard deviation): first-half AUC "
+              f"{100 * spread['auc_first_half']:.2f} points, IoU@10/20/30% " +
+              " / ".join(f"{spread[m]:.4f}" for m in metrics[1:]) + "."]
+    return lines
 
 
 def _pareto(out: Path, timing: dict, error: dict) -> None:
@@ -343,16 +457,32 @@ def main() -> int:
                         "measured besides full and MapEx (comma-separated)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--repeats", type=int, default=1, help="timing episodes per setting")
+    parser.add_argument("--free-repeats", type=int, default=3, help="with --error: free-running (robot clock) "
+                        "repeats of the default's error episodes, paired with its simulated-clock ones (0: none)")
+    parser.add_argument("--scenarios", type=int, default=0, help="with --error: only the first N scenarios "
+                        "(a quick check; 0: all)")
+    parser.add_argument("--timing-steps", type=int, default=TIMING_STEPS, help="paced episode length")
+    parser.add_argument("--wall-steps", type=int, default=1000, help="unpaced episode length (episode wall time)")
+    parser.add_argument("--loaded-settings", default=None, help="settings also timed paced while a busy-loop "
+                        "process holds one core (default: full and the default profile; '' for none)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "realtime")
     args = parser.parse_args()
     names = _names(args.settings)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.error:
-        run_error(args.error, names, args.steps, args.jobs, args.out)
+        run_error(args.error, names, args.steps, args.jobs, args.out, args.free_repeats, args.scenarios)
     if args.timing:
-        walls = [w for w in _names("full," + args.wall_settings) if w != "full"]
-        run_timing(_names(args.timing_settings) if args.timing_settings else names, walls, args.repeats, args.out)
+        walls = [w for w in _names(f"full,{CHOSEN}," + args.wall_settings) if w != "full"]
+        if args.loaded_settings is None:
+            loaded = ["full", CHOSEN]
+        else:
+            loaded = [n for n in args.loaded_settings.split(",") if n.strip()]
+            unknown = [n for n in loaded if n not in SETTINGS]
+            if unknown:
+                raise ValueError(f"--loaded-settings: unknown setting(s) {unknown}")
+        run_timing(_names(args.timing_settings) if args.timing_settings else names, walls, args.repeats, args.out,
+                   args.timing_steps, args.wall_steps, loaded)
     report(args.out)
     return 0
 

@@ -268,3 +268,40 @@ def test_the_profile_gives_the_sessions_the_workers_share_of_the_cores():
     assert options and {o.intra_op_num_threads for o in options} == {2}
     ensemble = make_predictor("lama_los", profile=realtime, cores=2)
     assert {m.session.get_session_options().intra_op_num_threads for m in ensemble._members} == {1}
+
+
+def test_a_recording_made_before_the_schedule_modes_still_loads_and_replays(tmp_path, monkeypatch):
+    """A recording of the version before: its command schema lacks ``prediction_age_s``, its metadata holds the
+    schedule as ``asynchronous`` and the profile without ``simulated_schedule``."""
+    import json
+
+    from superex_deploy.cli import main
+    from superex_deploy.commands import explore
+    from superex_deploy.recording import read_recording
+    from superex_deploy.recording import schemas
+
+    old_command = schemas.EXPLORER_COMMAND_MSG.replace(
+        "float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older "
+        "files)\n", "")
+    assert old_command != schemas.EXPLORER_COMMAND_MSG
+    monkeypatch.setitem(schemas._SCHEMAS, "/command", ("superex_msgs/msg/ExplorerCommand", old_command))
+    old_schedule = {"asynchronous": False, "every_steps": 10, "apply_after_steps": 1, "wait_first": False}
+    written = explore.recording_metadata
+
+    def old_metadata(*args):
+        metadata = written(*args)
+        metadata["explorer"]["prediction"] = dict(old_schedule)
+        metadata["profile_settings"]["schedule"] = dict(old_schedule)
+        del metadata["profile_settings"]["simulated_schedule"]
+        return metadata
+
+    monkeypatch.setattr(explore, "recording_metadata", old_metadata)
+    record = tmp_path / "old.mcap"
+    assert main(["explore", "--map", "50052750", "--planner", "mapex", "--profile", "full", "--steps", "12",
+                 "--gif-every", "0", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    recording = read_recording(record)
+    assert recording.metadata["explorer"]["prediction"] == old_schedule
+    assert len(recording.steps) == 12 and all(s.prediction_age_s is None for s in recording.steps)
+    assert any(s.prediction_step >= 0 for s in recording.steps)  # MapEx asked: the new schema would hold ages
+    assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
+    assert json.loads((tmp_path / "replay" / "metrics.json").read_text())["goals_match"]

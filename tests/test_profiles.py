@@ -14,7 +14,11 @@ from superex_deploy.pipeline import (DEFAULT_PROFILE, PROFILES, RealtimeProfile,
 def test_the_default_profile_is_the_measured_realtime_one():
     assert DEFAULT_PROFILE == "realtime" and PROFILES["full"] == type(PROFILES["full"])()
     realtime = PROFILES["realtime"]
-    assert realtime.schedule.asynchronous and realtime.schedule.every_steps >= 1  # deterministic
+    # On the robot it never waits; in simulated benchmarks it runs the simulated clock (reproducible anywhere).
+    assert realtime.schedule.mode == "free" and realtime.explorer_config().prediction is realtime.schedule
+    simulated = realtime.episode_config().explorer.prediction
+    assert simulated.mode == "simulated" and (simulated.every_steps, simulated.apply_after_steps) == (2, 2)
+    assert PROFILES["full"].episode_config().explorer.prediction.mode == "inline"
     assert realtime.max_members == 1 and realtime.reuse.crop_margin_m == 6.4
     ensemble = make_predictor("lama_bp", profile=realtime)
     assert ensemble.max_members == 1 and make_predictor("lama_bp").max_members is None
@@ -26,7 +30,11 @@ def test_a_profile_gives_the_explorer_and_episode_configurations():
     assert explorer.prediction is realtime.schedule and explorer.reuse is realtime.reuse
     assert explorer.motion == type(explorer)().motion
     episode = realtime.episode_config(iou_every=10, iou_dense_until=0.35)
-    assert episode.explorer == explorer and (episode.iou_every, episode.iou_dense_until) == (10, 0.35)
+    assert episode.explorer == realtime.explorer_config("simulated") and episode.explorer.reuse is realtime.reuse
+    assert (episode.iou_every, episode.iou_dense_until) == (10, 0.35)
+    assert realtime.episode_config(clock="robot").explorer == explorer
+    with pytest.raises(ValueError, match="clock must be 'robot' or 'simulated', got 'wall'"):
+        realtime.explorer_config("wall")
 
 
 def test_a_one_member_profile_refuses_planners_that_read_the_variance():
@@ -60,21 +68,38 @@ def test_explore_refuses_a_profile_the_planner_cannot_use_and_defaults_around_it
     assert resolve_profile("full", make_planner("superex"), "lama_bp") == "full"
 
 
-def test_the_realtime_pipeline_is_reproducible_and_replays(tmp_path):
-    """Two runs of the asynchronous default (prediction in a worker thread) choose the same goals, and a replay of
-    its recording too: the deterministic schedule makes the episode independent of the machine's timing."""
+def test_the_realtime_pipeline_replays_and_its_benchmark_episodes_are_reproducible(tmp_path):
+    """``superex explore`` runs the default on the robot's clock (a step never waits for the predictor, so where
+    predictions land depends on the machine): its recording keeps where they landed and a replay follows it to the
+    same goals. Simulated benchmark episodes of the default run the simulated clock: two give the same goals."""
+    from superex_deploy.maps import load_map, start_poses
+    from superex_deploy.pipeline import make_sensing
+    from superex_deploy.recording import read_recording
+    from superex_deploy.sim.episode import run_episode
+
     argv = ["explore", "--map", "50052750", "--start", "1", "--planner", "superex", "--predictor", "lama_bp", "--spad",
             "--steps", "40", "--gif-every", "100"]
     assert main(argv + ["--out", str(tmp_path / "a"), "--record", str(tmp_path / "a.mcap")]) == 0
-    assert main(argv + ["--out", str(tmp_path / "b")]) == 0
     first = json.loads((tmp_path / "a" / "metrics.json").read_text())
-    second = json.loads((tmp_path / "b" / "metrics.json").read_text())
-    assert first["profile"] == "realtime"
-    assert first["goals"] == second["goals"] and len(first["goals"]["cells"]) >= 2
-    assert first["coverage_with_carving"] == second["coverage_with_carving"]
+    assert first["profile"] == "realtime" and first["config"]["explorer"]["prediction"]["mode"] == "free"
+    steps = read_recording(tmp_path / "a.mcap").steps
+    assert steps[0].prediction_step == 0 and all(s.prediction_step >= 0 for s in steps)  # wait_first
+    assert all(s.prediction_age_s == pytest.approx(0.1 * (s.step - s.prediction_step)) for s in steps)
     assert main(["replay", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
-    assert replay["goals_match"] and replay["goals"] == first["goals"]
+    assert replay["goals_match"] and replay["goals"] == first["goals"] and len(first["goals"]["cells"]) >= 2
+
+    profile = PROFILES["realtime"]
+    grid = load_map("50052750")
+
+    def episode():
+        return run_episode(grid, start_poses("50052750")[1], make_planner("superex"),
+                           make_predictor("lama_bp", grid, profile=profile), steps=30, seed=0,
+                           cfg=profile.episode_config(iou_every=0), sensing=make_sensing("lama_bp", True, 0,
+                                                                                        profile=profile))
+
+    one, two = episode(), episode()
+    assert one.goals == two.goals and one.coverage_with_carving.tolist() == two.coverage_with_carving.tolist()
 
 
 def test_a_replay_refuses_a_profile_defined_differently_since(tmp_path, monkeypatch, capsys):

@@ -196,6 +196,8 @@ class ScheduledPredictions:
         latest_step: the step whose map it was made from, or -1.
         blocking_waits: steps that waited for an unfinished prediction (``free`` mode: at most the first, with
             ``wait_first``; ``thread`` mode: whenever the worker is slower than the schedule).
+        last_wait_s: seconds the latest step waited for the predictor: blocked on an unfinished prediction
+            (``free``, ``thread``) or computing one inline (``simulated``, a followed recording); 0 otherwise.
     """
 
     def __init__(self, schedule: PredictionSchedule, predict: Callable, worker_threads: int = 1):
@@ -213,6 +215,7 @@ class ScheduledPredictions:
         self.latest: Optional[Prediction] = None
         self.latest_step = -1
         self.blocking_waits = 0
+        self.last_wait_s = 0.0
 
     def follow(self, prediction_steps: Sequence[int]) -> None:
         """Replay a recording: at step ``t`` apply the prediction of the map of step ``prediction_steps[t]`` (the
@@ -236,6 +239,7 @@ class ScheduledPredictions:
         says on ``observed`` (int8 ``[H, W]``, copied when kept) and ``evidence`` (float32 ``[H, W]`` or None);
         returns the seconds spent waiting for the worker or computing inline."""
         clock = time.perf_counter()
+        self.last_wait_s = 0.0
         if self._recorded is not None:
             self._advance_recorded(t, observed, evidence)
         elif self.schedule.mode == "free":
@@ -252,9 +256,11 @@ class ScheduledPredictions:
 
     def _take(self) -> None:
         pending, self._pending = self._pending, None  # a failed prediction is raised once, not every step
+        clock = time.perf_counter()
         if not pending.done():
             self.blocking_waits += 1
         self.latest, self.latest_step = pending.result(), self._pending_step
+        self.last_wait_s += time.perf_counter() - clock
 
     def _submit(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
         self._pending = self._worker.submit(self._predict, *self._copies(observed, evidence))
@@ -304,4 +310,6 @@ class ScheduledPredictions:
 
     def _apply_kept(self, step: int) -> None:
         observed, evidence = self._kept.pop(step)
+        clock = time.perf_counter()
         self.latest, self.latest_step = self._predict(observed, evidence), step
+        self.last_wait_s += time.perf_counter() - clock
