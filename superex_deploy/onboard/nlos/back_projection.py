@@ -8,6 +8,12 @@ are first summed per (wall cell, radius bin) over every ray that shares the wall
 half-disc is swept once (every cell adds the summed vote of the ring it lies on), only inside a window around
 the robot and only on cells not already known (runs of known cells are jumped over). The cost is about one
 visit per (wall cell, unknown window cell in its half-disc), independent of the number of rays and bins.
+
+A ray whose late bins span no ring that an unknown window cell in front of its wall lies on adds nothing:
+:func:`rays_reaching_unknown` finds the rays that may add something, and leaving the others out gives the same
+back-projection to the last bit (every cell still adds the same votes in the same order; the votes left out are
+ones no cell reads). On real episodes it leaves out about 1 % of the rays (``benchmarks/nlos_skips``): the window
+is mostly unknown while exploring, and the rings of late light are wide.
 """
 
 from __future__ import annotations
