@@ -289,6 +289,43 @@ def naive_draw_rings(apex, normals, votes, window, known):
     return bp
 
 
+def naive_readable_rings(apex, normals, window, known):
+    """Per wall point, the rings (floor(rho + 0.5), rho the distance from the apex to the cell centre) of the
+    unknown window cells in front of its wall, every cell tested (nlos.back_projection._readable_ring_bounds
+    bounds them): a list of sorted int arrays."""
+    r_lo, r_hi, c_lo, c_hi = window
+    rings = []
+    for u in range(apex.shape[0]):
+        found = set()
+        for r in range(r_lo, r_hi + 1):
+            for c in range(c_lo, c_hi + 1):
+                vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
+                if not known[r, c] and vy * normals[u, 0] + vx * normals[u, 1] > 0:
+                    found.add(int(np.sqrt(vy * vy + vx * vx) + 0.5))
+        rings.append(np.array(sorted(found), np.int64))
+    return rings
+
+
+def naive_voted_rings(row_start, bins, counts, los_bin, ray_wall, guard, threshold, bin_path_m, resolution_m,
+                      n_radii):
+    """Per ray, the rings its late detections vote on in nlos.back_projection._accumulate_votes (offset >= guard,
+    count > threshold, ring below n_radii), each detection tested: a list of sorted int arrays (empty for a ray
+    without a wall point)."""
+    rings = []
+    for i in range(len(row_start) - 1):
+        found = set()
+        if ray_wall[i] >= 0:
+            for j in range(row_start[i], row_start[i + 1]):
+                offset = bins[j] - los_bin[i]
+                if offset < guard or counts[j] <= threshold:
+                    continue
+                q = int(np.floor(offset * bin_path_m / 2.0 / resolution_m + 0.5))
+                if q < n_radii:
+                    found.add(q)
+        rings.append(np.array(sorted(found), np.int64))
+    return rings
+
+
 # --- explore ---
 
 # explore: core

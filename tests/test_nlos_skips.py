@@ -51,7 +51,8 @@ def test_a_frame_with_no_unknown_cell_in_reach_is_skipped_and_one_with_a_single_
     known = np.ones(grid.shape, bool)
     processing = SpadProcessing(sensor=SENSOR, skips=NlosSkips(without_unknown=True))
     carved, evidence = processing.process_scan(scan, known)
-    assert processing.counts == {"frames": 1, "no_unknown": 1, "still": 0, "no_votes": 0}
+    assert {k: processing.counts[k] for k in ("frames", "no_unknown", "still", "no_votes")} == {
+        "frames": 1, "no_unknown": 1, "still": 0, "no_votes": 0}
     assert not carved.any() and not evidence.any()
 
     # An unknown cell on the edge of the reach is enough to process the frame...
@@ -107,7 +108,8 @@ def test_a_robot_standing_still_for_100_frames_is_processed_once():
         carved, evidence = processing.process_scan(scan, known | first_carved)
         assert not carved.any()
         assert np.isfinite(evidence).all()
-    assert processing.counts == {"frames": 100, "no_unknown": 0, "still": 99, "no_votes": 0}
+    assert {k: processing.counts[k] for k in ("frames", "no_unknown", "still", "no_votes")} == {
+        "frames": 100, "no_unknown": 0, "still": 99, "no_votes": 0}
     assert bp_filter.calls == 1
     np.testing.assert_array_equal(processing.evidence, first_evidence)
     # One cell further on, the frame is processed again.

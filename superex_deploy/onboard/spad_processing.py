@@ -14,8 +14,9 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame, grid_angles
-from superex_deploy.onboard.nlos import (NlosConfig, back_project, carve, carve_radius_cap_m, estimate_los,
-                                          process_scan)
+from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
+from superex_deploy.onboard.nlos.back_projection import _back_projection_patch, rays_reaching_unknown
+from superex_deploy.onboard.nlos.filters import _filtered_patch
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
 __all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame"]
@@ -61,16 +62,36 @@ class NlosSkips:
         filter_without_votes: skip the Pix2Pix filter when the back-projection window holds no vote: its output
             on an empty window is the network's bias (up to 0.86 wall probability with the committed model), not
             evidence, and the running maximum would keep it.
+        rays_without_unknown: leave out of the back-projection the rays whose late light cannot vote on an unknown
+            cell of its window (:func:`~superex_deploy.onboard.nlos.back_projection.rays_reaching_unknown`).
+            Exact: the back-projection is the same to the last bit.
+        filter_same_input: skip the learned filter when the back-projection (window, position and values) and the
+            robot cell are those of the last filter run: the output would be the same, and the running maximum
+            holds it already. Exact.
+        evidence_every: back-project and filter only every this many frames (1: every frame); the frames between
+            are still carved. Not exact: the evidence misses those frames' glimpses (``scripts/bench_nlos_skips.py``
+            measures the error).
     """
 
     without_unknown: bool = False
     when_still: bool = False
     filter_without_votes: bool = False
+    rays_without_unknown: bool = False
+    filter_same_input: bool = False
+    evidence_every: int = 1
 
     def __post_init__(self) -> None:
-        for name in ("without_unknown", "when_still", "filter_without_votes"):
+        for name in ("without_unknown", "when_still", "filter_without_votes", "rays_without_unknown",
+                     "filter_same_input"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        every = self.evidence_every
+        if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise ValueError(f"evidence_every must be an integer >= 1, got {every!r}")
+
+
+COUNTS = ("frames", "no_unknown", "still", "no_votes", "evidence_skipped", "same_input", "rays", "rays_skipped")
+"""The keys of :attr:`SpadProcessing.counts`."""
 
 
 @dataclass
@@ -88,8 +109,10 @@ class SpadProcessing:
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
         skips: work left out (:class:`NlosSkips`).
-        counts: frames seen, frames skipped (``no_unknown``, ``still``) and filters skipped (``no_votes``) since
-            :meth:`reset`.
+        counts: since :meth:`reset`: ``frames`` seen; frames skipped whole (``no_unknown``, ``still``); frames
+            whose evidence was skipped (``evidence_skipped``: ``evidence_every``); filter runs skipped
+            (``no_votes``, ``same_input``); ``rays`` with a wall point in the back-projected frames and
+            ``rays_skipped`` of them (``rays_without_unknown``).
     """
 
     sensor: SpadConfig = field(default_factory=SpadConfig)
@@ -98,8 +121,8 @@ class SpadProcessing:
     skips: NlosSkips = field(default_factory=NlosSkips)
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
     _last_view: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
-    counts: dict = field(default_factory=lambda: dict.fromkeys(("frames", "no_unknown", "still", "no_votes"), 0),
-                         init=False, compare=False)
+    _last_filter_input: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
+    counts: dict = field(default_factory=lambda: dict.fromkeys(COUNTS, 0), init=False, compare=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.skips, NlosSkips):
@@ -114,7 +137,8 @@ class SpadProcessing:
         """Forget the evidence and the last frame of an earlier episode."""
         self._evidence = None
         self._last_view = None
-        self.counts = dict.fromkeys(self.counts, 0)
+        self._last_filter_input = None
+        self.counts = dict.fromkeys(COUNTS, 0)
 
     def reach_cells(self, resolution_m: float) -> int:
         """Half side (cells) of the square around the robot that a frame can carve or back-project into: carved
@@ -147,20 +171,51 @@ class SpadProcessing:
         if reason is not None:
             self.counts[reason] += 1
             return np.zeros(scan.grid_shape, bool), self._evidence
-        if self.bp_filter is None:
+        frame_index = self.counts["frames"] - 1
+        if frame_index % self.skips.evidence_every:
+            self.counts["evidence_skipped"] += 1
+            los = estimate_los(scan, self.nlos_cfg)
+            return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+        if self.bp_filter is None and not self.skips.rays_without_unknown:
             result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
             return result.carved, self._evidence
-        # The learned filter replaces the Laplacian one: do not compute that too.
         los = estimate_los(scan, self.nlos_cfg)
-        bp = back_project(scan, los, self.nlos_cfg, known)
-        if self.skips.filter_without_votes and not bp.any():
+        bp = self._back_projection(scan, los, known)
+        if self.bp_filter is None:
+            filtered = _filtered_patch(bp, 1.0)
+            area = filtered.slices
+            np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
+        elif self.skips.filter_without_votes and not bp.values.any():
             self.counts["no_votes"] += 1
+        elif self.skips.filter_same_input and self._same_filter_input(bp, scan.pose_rc):
+            self.counts["same_input"] += 1
         else:
-            np.maximum(self._evidence, self.bp_filter(bp, scan.pose_rc), out=self._evidence)
+            # The learned filter replaces the Laplacian one: that is not computed.
+            np.maximum(self._evidence, self.bp_filter(bp.to_grid(), scan.pose_rc), out=self._evidence)
         return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+
+    def _back_projection(self, scan: SpadScan, los, known: np.ndarray):
+        """The raw back-projection patch, the rays that cannot vote on an unknown cell left out if asked."""
+        if not self.skips.rays_without_unknown:
+            return _back_projection_patch(scan, los, self.nlos_cfg, known)
+        keep = rays_reaching_unknown(scan, los, self.nlos_cfg, known)
+        voting = int((los.ray_wall >= 0).sum())
+        self.counts["rays"] += voting
+        self.counts["rays_skipped"] += voting - int(keep.sum())
+        return _back_projection_patch(scan, los, self.nlos_cfg, known, keep_rays=keep)
+
+    def _same_filter_input(self, bp, pose_rc) -> bool:
+        """Whether the filter's input (the back-projection patch and the robot cell) is the last run's; if not,
+        it becomes the last run's."""
+        key = (bp.top, bp.left, tuple(int(v) for v in pose_rc))
+        last = self._last_filter_input
+        if last is not None and last[0] == key and np.array_equal(last[1], bp.values):
+            return True
+        self._last_filter_input = (key, bp.values)
+        return False
 
     def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray,
                  pose_covariance: Optional[PoseCovariance] = None) -> tuple[np.ndarray, np.ndarray]:
