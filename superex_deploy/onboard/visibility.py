@@ -23,6 +23,7 @@ from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Pre
 from superex_deploy.geometry import dda_start, dda_step
 
 __all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
+           "union_visible_unknown_flat",
            "connected_unknown_gains",
            "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
 
@@ -104,20 +105,19 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, 
 
 
 @numba.njit(cache=True)
-def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
-    """Cells whose centre lies inside the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 +
-    ranges[k] cos a_k)``, ``a_k = 2 pi k / n``, by scanline fill: each row's centre line crosses the polygon's
-    edges (half-open in y, so a vertex on the line counts once) and the cells whose centres lie between
-    crossings ``2j`` and ``2j + 1`` are inside. The work is the edges' row spans plus the visible cells.
+def _polygon_spans(ranges, y0, x0, n_rows):
+    """The scanline spans of the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 + ranges[k] cos
+    a_k)``, ``a_k = 2 pi k / n``: each row's centre line crosses the polygon's edges (half-open in y, so a vertex
+    on the line counts once); the cells of row ``row_lo + i`` whose centres lie between crossings ``2j`` and
+    ``2j + 1`` (of ``crossings[offsets[i]:offsets[i + 1]]``, sorted) are inside. The work is the edges' row spans.
 
-    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
-    is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
-    ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
-    one label count the union of their views. Nothing is visible when every range is zero."""
+    Returns ``(row_lo, n_scan, offsets int64 [n_scan + 1], crossings float64 [M])``; ``n_scan`` is 0 when no row
+    centre line crosses the polygon (or every range is zero)."""
     n_rays = ranges.shape[0]
-    n_rows, n_cols = observed.shape
+    no_offsets = np.zeros(1, np.int64)
+    no_crossings = np.empty(0)
     if ranges.max() <= 0.0:
-        return 0, 0.0
+        return 0, 0, no_offsets, no_crossings
     step = 2.0 * np.pi / n_rays
     vert_y = np.empty(n_rays)
     vert_x = np.empty(n_rays)
@@ -128,7 +128,7 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
     row_lo = max(0, int(np.ceil(vert_y.min() - 0.5)))
     row_hi = min(n_rows - 1, int(np.ceil(vert_y.max() - 0.5)) - 1)
     if row_hi < row_lo:
-        return 0, 0.0
+        return 0, 0, no_offsets, no_crossings
     n_scan = row_hi - row_lo + 1
     offsets = np.zeros(n_scan + 1, np.int64)
     for k in range(n_rays):
@@ -149,10 +149,7 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
             fraction = (r + 0.5 - vert_y[k]) / (vert_y[k1] - vert_y[k])
             crossings[filled[r - row_lo]] = vert_x[k] + fraction * (vert_x[k1] - vert_x[k])
             filled[r - row_lo] += 1
-    count = 0
-    var_sum = 0.0
     for i in range(n_scan):
-        r = row_lo + i
         lo, hi = offsets[i], offsets[i + 1]
         for a in range(lo + 1, hi):  # insertion sort: a row crosses few edges
             x = crossings[a]
@@ -161,7 +158,26 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
                 crossings[b + 1] = crossings[b]
                 b -= 1
             crossings[b + 1] = x
-        for j in range(lo, hi - 1, 2):
+    return row_lo, n_scan, offsets, crossings
+
+
+@numba.njit(cache=True)
+def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
+    """Cells whose centre lies inside the polygon of :func:`_polygon_spans`, by scanline fill: a cell is inside
+    when its centre lies between crossings ``2j`` and ``2j + 1`` of its row. The work is the edges' row spans
+    plus the visible cells.
+
+    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
+    is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
+    ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
+    one label count the union of their views. Nothing is visible when every range is zero."""
+    n_rows, n_cols = observed.shape
+    row_lo, n_scan, offsets, crossings = _polygon_spans(ranges, y0, x0, n_rows)
+    count = 0
+    var_sum = 0.0
+    for i in range(n_scan):
+        r = row_lo + i
+        for j in range(offsets[i], offsets[i + 1] - 1, 2):
             c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
             c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
             for c in range(c_first, c_last + 1):
@@ -175,6 +191,70 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
                     count += 1
                     var_sum += variance[r, c]
     return count, var_sum
+
+
+@numba.njit(cache=True)
+def _next_unknown(observed):
+    """int32 ``[H, W + 1]``: for each cell, the column of the first UNKNOWN (-1) cell at or right of it in its
+    row, ``W`` where there is none (column ``W`` is that sentinel): a fill then visits the unknown cells of a
+    span only, in the order a cell-by-cell scan meets them."""
+    n_rows, n_cols = observed.shape
+    following = np.empty((n_rows, n_cols + 1), np.int32)
+    for r in range(n_rows):
+        following[r, n_cols] = n_cols
+        for c in range(n_cols - 1, -1, -1):
+            following[r, c] = c if observed[r, c] == -1 else following[r, c + 1]
+    return following
+
+
+@numba.njit(cache=True)
+def _grouped_gains(mean, next_unknown, variance, view_rows, view_cols, view_cast, cast_rows, cast_cols,
+                   group_offsets, n_rays, max_t, hit_threshold, accumulate, union):
+    """Visible-unknown count and variance sum of every group of viewpoints, in one compiled pass.
+
+    Each distinct viewpoint ``u`` (cell ``cast_rows[u], cast_cols[u]``) is cast once
+    (:func:`_ray_visible_ranges`); group ``g`` is made of viewpoints ``group_offsets[g]`` to ``group_offsets[g +
+    1]`` of ``view_rows / view_cols``, whose casts are ``view_cast``. A viewpoint's polygon
+    (:func:`_polygon_spans`) is filled over the unknown cells only, through ``next_unknown``
+    (:func:`_next_unknown`), in row-major order within each span as :func:`_fill_visibility` visits them, so
+    counts and sums are the same. With ``union`` a group counts each unknown cell once (the union of its
+    viewpoints' views); without, every viewpoint's cells count (one viewpoint per group: :func:`visible_gains`).
+
+    Returns ``(counts int64 [G], variance_sums float64 [G])``."""
+    n_rows, n_cols = mean.shape
+    n_cast = cast_rows.shape[0]
+    ranges = np.empty((n_cast, n_rays))
+    for u in range(n_cast):
+        _ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold, accumulate,
+                            ranges[u])
+    n_groups = group_offsets.shape[0] - 1
+    counts = np.zeros(n_groups, np.int64)
+    var_sums = np.zeros(n_groups)
+    stamp = np.full((n_rows, n_cols) if union else (1, 1), -1, np.int32)
+    for g in range(n_groups):
+        for v in range(group_offsets[g], group_offsets[g + 1]):
+            y0, x0 = view_rows[v] + 0.5, view_cols[v] + 0.5
+            row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[view_cast[v]], y0, x0, n_rows)
+            count = 0
+            var_sum = 0.0
+            for i in range(n_scan):
+                r = row_lo + i
+                for j in range(offsets[i], offsets[i + 1] - 1, 2):
+                    c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
+                    c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+                    if c_first > c_last:
+                        continue
+                    c = next_unknown[r, c_first]
+                    while c <= c_last:
+                        if not union or stamp[r, c] != g:
+                            if union:
+                                stamp[r, c] = g
+                            count += 1
+                            var_sum += variance[r, c]
+                        c = next_unknown[r, c + 1]
+            counts[g] += count
+            var_sums[g] += var_sum
+    return counts, var_sums
 
 
 def check_map(name: str, array, dtype, shape=None) -> np.ndarray:
@@ -253,16 +333,21 @@ def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: V
     variance = check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
     observed = np.ascontiguousarray(check_observed(observed, mean.shape))
     cells = check_cells(cells_rc, mean.shape)
-    counts = np.zeros(len(cells), np.int64)
-    var_sums = np.zeros(len(cells), np.float64)
-    ranges = np.empty(cfg.n_rays, np.float64)
-    no_mask = np.zeros((1, 1), bool)
+    return _gains_of_groups(mean, observed, variance, cells, np.arange(len(cells) + 1), cfg, resolution_m, False)
+
+
+def _gains_of_groups(mean: np.ndarray, observed: np.ndarray, variance: np.ndarray, cells: np.ndarray,
+                     group_offsets: np.ndarray, cfg: VisibilityConfig, resolution_m: float, union: bool
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_grouped_gains` on checked arrays (``cells`` int64 ``[V, 2]`` inside the map, ``group_offsets``
+    int64 ``[G + 1]``): each distinct viewpoint is cast once."""
     max_t = _max_range_cells(cfg, resolution_m)
-    for i, (r, c) in enumerate(cells):
-        _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate, ranges)
-        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False,
-                                                  _NO_STAMP, -1)
-    return counts, var_sums
+    flat = cells[:, 0] * mean.shape[1] + cells[:, 1]
+    distinct, view_cast = np.unique(flat, return_inverse=True)
+    return _grouped_gains(mean, _next_unknown(observed), variance, np.ascontiguousarray(cells[:, 0]),
+                          np.ascontiguousarray(cells[:, 1]), view_cast.astype(np.int64).reshape(-1),
+                          distinct // mean.shape[1], distinct % mean.shape[1], np.asarray(group_offsets, np.int64),
+                          cfg.n_rays, max_t, float(cfg.hit_threshold), bool(cfg.accumulate), union)
 
 
 def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: list, cfg: VisibilityConfig,
@@ -278,26 +363,32 @@ def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: li
     Returns:
         int64 ``[N]``: the size of the union of each group's visible unknown cells (0 for an empty group).
     """
+    sizes = [len(group) for group in viewpoints]
+    cells = np.asarray([cell for group in viewpoints for cell in group], np.int64).reshape(-1, 2)
+    return union_visible_unknown_flat(mean, observed, cells, np.concatenate([[0], np.cumsum(sizes)]), cfg,
+                                      resolution_m)
+
+
+def union_visible_unknown_flat(mean: np.ndarray, observed: np.ndarray, cells_rc, group_offsets,
+                               cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
+    """:func:`union_visible_unknown` with the groups as one array: group ``g`` is
+    ``cells_rc[group_offsets[g]:group_offsets[g + 1]]``.
+
+    Args:
+        cells_rc: ``[V, 2]`` viewpoint cells (row, col).
+        group_offsets: ``[N + 1]`` non-decreasing integers from 0 to ``V``.
+
+    Returns:
+        int64 ``[N]``, as :func:`union_visible_unknown`.
+    """
     mean = check_map("mean", mean, np.float32)
     observed = np.ascontiguousarray(check_observed(observed, mean.shape))
-    max_t = _max_range_cells(cfg, resolution_m)
-    stamp = np.full(mean.shape, -1, np.int32)
-    no_variance = np.zeros(mean.shape, np.float32)
-    no_mask = np.zeros((1, 1), bool)
-    cast: dict = {}
-    out = np.zeros(len(viewpoints), np.int64)
-    for label, group in enumerate(viewpoints):
-        for (r, c) in check_cells(group, mean.shape) if len(group) else ():
-            key = (int(r), int(c))
-            if key not in cast:
-                ranges = np.empty(cfg.n_rays, np.float64)
-                _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
-                                    ranges)
-                cast[key] = ranges
-            count, _ = _fill_visibility(cast[key], r + 0.5, c + 0.5, observed, no_variance,
-                                        no_mask, False, stamp, label)
-            out[label] += count
-    return out
+    cells = check_cells(cells_rc, mean.shape)
+    offsets = np.asarray(group_offsets, np.int64).reshape(-1)
+    if len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != len(cells) or np.any(np.diff(offsets) < 0):
+        raise ValueError(f"group_offsets must rise from 0 to the {len(cells)} cells, got {offsets.tolist()[:8]}")
+    # The variance is not read (the union counts cells only): the mean stands in for it.
+    return _gains_of_groups(mean, observed, mean, cells, offsets, cfg, resolution_m, True)[0]
 
 
 def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,
