@@ -9,8 +9,9 @@ from superex_deploy.onboard.motion import planning_map
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.planners.superex import _descend_paths, descend, descend_all, path_viewpoints
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
-from superex_deploy.onboard.visibility import (VisibilityConfig, _next_unknown, reachable_frontiers,
-                                               union_visible_unknown, union_visible_unknown_flat, visible_gains)
+from superex_deploy.onboard.viewpoint_gains import (_next_unknown, union_visible_unknown, union_visible_unknown_flat,
+                                                    visible_gains)
+from superex_deploy.onboard.visibility import VisibilityConfig, reachable_frontiers
 from tests import naive
 
 
@@ -114,6 +115,11 @@ def test_union_of_views_is_identical_to_the_reference_for_random_groups():
         rng = np.random.default_rng(100 + seed)
         pool = np.argwhere(observed != OCCUPIED)
         groups = [[tuple(pool[k]) for k in rng.integers(len(pool), size=rng.integers(0, 6))] for _ in range(12)]
+        # Chains that share their first viewpoints (as the SuperEx paths from the robot do), repeats included.
+        chains = [[tuple(pool[k]) for k in rng.integers(len(pool), size=8)] for _ in range(3)]
+        groups += [chain[:rng.integers(1, 9)] + [tuple(pool[rng.integers(len(pool))])] for chain in chains
+                   for _ in range(4)] + [chains[0] + chains[0][:2]]
+        rng.shuffle(groups)
         counts = union_visible_unknown(prediction.mean, observed, groups, cfg, 0.1)
         assert np.array_equal(counts, naive.reference_union_visible_unknown(prediction.mean, observed, groups, cfg,
                                                                             0.1))

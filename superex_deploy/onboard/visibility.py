@@ -9,6 +9,9 @@ no seed to re-pick, at a cost proportional to the visible area. A cell blocks a 
 probability reaches the hit threshold (0.8): that is what MapEx's ``get_free_points(use_prob=True)`` computes,
 since it resets its "accumulated" probability at every cell. The accumulated rule that MapEx's paper describes,
 ``1 - prod(1 - p_i) >= threshold``, is available as ``VisibilityConfig(accumulate=True)``.
+
+The gains of many viewpoints (:func:`visible_gains`, :func:`union_visible_unknown`) live in
+:mod:`~superex_deploy.onboard.viewpoint_gains`.
 """
 
 from __future__ import annotations
@@ -19,12 +22,10 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction, check_observed
+from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, check_observed
 from superex_deploy.geometry import dda_start, dda_step
 
-__all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
-           "union_visible_unknown_flat",
-           "connected_unknown_gains",
+__all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "connected_unknown_gains",
            "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
 
 
@@ -193,70 +194,6 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
     return count, var_sum
 
 
-@numba.njit(cache=True)
-def _next_unknown(observed):
-    """int32 ``[H, W + 1]``: for each cell, the column of the first UNKNOWN (-1) cell at or right of it in its
-    row, ``W`` where there is none (column ``W`` is that sentinel): a fill then visits the unknown cells of a
-    span only, in the order a cell-by-cell scan meets them."""
-    n_rows, n_cols = observed.shape
-    following = np.empty((n_rows, n_cols + 1), np.int32)
-    for r in range(n_rows):
-        following[r, n_cols] = n_cols
-        for c in range(n_cols - 1, -1, -1):
-            following[r, c] = c if observed[r, c] == -1 else following[r, c + 1]
-    return following
-
-
-@numba.njit(cache=True)
-def _grouped_gains(mean, next_unknown, variance, view_rows, view_cols, view_cast, cast_rows, cast_cols,
-                   group_offsets, n_rays, max_t, hit_threshold, accumulate, union):
-    """Visible-unknown count and variance sum of every group of viewpoints, in one compiled pass.
-
-    Each distinct viewpoint ``u`` (cell ``cast_rows[u], cast_cols[u]``) is cast once
-    (:func:`_ray_visible_ranges`); group ``g`` is made of viewpoints ``group_offsets[g]`` to ``group_offsets[g +
-    1]`` of ``view_rows / view_cols``, whose casts are ``view_cast``. A viewpoint's polygon
-    (:func:`_polygon_spans`) is filled over the unknown cells only, through ``next_unknown``
-    (:func:`_next_unknown`), in row-major order within each span as :func:`_fill_visibility` visits them, so
-    counts and sums are the same. With ``union`` a group counts each unknown cell once (the union of its
-    viewpoints' views); without, every viewpoint's cells count (one viewpoint per group: :func:`visible_gains`).
-
-    Returns ``(counts int64 [G], variance_sums float64 [G])``."""
-    n_rows, n_cols = mean.shape
-    n_cast = cast_rows.shape[0]
-    ranges = np.empty((n_cast, n_rays))
-    for u in range(n_cast):
-        _ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold, accumulate,
-                            ranges[u])
-    n_groups = group_offsets.shape[0] - 1
-    counts = np.zeros(n_groups, np.int64)
-    var_sums = np.zeros(n_groups)
-    stamp = np.full((n_rows, n_cols) if union else (1, 1), -1, np.int32)
-    for g in range(n_groups):
-        for v in range(group_offsets[g], group_offsets[g + 1]):
-            y0, x0 = view_rows[v] + 0.5, view_cols[v] + 0.5
-            row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[view_cast[v]], y0, x0, n_rows)
-            count = 0
-            var_sum = 0.0
-            for i in range(n_scan):
-                r = row_lo + i
-                for j in range(offsets[i], offsets[i + 1] - 1, 2):
-                    c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-                    c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                    if c_first > c_last:
-                        continue
-                    c = next_unknown[r, c_first]
-                    while c <= c_last:
-                        if not union or stamp[r, c] != g:
-                            if union:
-                                stamp[r, c] = g
-                            count += 1
-                            var_sum += variance[r, c]
-                        c = next_unknown[r, c + 1]
-            counts[g] += count
-            var_sums[g] += var_sum
-    return counts, var_sums
-
-
 def check_map(name: str, array, dtype, shape=None) -> np.ndarray:
     if not isinstance(array, np.ndarray) or array.dtype != dtype or array.ndim != 2 or min(array.shape) < 1:
         found = f"{array.dtype} {array.shape}" if isinstance(array, np.ndarray) else type(array).__name__
@@ -314,81 +251,6 @@ def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resol
     _fill_visibility(ranges, r + 0.5, c + 0.5, np.zeros(mean.shape, np.int8), np.zeros(mean.shape, np.float32),
                      visible, True, _NO_STAMP, -1)
     return visible
-
-
-def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
-                  resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Information of viewpoints: the currently unknown cells predicted visible from each.
-
-    Args:
-        prediction: float32 ``[H, W]`` mean and variance.
-        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
-        cells_rc: ``[N, 2]`` viewpoint cells (row, col).
-        cfg, resolution_m: as in :func:`visible_ranges`.
-
-    Returns:
-        ``(unknown_count int64 [N], variance_sum float64 [N])`` over the visible unknown cells.
-    """
-    mean = check_map("prediction.mean", prediction.mean, np.float32)
-    variance = check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
-    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
-    cells = check_cells(cells_rc, mean.shape)
-    return _gains_of_groups(mean, observed, variance, cells, np.arange(len(cells) + 1), cfg, resolution_m, False)
-
-
-def _gains_of_groups(mean: np.ndarray, observed: np.ndarray, variance: np.ndarray, cells: np.ndarray,
-                     group_offsets: np.ndarray, cfg: VisibilityConfig, resolution_m: float, union: bool
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_grouped_gains` on checked arrays (``cells`` int64 ``[V, 2]`` inside the map, ``group_offsets``
-    int64 ``[G + 1]``): each distinct viewpoint is cast once."""
-    max_t = _max_range_cells(cfg, resolution_m)
-    flat = cells[:, 0] * mean.shape[1] + cells[:, 1]
-    distinct, view_cast = np.unique(flat, return_inverse=True)
-    return _grouped_gains(mean, _next_unknown(observed), variance, np.ascontiguousarray(cells[:, 0]),
-                          np.ascontiguousarray(cells[:, 1]), view_cast.astype(np.int64).reshape(-1),
-                          distinct // mean.shape[1], distinct % mean.shape[1], np.asarray(group_offsets, np.int64),
-                          cfg.n_rays, max_t, float(cfg.hit_threshold), bool(cfg.accumulate), union)
-
-
-def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: list, cfg: VisibilityConfig,
-                          resolution_m: float) -> np.ndarray:
-    """For each group of viewpoints, the unknown cells predicted visible from at least one of them.
-
-    Args:
-        mean: float32 ``[H, W]`` predicted wall probability.
-        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
-        viewpoints: ``N`` lists of viewpoint cells (row, col); a cell shared by several groups is cast once.
-        cfg, resolution_m: as in :func:`visible_ranges`.
-
-    Returns:
-        int64 ``[N]``: the size of the union of each group's visible unknown cells (0 for an empty group).
-    """
-    sizes = [len(group) for group in viewpoints]
-    cells = np.asarray([cell for group in viewpoints for cell in group], np.int64).reshape(-1, 2)
-    return union_visible_unknown_flat(mean, observed, cells, np.concatenate([[0], np.cumsum(sizes)]), cfg,
-                                      resolution_m)
-
-
-def union_visible_unknown_flat(mean: np.ndarray, observed: np.ndarray, cells_rc, group_offsets,
-                               cfg: VisibilityConfig, resolution_m: float) -> np.ndarray:
-    """:func:`union_visible_unknown` with the groups as one array: group ``g`` is
-    ``cells_rc[group_offsets[g]:group_offsets[g + 1]]``.
-
-    Args:
-        cells_rc: ``[V, 2]`` viewpoint cells (row, col).
-        group_offsets: ``[N + 1]`` non-decreasing integers from 0 to ``V``.
-
-    Returns:
-        int64 ``[N]``, as :func:`union_visible_unknown`.
-    """
-    mean = check_map("mean", mean, np.float32)
-    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
-    cells = check_cells(cells_rc, mean.shape)
-    offsets = np.asarray(group_offsets, np.int64).reshape(-1)
-    if len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != len(cells) or np.any(np.diff(offsets) < 0):
-        raise ValueError(f"group_offsets must rise from 0 to the {len(cells)} cells, got {offsets.tolist()[:8]}")
-    # The variance is not read (the union counts cells only): the mean stands in for it.
-    return _gains_of_groups(mean, observed, mean, cells, offsets, cfg, resolution_m, True)[0]
 
 
 def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,

@@ -44,8 +44,9 @@ from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, Expected
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
+from superex_deploy.onboard.viewpoint_gains import union_visible_unknown_flat, visible_gains
 from superex_deploy.onboard.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map, predicted_visibility,
-                                               reachable_frontiers, union_visible_unknown_flat, visible_gains)
+                                               reachable_frontiers)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend",
