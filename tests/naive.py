@@ -630,17 +630,6 @@ def naive_descend(travel_cost, goal_rc):
     return path[::-1]
 
 
-def naive_next_unknown(observed):
-    """visibility._next_unknown: the column of the first UNKNOWN cell at or right of each cell, W if none."""
-    n_rows, n_cols = observed.shape
-    out = np.full((n_rows, n_cols + 1), n_cols, np.int32)
-    for r in range(n_rows):
-        for c in range(n_cols):
-            unknown = np.flatnonzero(observed[r, c:] == -1)
-            out[r, c] = c + unknown[0] if len(unknown) else n_cols
-    return out
-
-
 def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
     """visibility.visible_gains as first written (one cast and one fill per viewpoint, from Python), the slow
     twin of visibility._grouped_gains without union."""

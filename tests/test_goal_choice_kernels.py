@@ -9,8 +9,7 @@ from superex_deploy.onboard.motion import planning_map
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.planners.superex import _descend_paths, descend, descend_all, path_viewpoints
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
-from superex_deploy.onboard.viewpoint_gains import (_next_unknown, union_visible_unknown, union_visible_unknown_flat,
-                                                    visible_gains)
+from superex_deploy.onboard.viewpoint_gains import union_visible_unknown, union_visible_unknown_flat, visible_gains
 from superex_deploy.onboard.visibility import VisibilityConfig, reachable_frontiers
 from tests import naive
 
@@ -53,12 +52,6 @@ def _context(observed, prediction, pose, min_cells=3):
     return PlanningContext(observed=observed, pose_rc=pose, frontiers=find_frontiers(observed, min_cells),
                            travel_cost=plan.travel_cost, traversable=plan.traversable, resolution_m=0.1,
                            predict=lambda: prediction, rng=np.random.default_rng(0))
-
-
-def test_next_unknown_matches_its_slow_twin():
-    for seed in range(5):
-        observed = np.random.default_rng(seed).integers(-1, 2, size=(7 + seed, 11)).astype(np.int8)
-        assert np.array_equal(_next_unknown(observed), naive.naive_next_unknown(observed))
 
 
 def test_descents_of_every_reachable_cell_match_the_first_written_descent():

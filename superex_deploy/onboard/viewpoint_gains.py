@@ -1,10 +1,9 @@
 """Visible-unknown gains of many viewpoints at once: what a goal choice scores (MapEx, IG-Hector, SuperEx).
 
 The gains of a goal choice (issue #25 item 3: they made the tail of the step time) are computed in compiled passes
-over all the viewpoints at once: each distinct viewpoint is cast once; a polygon is filled over its unknown cells
-only (per-row links to the next unknown cell, :func:`_next_unknown`), which visits them in the order the
-cell-by-cell fill does, so counts and variance sums are the same additions; and the unions of
-:func:`union_visible_unknown` fill each node of the trie of the groups once (groups that start alike, as the
+over all the viewpoints at once: each distinct viewpoint is cast once; the polygons are filled in the order of
+:func:`~superex_deploy.onboard.visibility._fill_visibility`, so counts and variance sums are the same additions;
+and the unions of :func:`union_visible_unknown` fill each node of the trie of the groups once (groups that start alike, as the
 SuperEx paths from the robot, share their first nodes; :func:`_trie_union_counts`). The per-viewpoint code they
 replace is kept in ``tests/naive.py``, the reference of the tests (same counts, sums and goals) and of
 ``scripts/bench_goal_choice.py``.
@@ -25,20 +24,6 @@ __all__ = ["visible_gains", "union_visible_unknown", "union_visible_unknown_flat
 
 
 @numba.njit(cache=True)
-def _next_unknown(observed):
-    """int32 ``[H, W + 1]``: for each cell, the column of the first UNKNOWN (-1) cell at or right of it in its
-    row, ``W`` where there is none (column ``W`` is that sentinel): a fill then visits the unknown cells of a
-    span only, in the order a cell-by-cell scan meets them."""
-    n_rows, n_cols = observed.shape
-    following = np.empty((n_rows, n_cols + 1), np.int32)
-    for r in range(n_rows):
-        following[r, n_cols] = n_cols
-        for c in range(n_cols - 1, -1, -1):
-            following[r, c] = c if observed[r, c] == -1 else following[r, c + 1]
-    return following
-
-
-@numba.njit(cache=True)
 def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, accumulate):
     """float64 ``[U, n_rays]``: :func:`_ray_visible_ranges` from each distinct viewpoint cell."""
     ranges = np.empty((cast_rows.shape[0], n_rays))
@@ -49,15 +34,15 @@ def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, acc
 
 
 @numba.njit(cache=True)
-def _viewpoint_gains(ranges, next_unknown, variance, view_rows, view_cols, view_cast):
+def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast):
     """Visible-unknown count and variance sum of each viewpoint ``v`` (cell ``view_rows[v], view_cols[v]``, rays
-    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_spans`) is filled over the
-    unknown cells only, through ``next_unknown`` (:func:`_next_unknown`), in the row-major order in which
-    :func:`_fill_visibility` meets them, so counts and sums are the same additions.
+    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_spans`) is filled in the
+    row-major order of :func:`_fill_visibility`, so counts and sums are the same additions. (Jumping over known
+    cells, as :func:`_trie_union_counts` does, was slower here: the views from frontier cells are mostly
+    unknown.)
 
     Returns ``(counts int64 [V], variance_sums float64 [V])``."""
-    n_rows = next_unknown.shape[0]
-    n_cols = next_unknown.shape[1] - 1
+    n_rows, n_cols = observed.shape
     n_views = view_rows.shape[0]
     counts = np.zeros(n_views, np.int64)
     var_sums = np.zeros(n_views)
@@ -69,20 +54,19 @@ def _viewpoint_gains(ranges, next_unknown, variance, view_rows, view_cols, view_
         for i in range(n_scan):
             r = row_lo + i
             for j in range(offsets[i], offsets[i + 1] - 1, 2):
+                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
                 c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                # Column n_cols is the sentinel: a span starting right of the map holds nothing.
-                c = next_unknown[r, min(max(0, int(np.ceil(crossings[j] - 0.5))), n_cols)]
-                while c <= c_last:
-                    count += 1
-                    var_sum += variance[r, c]
-                    c = next_unknown[r, c + 1]
+                for c in range(c_first, c_last + 1):
+                    if observed[r, c] == -1:
+                        count += 1
+                        var_sum += variance[r, c]
         counts[v] = count
         var_sums[v] = var_sum
     return counts, var_sums
 
 
 @numba.njit(cache=True)
-def _trie_union_counts(ranges, next_unknown, node_rows, node_cols, node_cast, subtree_end):
+def _trie_union_counts(ranges, observed, node_rows, node_cols, node_cast, subtree_end):
     """Union of visible unknown cells along every root-to-node chain of a trie of viewpoints, one fill per node.
 
     Nodes come in preorder (a node's subtree is positions ``p`` to ``subtree_end[p]``); node ``p`` is the cell
@@ -91,27 +75,26 @@ def _trie_union_counts(ranges, next_unknown, node_rows, node_cols, node_cast, su
     ``p`` saw it (its recorded subtree end is ``>= p``: preorder subtrees nest or are disjoint); otherwise it is
     added to positions ``p .. subtree_end[p]`` (a difference array). Returns int64 ``[N]``: for each node, the
     number of unknown cells seen from at least one node of its chain from the root."""
-    n_rows = next_unknown.shape[0]
-    n_cols = next_unknown.shape[1] - 1
+    n_rows, n_cols = observed.shape
     n_nodes = node_rows.shape[0]
-    covered_until = np.full((n_rows, n_cols), -1, np.int64)
+    covered_until = np.full((n_rows, n_cols), -1, np.int32)
     difference = np.zeros(n_nodes + 1, np.int64)
     for p in range(n_nodes):
         end = subtree_end[p]
+        added = 0
         row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[node_cast[p]], node_rows[p] + 0.5,
                                                             node_cols[p] + 0.5, n_rows)
         for i in range(n_scan):
             r = row_lo + i
             for j in range(offsets[i], offsets[i + 1] - 1, 2):
+                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
                 c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                # Column n_cols is the sentinel: a span starting right of the map holds nothing.
-                c = next_unknown[r, min(max(0, int(np.ceil(crossings[j] - 0.5))), n_cols)]
-                while c <= c_last:
-                    if covered_until[r, c] < p:
+                for c in range(c_first, c_last + 1):
+                    if observed[r, c] == -1 and covered_until[r, c] < p:
                         covered_until[r, c] = end
-                        difference[p] += 1
-                        difference[end + 1] -= 1
-                    c = next_unknown[r, c + 1]
+                        added += 1
+        difference[p] += added
+        difference[end + 1] -= added
     return np.cumsum(difference[:n_nodes])
 
 
@@ -133,7 +116,7 @@ def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: V
     observed = np.ascontiguousarray(check_observed(observed, mean.shape))
     cells = check_cells(cells_rc, mean.shape)
     ranges, cast = _distinct_casts(mean, cells, cfg, resolution_m)
-    return _viewpoint_gains(ranges, _next_unknown(observed), variance, np.ascontiguousarray(cells[:, 0]),
+    return _viewpoint_gains(ranges, observed, variance, np.ascontiguousarray(cells[:, 0]),
                             np.ascontiguousarray(cells[:, 1]), cast)
 
 
@@ -237,6 +220,6 @@ def union_visible_unknown_flat(mean: np.ndarray, observed: np.ndarray, cells_rc,
         raise ValueError(f"group_offsets must rise from 0 to the {len(cells)} cells, got {offsets.tolist()[:8]}")
     ranges, cast = _distinct_casts(mean, cells, cfg, resolution_m)
     node_view, subtree_end, group_node = _viewpoint_trie(cells[:, 0] * mean.shape[1] + cells[:, 1], offsets)
-    per_node = _trie_union_counts(ranges, _next_unknown(observed), cells[node_view, 0].copy(),
+    per_node = _trie_union_counts(ranges, observed, cells[node_view, 0].copy(),
                                   cells[node_view, 1].copy(), cast[node_view].copy(), subtree_end)
     return np.where(group_node >= 0, per_node[np.maximum(group_node, 0)] if len(per_node) else 0, 0)
