@@ -47,8 +47,8 @@ class _Recorder:
     def __init__(self, planner, folder: Path, tag: str, reads_prediction: bool):
         self.planner, self.folder, self.tag, self.reads_prediction = planner, folder, tag, reads_prediction
         self.name, self.reads_variance = planner.name, planner.reads_variance
-        self.explorer = None
-        self.calls = 0
+        self.calls, self.choices = 0, 0
+        self._observed = None  # the tiers of one goal choice read the same map array
 
     def reset(self):
         self.planner.reset()
@@ -57,10 +57,13 @@ class _Recorder:
         return self.planner.keep_goal(*args)
 
     def choose_goal(self, ctx):
+        if ctx.observed is not self._observed:
+            self._observed = ctx.observed
+            self.choices += 1
         frontiers = ctx.frontiers
         cells = [f.cells for f in frontiers]
         record = {"observed": ctx.observed, "pose_rc": np.array(ctx.pose_rc, np.int64),
-                  "resolution_m": np.float64(ctx.resolution_m), "step": np.int64(self.explorer.steps - 1),
+                  "resolution_m": np.float64(ctx.resolution_m), "choice": np.int64(self.choices),
                   "goal_rc": np.array([f.cell_rc for f in frontiers], np.int64).reshape(-1, 2),
                   "frontier_offsets": np.cumsum([0] + [len(c) for c in cells]).astype(np.int64),
                   "frontier_cells": (np.concatenate(cells) if cells else np.zeros((0, 2))).astype(np.int32)}
@@ -75,6 +78,8 @@ class _Recorder:
 
 
 def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
+    """Explore ``n_maps`` held-out train floors for ``steps`` steps with each planner, saving every goal choice's
+    inputs under ``folder/PLANNER/``."""
     from ceiling_study import scenarios
 
     from superex_deploy.maps import load_map
@@ -93,27 +98,9 @@ def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
             clock = time.perf_counter()
             grid = load_map(map_name)
             recorder = _Recorder(make_planner(name), out, map_name, name != "nearest")
-
-            def attach(observation, command, explorer):
-                recorder.explorer = explorer
-
-            # The recorder needs the explorer's step counter before the first choice: hand it over early.
-            import superex_deploy.sim.episode as episode_module
-
-            make = episode_module.make_world_and_explorer
-
-            def make_and_attach(*args, **kwargs):
-                world, explorer = make(*args, **kwargs)
-                recorder.explorer = explorer
-                return world, explorer
-
-            episode_module.make_world_and_explorer = make_and_attach
-            try:
-                run_episode(grid, start, recorder, make_predictor(predictor_name, grid, profile=profile),
-                            steps=steps, seed=0, cfg=profile.episode_config(iou_every=0),
-                            sensing=make_sensing(predictor_name, spad, 0, profile=profile), on_observation=attach)
-            finally:
-                episode_module.make_world_and_explorer = make
+            run_episode(grid, start, recorder, make_predictor(predictor_name, grid, profile=profile), steps=steps,
+                        seed=0, cfg=profile.episode_config(iou_every=0),
+                        sensing=make_sensing(predictor_name, spad, 0, profile=profile))
             print(f"recorded {name} {map_name}: {recorder.calls} calls, {time.perf_counter() - clock:.0f} s",
                   flush=True)
 
@@ -129,7 +116,7 @@ def _load(path: Path):
     prediction = Prediction(data["mean"], data["variance"]) if "mean" in data.files else None
     return {"observed": data["observed"], "pose_rc": (int(data["pose_rc"][0]), int(data["pose_rc"][1])),
             "resolution_m": float(data["resolution_m"]), "frontiers": frontiers, "prediction": prediction,
-            "step": int(data["step"]), "recorded": tuple(int(v) for v in data["chosen"])}
+            "choice": int(data["choice"]), "recorded": tuple(int(v) for v in data["chosen"])}
 
 
 def goal_choices(folder: Path) -> list[list[dict]]:
@@ -137,7 +124,7 @@ def goal_choices(folder: Path) -> list[list[dict]]:
     choices: dict = {}
     for path in sorted(folder.glob("*.npz")):
         call = _load(path)
-        choices.setdefault((path.name.rsplit("_", 1)[0], call["step"]), []).append(call)
+        choices.setdefault((path.name.rsplit("_", 1)[0], call["choice"]), []).append(call)
     return list(choices.values())
 
 
@@ -229,15 +216,20 @@ def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "goal_choice.json").write_text(json.dumps({"meta": meta, "planners": rows}, indent=1))
     lines = ["| planner | goal choices | frontiers (median) | stage | before ms: median / p90 / max | "
-             "after ms: median / p90 / max | same goal |", "|---|---:|---:|---|---:|---:|---:|"]
+             "after ms: median / p90 / max | speed-up: median / max | same goal |",
+             "|---|---:|---:|---|---:|---:|---:|---:|"]
     for name, row in rows.items():
         for stage in ("total", "planning_map", "scoring"):
-            cells = [" / ".join(f"{row[f'{v}_{stage}_ms'][k]:.1f}" for k in ("median", "p90", "max"))
-                     for v in ("before", "after")]
+            before, after = row[f"before_{stage}_ms"], row[f"after_{stage}_ms"]
+            cells = [" / ".join(f"{value[k]:.1f}" for k in ("median", "p90", "max")) for value in (before, after)]
+            ratio = " / ".join(f"{before[k] / max(after[k], 1e-9):.1f}x" for k in ("median", "max"))
             lines.append(f"| {name} | {row['goal_choices']} | {row['frontiers_median']:.0f} | {stage} | {cells[0]} | "
-                         f"{cells[1]} | {100 * row['same_goal']:.0f} % |")
-    (out / "goal_choice.md").write_text("\n".join([f"Machine: {meta['machine']}; load average {meta['load_average_1_5_15']}"
-                                                   f"; {repeats} repeats, fastest kept.", ""] + lines) + "\n")
+                         f"{cells[1]} | {ratio} | {100 * row['same_goal']:.0f} % |")
+    header = [f"Machine: {meta['machine']}, shared with other jobs (load average {meta['load_average_1_5_15']} at the "
+              f"end); NUMBA_NUM_THREADS={meta['numba_threads']}; each goal choice timed {repeats} times before and "
+              "after, alternated, fastest kept. Absolute times are inflated by the load; the ratios and the goals "
+              "are what to read.", ""]
+    (out / "goal_choice.md").write_text("\n".join(header + lines) + "\n")
     print("\n".join(lines))
 
 
