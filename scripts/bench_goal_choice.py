@@ -177,13 +177,30 @@ def _choose(planner_name: str, choice: list[dict]) -> tuple[Optional[tuple[int, 
     return chosen, planning_s, time.perf_counter() - clock
 
 
+def _settled_share(call: dict) -> float:
+    """The share of the planning map's reachable cells whose cost-to-go is at most the farthest reachable frontier
+    cell's (of any region size: the explorer's tiers may offer any): what a Dijkstra stopped once every frontier
+    cell is settled would still have to settle (NaN without a reachable frontier cell)."""
+    from superex_deploy.onboard.frontiers import frontier_cells
+    from superex_deploy.onboard.motion import planning_map
+
+    cost = planning_map(call["observed"], call["pose_rc"], call["resolution_m"]).travel_cost
+    reachable = np.isfinite(cost)
+    frontier = frontier_cells(call["observed"]) & reachable
+    if not frontier.any():
+        return float("nan")
+    return float(np.count_nonzero(reachable & (cost <= cost[frontier].max())) / np.count_nonzero(reachable))
+
+
 def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
     rows = {}
     for name in planners:
         choices = goal_choices(folder / name)
         times = {"before": np.full((len(choices), 2), np.inf), "after": np.full((len(choices), 2), np.inf)}
         same, as_recorded = 0, 0
+        settled = []  # share of the Dijkstra's reachable cells no farther than the farthest frontier cell
         for i, choice in enumerate(choices):
+            settled.append(_settled_share(choice[0]))
             goals = {}
             for repeat in range(repeats + 1):  # the first round compiles and warms, unmeasured
                 for variant in (("before", "after") if (i + repeat) % 2 == 0 else ("after", "before")):
@@ -199,7 +216,9 @@ def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
             as_recorded += goals["after"] == choice[-1]["recorded"]
         row = {"goal_choices": len(choices), "same_goal": same / max(len(choices), 1),
                "same_as_recorded": as_recorded / max(len(choices), 1),
-               "frontiers_median": float(np.median([len(c[0]["frontiers"]) for c in choices]))}
+               "frontiers_median": float(np.median([len(c[0]["frontiers"]) for c in choices])),
+               "dijkstra_share_needed": {"median": float(np.nanmedian(settled)),
+                                         "p10": float(np.nanpercentile(settled, 10))}}
         for variant, values in times.items():
             for stage, column in (("total", values.sum(axis=1)), ("planning_map", values[:, 0]),
                                   ("scoring", values[:, 1])):
@@ -229,7 +248,13 @@ def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
               f"end); NUMBA_NUM_THREADS={meta['numba_threads']}; each goal choice timed {repeats} times before and "
               "after, alternated, fastest kept. Absolute times are inflated by the load; the ratios and the goals "
               "are what to read.", ""]
-    (out / "goal_choice.md").write_text("\n".join(header + lines) + "\n")
+    footer = ["", "Share of the Dijkstra's reachable cells a search stopped at the farthest frontier cell would still "
+              "settle (median / 10th percentile): " + ", ".join(
+                  f"{name} {row['dijkstra_share_needed']['median']:.2f} / {row['dijkstra_share_needed']['p10']:.2f}"
+                  for name, row in rows.items()) + ".",
+              "", "Goal choices whose goal (after) is the one the recorded episode chose: " + ", ".join(
+                  f"{name} {100 * row['same_as_recorded']:.0f} %" for name, row in rows.items()) + "."]
+    (out / "goal_choice.md").write_text("\n".join(header + lines + footer) + "\n")
     print("\n".join(lines))
 
 

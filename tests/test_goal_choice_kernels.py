@@ -167,28 +167,3 @@ def test_planners_choose_the_same_goal_as_with_the_reference_scoring(name):
         chosen += 1
     assert chosen >= 5
 
-
-def test_the_kernels_give_the_same_answer_for_any_number_of_parts():
-    from superex_deploy.onboard import viewpoint_gains as gains
-
-    observed, prediction, pose = _random_world(4, (60, 120))
-    cost = planning_map(observed, pose, 0.1).travel_cost
-    cells, offsets = path_viewpoints(cost, np.argwhere(np.isfinite(cost))[::31], 5)
-    cfg = VisibilityConfig(n_rays=80, range_m=3.0, hit_threshold=0.5)
-    distinct = np.unique(cells, axis=0)
-    node_view, subtree_end, _ = gains._viewpoint_trie(cells[:, 0] * observed.shape[1] + cells[:, 1], offsets)
-    answers = []
-    for parts in (1, 2, 3):
-        ranges = gains._cast_distinct(prediction.mean, distinct[:, 0].copy(), distinct[:, 1].copy(), cfg.n_rays, 30.0,
-                                      0.5, False, parts)
-        cast = np.searchsorted(distinct[:, 0] * observed.shape[1] + distinct[:, 1],
-                               cells[:, 0] * observed.shape[1] + cells[:, 1])
-        single = gains._viewpoint_gains(ranges, observed, prediction.variance, cells[:, 0].copy(), cells[:, 1].copy(),
-                                        cast, parts)
-        union = gains._trie_union_counts(ranges, observed, cells[node_view, 0].copy(), cells[node_view, 1].copy(),
-                                         cast[node_view].copy(), subtree_end, parts)
-        answers.append((ranges, *single, union))
-    for answer in answers[1:]:
-        for got, expected in zip(answer, answers[0]):
-            assert np.array_equal(got, expected)
-    assert answers[0][3].max() > 0

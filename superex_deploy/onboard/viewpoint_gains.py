@@ -6,8 +6,10 @@ over all the viewpoints at once: each distinct viewpoint is cast once; the polyg
 :func:`union_visible_unknown` fill each node of the trie of the groups once (groups that start alike, as the SuperEx
 paths from the robot, share their first nodes; ``_trie_union_counts``). The per-viewpoint code they replace is kept
 in ``tests/naive.py``, the reference of the tests (same counts, sums and goals) and of
-``scripts/bench_goal_choice.py`` (``benchmarks/goal_choice``: the SuperEx scoring 6x faster at the median, 4.5x at
-the maximum, on recorded goal choices of the held-out train floors).
+``scripts/bench_goal_choice.py`` (``benchmarks/goal_choice``: the SuperEx scoring 3.7x faster at the median,
+4.4x at the maximum, on 87 recorded goal choices of the held-out train floors, the same goals). The kernels run on one thread: split
+into parts over two numba threads (as the NLOS kernels are) the scoring was 8x slower at the median on a 2-core
+machine shared with other work, and a robot's second core runs the predictor.
 
 The visibility of one viewpoint (the raycast and its polygon) is :mod:`~superex_deploy.onboard.visibility`'s.
 """
@@ -18,94 +20,85 @@ import numba
 import numpy as np
 
 from superex_deploy.onboard.types import Prediction, check_observed
-from superex_deploy.parallel import kernel_parts
 from superex_deploy.onboard.visibility import (VisibilityConfig, _max_range_cells, _polygon_spans, _ray_visible_ranges,
                                                check_cells, check_map)
 
 __all__ = ["visible_gains", "union_visible_unknown", "union_visible_unknown_flat"]
 
 
-@numba.njit(cache=True, parallel=True)
-def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, accumulate, n_parts):
-    """float64 ``[U, n_rays]``: :func:`_ray_visible_ranges` from each distinct viewpoint cell; viewpoint ``u`` is
-    cast by part ``u % n_parts``, the parts in parallel (each writes its own rows: the result does not depend on
-    ``n_parts``)."""
+@numba.njit(cache=True)
+def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, accumulate):
+    """float64 ``[U, n_rays]``: :func:`_ray_visible_ranges` from each distinct viewpoint cell."""
     ranges = np.empty((cast_rows.shape[0], n_rays))
-    for part in numba.prange(n_parts):
-        for u in range(part, cast_rows.shape[0], n_parts):
-            _ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold,
-                                accumulate, ranges[u])
+    for u in range(cast_rows.shape[0]):
+        _ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold, accumulate,
+                            ranges[u])
     return ranges
 
 
-@numba.njit(cache=True, parallel=True)
-def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast, n_parts):
+@numba.njit(cache=True)
+def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast):
     """Visible-unknown count and variance sum of each viewpoint ``v`` (cell ``view_rows[v], view_cols[v]``, rays
-    ``ranges[view_cast[v]]``): its polygon (:func:`_polygon_spans`) filled in the row-major order of
-    ``_fill_visibility``, so counts and sums are the same additions. Viewpoint ``v`` belongs to part
-    ``v % n_parts``, the parts in parallel.
+    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_spans`) is filled in the
+    row-major order of ``_fill_visibility``, so counts and sums are the same additions. (Jumping over runs of
+    known cells through per-row links was measured and dropped: no faster in the trie fill, slower here, where the
+    views from frontier cells are mostly unknown.)
 
     Returns ``(counts int64 [V], variance_sums float64 [V])``."""
     n_rows, n_cols = observed.shape
     n_views = view_rows.shape[0]
     counts = np.zeros(n_views, np.int64)
     var_sums = np.zeros(n_views)
-    for part in numba.prange(n_parts):
-        for v in range(part, n_views, n_parts):
-            row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[view_cast[v]], view_rows[v] + 0.5,
-                                                                view_cols[v] + 0.5, n_rows)
-            count = 0
-            var_sum = 0.0
-            for i in range(n_scan):
-                r = row_lo + i
-                for j in range(offsets[i], offsets[i + 1] - 1, 2):
-                    c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-                    c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                    for c in range(c_first, c_last + 1):
-                        if observed[r, c] == -1:
-                            count += 1
-                            var_sum += variance[r, c]
-            counts[v] = count
-            var_sums[v] = var_sum
+    for v in range(n_views):
+        row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[view_cast[v]], view_rows[v] + 0.5,
+                                                            view_cols[v] + 0.5, n_rows)
+        count = 0
+        var_sum = 0.0
+        for i in range(n_scan):
+            r = row_lo + i
+            for j in range(offsets[i], offsets[i + 1] - 1, 2):
+                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
+                c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+                for c in range(c_first, c_last + 1):
+                    if observed[r, c] == -1:
+                        count += 1
+                        var_sum += variance[r, c]
+        counts[v] = count
+        var_sums[v] = var_sum
     return counts, var_sums
 
 
-@numba.njit(cache=True, parallel=True)
-def _trie_union_counts(ranges, observed, node_rows, node_cols, node_cast, subtree_end, n_parts):
+@numba.njit(cache=True)
+def _trie_union_counts(ranges, observed, node_rows, node_cols, node_cast, subtree_end):
     """Union of visible unknown cells along every root-to-node chain of a trie of viewpoints, one fill per node.
 
     Nodes come in preorder (a node's subtree is positions ``p`` to ``subtree_end[p]``); node ``p`` is the cell
     ``node_rows[p], node_cols[p]`` with rays ``ranges[node_cast[p]]``. Visiting the nodes in preorder, an unknown
     cell seen by node ``p`` is already counted for ``p``'s whole subtree if an earlier node whose subtree holds
     ``p`` saw it (its recorded subtree end is ``>= p``: preorder subtrees nest or are disjoint); otherwise it is
-    added to positions ``p .. subtree_end[p]`` (a difference array). The map's rows are dealt to ``n_parts``
-    parts (row ``r`` to part ``r % n_parts``), each with its own difference array, run in parallel and summed:
-    integer counts, the same for any ``n_parts``.
-
-    Returns int64 ``[N]``: for each node, the number of unknown cells seen from at least one node of its chain
-    from the root."""
+    added to positions ``p .. subtree_end[p]`` (a difference array). Returns int64 ``[N]``: for each node, the
+    number of unknown cells seen from at least one node of its chain from the root."""
     n_rows, n_cols = observed.shape
     n_nodes = node_rows.shape[0]
     covered_until = np.full((n_rows, n_cols), -1, np.int32)
-    difference = np.zeros((n_parts, n_nodes + 1), np.int64)
-    for part in numba.prange(n_parts):
-        for p in range(n_nodes):
-            end = subtree_end[p]
-            added = 0
-            row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[node_cast[p]], node_rows[p] + 0.5,
-                                                                node_cols[p] + 0.5, n_rows)
-            for i in range((part - row_lo) % n_parts, n_scan, n_parts):
-                r = row_lo + i
-                for j in range(offsets[i], offsets[i + 1] - 1, 2):
-                    c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-                    c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                    for c in range(c_first, c_last + 1):
-                        if observed[r, c] == -1 and covered_until[r, c] < p:
-                            covered_until[r, c] = end
-                            added += 1
-            difference[part, p] += added
-            difference[part, end + 1] -= added
-    return np.cumsum(difference.sum(axis=0)[:n_nodes])
+    difference = np.zeros(n_nodes + 1, np.int64)
+    for p in range(n_nodes):
+        end = subtree_end[p]
+        added = 0
+        row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[node_cast[p]], node_rows[p] + 0.5,
+                                                            node_cols[p] + 0.5, n_rows)
+        for i in range(n_scan):
+            r = row_lo + i
+            for j in range(offsets[i], offsets[i + 1] - 1, 2):
+                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
+                c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+                for c in range(c_first, c_last + 1):
+                    if observed[r, c] == -1 and covered_until[r, c] < p:
+                        covered_until[r, c] = end
+                        added += 1
+        difference[p] += added
+        difference[end + 1] -= added
+    return np.cumsum(difference[:n_nodes])
 
 
 def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
@@ -127,7 +120,7 @@ def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: V
     cells = check_cells(cells_rc, mean.shape)
     ranges, cast = _distinct_casts(mean, cells, cfg, resolution_m)
     return _viewpoint_gains(ranges, observed, variance, np.ascontiguousarray(cells[:, 0]),
-                            np.ascontiguousarray(cells[:, 1]), cast, kernel_parts())
+                            np.ascontiguousarray(cells[:, 1]), cast)
 
 
 def _distinct_casts(mean: np.ndarray, cells: np.ndarray, cfg: VisibilityConfig, resolution_m: float
@@ -137,7 +130,7 @@ def _distinct_casts(mean: np.ndarray, cells: np.ndarray, cfg: VisibilityConfig, 
     max_t = _max_range_cells(cfg, resolution_m)
     distinct, cast = np.unique(cells[:, 0] * mean.shape[1] + cells[:, 1], return_inverse=True)
     ranges = _cast_distinct(mean, distinct // mean.shape[1], distinct % mean.shape[1], cfg.n_rays, max_t,
-                            float(cfg.hit_threshold), bool(cfg.accumulate), kernel_parts())
+                            float(cfg.hit_threshold), bool(cfg.accumulate))
     return ranges, cast.astype(np.int64).reshape(-1)
 
 
@@ -231,5 +224,5 @@ def union_visible_unknown_flat(mean: np.ndarray, observed: np.ndarray, cells_rc,
     ranges, cast = _distinct_casts(mean, cells, cfg, resolution_m)
     node_view, subtree_end, group_node = _viewpoint_trie(cells[:, 0] * mean.shape[1] + cells[:, 1], offsets)
     per_node = _trie_union_counts(ranges, observed, cells[node_view, 0].copy(),
-                                  cells[node_view, 1].copy(), cast[node_view].copy(), subtree_end, kernel_parts())
+                                  cells[node_view, 1].copy(), cast[node_view].copy(), subtree_end)
     return np.where(group_node >= 0, per_node[np.maximum(group_node, 0)] if len(per_node) else 0, 0)
