@@ -7,9 +7,9 @@ over all the viewpoints at once: each distinct viewpoint is cast once; the polyg
 paths from the robot, share their first nodes; ``_trie_union_counts``). The per-viewpoint code they replace is kept
 in ``tests/naive.py``, the reference of the tests (same counts, sums and goals) and of
 ``scripts/bench_goal_choice.py`` (``benchmarks/goal_choice``: the SuperEx scoring 3.7x faster at the median,
-4.4x at the maximum, on 87 recorded goal choices of the held-out train floors, the same goals). The kernels run on one thread: split
-into parts over two numba threads (as the NLOS kernels are) the scoring was 8x slower at the median on a 2-core
-machine shared with other work, and a robot's second core runs the predictor.
+4.4x at the maximum, on 87 recorded goal choices of the held-out train floors, the same goals). The kernels run on
+one thread: split into parts over two numba threads (as the NLOS kernels are) the scoring was 8x slower at the
+median on a 2-core machine shared with other work, and a robot's second core runs the predictor.
 
 The visibility of one viewpoint (the raycast and its polygon) is :mod:`~superex_deploy.onboard.visibility`'s.
 """
