@@ -643,3 +643,87 @@ def brute_force_expected_visible(mean, observed, viewpoint, n_rays, max_t):
                     break
         expected += weight * np.count_nonzero(seen & unknown)
     return expected / total
+
+
+# --- goal choice references (issue #25 item 3: the code before the batched kernels, kept callable) ---
+
+
+def naive_descend(travel_cost, goal_rc):
+    """The SuperEx planner's descent as first written (planners.superex.descend before _descend_paths): from the
+    goal, step to the least-cost cell of the clipped 3 x 3 window (np.argmin: the first in row-major order)
+    until cost 0 or no lower neighbour; returns the cells from the robot's end."""
+    r, c = int(goal_rc[0]), int(goal_rc[1])
+    if not np.isfinite(travel_cost[r, c]):
+        raise ValueError(f"goal {(r, c)} is unreachable (infinite travel cost)")
+    path = [(r, c)]
+    while travel_cost[r, c] > 0.0:
+        window = travel_cost[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2]
+        k = int(np.argmin(window))
+        nr, nc = max(r - 1, 0) + k // window.shape[1], max(c - 1, 0) + k % window.shape[1]
+        if travel_cost[nr, nc] >= travel_cost[r, c]:
+            break
+        r, c = nr, nc
+        path.append((r, c))
+    return path[::-1]
+
+
+def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
+    """visibility.visible_gains as first written (one cast and one fill per viewpoint, from Python), the slow
+    twin of visibility._grouped_gains without union."""
+    from superex_deploy.onboard.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
+
+    cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
+    observed = np.ascontiguousarray(observed)
+    counts = np.zeros(len(cells), np.int64)
+    var_sums = np.zeros(len(cells), np.float64)
+    ranges = np.empty(cfg.n_rays, np.float64)
+    no_mask = np.zeros((1, 1), bool)
+    max_t = cfg.range_m / float(resolution_m)
+    for i, (r, c) in enumerate(cells):
+        _ray_visible_ranges(prediction.mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
+                            ranges)
+        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, prediction.variance, no_mask,
+                                                  False, _NO_STAMP, -1)
+    return counts, var_sums
+
+
+def reference_union_visible_unknown(mean, observed, viewpoints, cfg, resolution_m):
+    """visibility.union_visible_unknown as first written (a dict of casts, one fill per viewpoint and group, from
+    Python), the slow twin of visibility._grouped_gains with union."""
+    from superex_deploy.onboard.visibility import _fill_visibility, _ray_visible_ranges
+
+    observed = np.ascontiguousarray(observed)
+    max_t = cfg.range_m / float(resolution_m)
+    stamp = np.full(mean.shape, -1, np.int32)
+    no_variance = np.zeros(mean.shape, np.float32)
+    no_mask = np.zeros((1, 1), bool)
+    cast: dict = {}
+    out = np.zeros(len(viewpoints), np.int64)
+    for label, group in enumerate(viewpoints):
+        for (r, c) in np.asarray(group, np.int64).reshape(-1, 2):
+            key = (int(r), int(c))
+            if key not in cast:
+                ranges = np.empty(cfg.n_rays, np.float64)
+                _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
+                                    ranges)
+                cast[key] = ranges
+            count, _ = _fill_visibility(cast[key], r + 0.5, c + 0.5, observed, no_variance, no_mask, False, stamp,
+                                        label)
+            out[label] += count
+    return out
+
+
+def reference_superex_gains(planner, ctx, prediction, frontiers):
+    """SuperexPlanner.gains for ``gain="path"`` as first written: a Python descent per frontier, then the
+    reference union."""
+    from superex_deploy.onboard.visibility import VisibilityConfig
+
+    cfg = planner.cfg
+    every = max(1, int(round(cfg.sense_every_m / ctx.resolution_m)))
+    viewpoints = []
+    for frontier in frontiers:
+        path = naive_descend(ctx.travel_cost, frontier.cell_rc)
+        viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
+    visibility = VisibilityConfig(n_rays=cfg.n_rays, range_m=cfg.range_m, hit_threshold=cfg.wall_threshold)
+    return reference_union_visible_unknown(prediction.mean, ctx.observed, viewpoints, visibility,
+                                           ctx.resolution_m).astype(float)

@@ -8,7 +8,8 @@ from superex_deploy.onboard.planners import (
     visible_gains, visible_ranges)
 from superex_deploy.onboard.planners.upen import _grow_rrt
 from superex_deploy.sim.oracle import OraclePredictor
-from superex_deploy.onboard.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges, union_visible_unknown
+from superex_deploy.onboard.viewpoint_gains import union_visible_unknown
+from superex_deploy.onboard.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_fill_visibility, naive_grow_rrt, naive_visible_ranges

@@ -9,6 +9,9 @@ no seed to re-pick, at a cost proportional to the visible area. A cell blocks a 
 probability reaches the hit threshold (0.8): that is what MapEx's ``get_free_points(use_prob=True)`` computes,
 since it resets its "accumulated" probability at every cell. The accumulated rule that MapEx's paper describes,
 ``1 - prod(1 - p_i) >= threshold``, is available as ``VisibilityConfig(accumulate=True)``.
+
+The gains of many viewpoints (:func:`visible_gains`, :func:`union_visible_unknown`) live in
+:mod:`~superex_deploy.onboard.viewpoint_gains`.
 """
 
 from __future__ import annotations
@@ -19,11 +22,10 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, Prediction, check_observed
+from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, check_observed
 from superex_deploy.geometry import dda_start, dda_step
 
-__all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "union_visible_unknown",
-           "connected_unknown_gains",
+__all__ = ["MAX_RAYS", "VisibilityConfig", "visible_ranges", "predicted_visibility", "connected_unknown_gains",
            "reachable_frontiers", "best_frontier", "check_map", "check_cells"]
 
 
@@ -104,20 +106,19 @@ def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, 
 
 
 @numba.njit(cache=True)
-def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
-    """Cells whose centre lies inside the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 +
-    ranges[k] cos a_k)``, ``a_k = 2 pi k / n``, by scanline fill: each row's centre line crosses the polygon's
-    edges (half-open in y, so a vertex on the line counts once) and the cells whose centres lie between
-    crossings ``2j`` and ``2j + 1`` are inside. The work is the edges' row spans plus the visible cells.
+def _polygon_spans(ranges, y0, x0, n_rows):
+    """The scanline spans of the polygon through the ray end points ``(y0 + ranges[k] sin a_k, x0 + ranges[k] cos
+    a_k)``, ``a_k = 2 pi k / n``: each row's centre line crosses the polygon's edges (half-open in y, so a vertex
+    on the line counts once); the cells of row ``row_lo + i`` whose centres lie between crossings ``2j`` and
+    ``2j + 1`` (of ``crossings[offsets[i]:offsets[i + 1]]``, sorted) are inside. The work is the edges' row spans.
 
-    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
-    is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
-    ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
-    one label count the union of their views. Nothing is visible when every range is zero."""
+    Returns ``(row_lo, n_scan, offsets int64 [n_scan + 1], crossings float64 [M])``; ``n_scan`` is 0 when no row
+    centre line crosses the polygon (or every range is zero)."""
     n_rays = ranges.shape[0]
-    n_rows, n_cols = observed.shape
+    no_offsets = np.zeros(1, np.int64)
+    no_crossings = np.empty(0)
     if ranges.max() <= 0.0:
-        return 0, 0.0
+        return 0, 0, no_offsets, no_crossings
     step = 2.0 * np.pi / n_rays
     vert_y = np.empty(n_rays)
     vert_x = np.empty(n_rays)
@@ -128,7 +129,7 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
     row_lo = max(0, int(np.ceil(vert_y.min() - 0.5)))
     row_hi = min(n_rows - 1, int(np.ceil(vert_y.max() - 0.5)) - 1)
     if row_hi < row_lo:
-        return 0, 0.0
+        return 0, 0, no_offsets, no_crossings
     n_scan = row_hi - row_lo + 1
     offsets = np.zeros(n_scan + 1, np.int64)
     for k in range(n_rays):
@@ -149,10 +150,7 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
             fraction = (r + 0.5 - vert_y[k]) / (vert_y[k1] - vert_y[k])
             crossings[filled[r - row_lo]] = vert_x[k] + fraction * (vert_x[k1] - vert_x[k])
             filled[r - row_lo] += 1
-    count = 0
-    var_sum = 0.0
     for i in range(n_scan):
-        r = row_lo + i
         lo, hi = offsets[i], offsets[i + 1]
         for a in range(lo + 1, hi):  # insertion sort: a row crosses few edges
             x = crossings[a]
@@ -161,7 +159,26 @@ def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask
                 crossings[b + 1] = crossings[b]
                 b -= 1
             crossings[b + 1] = x
-        for j in range(lo, hi - 1, 2):
+    return row_lo, n_scan, offsets, crossings
+
+
+@numba.njit(cache=True)
+def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
+    """Cells whose centre lies inside the polygon of :func:`_polygon_spans`, by scanline fill: a cell is inside
+    when its centre lies between crossings ``2j`` and ``2j + 1`` of its row. The work is the edges' row spans
+    plus the visible cells.
+
+    Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
+    is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
+    ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
+    one label count the union of their views. Nothing is visible when every range is zero."""
+    n_rows, n_cols = observed.shape
+    row_lo, n_scan, offsets, crossings = _polygon_spans(ranges, y0, x0, n_rows)
+    count = 0
+    var_sum = 0.0
+    for i in range(n_scan):
+        r = row_lo + i
+        for j in range(offsets[i], offsets[i + 1] - 1, 2):
             c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
             c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
             for c in range(c_first, c_last + 1):
@@ -234,70 +251,6 @@ def predicted_visibility(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resol
     _fill_visibility(ranges, r + 0.5, c + 0.5, np.zeros(mean.shape, np.int8), np.zeros(mean.shape, np.float32),
                      visible, True, _NO_STAMP, -1)
     return visible
-
-
-def visible_gains(prediction: Prediction, observed: np.ndarray, cells_rc, cfg: VisibilityConfig,
-                  resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Information of viewpoints: the currently unknown cells predicted visible from each.
-
-    Args:
-        prediction: float32 ``[H, W]`` mean and variance.
-        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
-        cells_rc: ``[N, 2]`` viewpoint cells (row, col).
-        cfg, resolution_m: as in :func:`visible_ranges`.
-
-    Returns:
-        ``(unknown_count int64 [N], variance_sum float64 [N])`` over the visible unknown cells.
-    """
-    mean = check_map("prediction.mean", prediction.mean, np.float32)
-    variance = check_map("prediction.variance", prediction.variance, np.float32, mean.shape)
-    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
-    cells = check_cells(cells_rc, mean.shape)
-    counts = np.zeros(len(cells), np.int64)
-    var_sums = np.zeros(len(cells), np.float64)
-    ranges = np.empty(cfg.n_rays, np.float64)
-    no_mask = np.zeros((1, 1), bool)
-    max_t = _max_range_cells(cfg, resolution_m)
-    for i, (r, c) in enumerate(cells):
-        _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate, ranges)
-        counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, variance, no_mask, False,
-                                                  _NO_STAMP, -1)
-    return counts, var_sums
-
-
-def union_visible_unknown(mean: np.ndarray, observed: np.ndarray, viewpoints: list, cfg: VisibilityConfig,
-                          resolution_m: float) -> np.ndarray:
-    """For each group of viewpoints, the unknown cells predicted visible from at least one of them.
-
-    Args:
-        mean: float32 ``[H, W]`` predicted wall probability.
-        observed: int8 ``[H, W]`` observed map (UNKNOWN = -1).
-        viewpoints: ``N`` lists of viewpoint cells (row, col); a cell shared by several groups is cast once.
-        cfg, resolution_m: as in :func:`visible_ranges`.
-
-    Returns:
-        int64 ``[N]``: the size of the union of each group's visible unknown cells (0 for an empty group).
-    """
-    mean = check_map("mean", mean, np.float32)
-    observed = np.ascontiguousarray(check_observed(observed, mean.shape))
-    max_t = _max_range_cells(cfg, resolution_m)
-    stamp = np.full(mean.shape, -1, np.int32)
-    no_variance = np.zeros(mean.shape, np.float32)
-    no_mask = np.zeros((1, 1), bool)
-    cast: dict = {}
-    out = np.zeros(len(viewpoints), np.int64)
-    for label, group in enumerate(viewpoints):
-        for (r, c) in check_cells(group, mean.shape) if len(group) else ():
-            key = (int(r), int(c))
-            if key not in cast:
-                ranges = np.empty(cfg.n_rays, np.float64)
-                _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
-                                    ranges)
-                cast[key] = ranges
-            count, _ = _fill_visibility(cast[key], r + 0.5, c + 0.5, observed, no_variance,
-                                        no_mask, False, stamp, label)
-            out[label] += count
-    return out
 
 
 def connected_unknown_gains(mean: np.ndarray, observed: np.ndarray, cells_rc,

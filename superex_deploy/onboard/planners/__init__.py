@@ -29,8 +29,9 @@ from superex_deploy.onboard.planners.nearest import NearestFrontier
 from superex_deploy.onboard.planners.superex import SuperexConfig, SuperexPlanner
 from superex_deploy.onboard.planners.upen import RandomTree, UpenConfig, UpenPlanner, grow_rrt
 from superex_deploy.onboard.types import Planner
+from superex_deploy.onboard.viewpoint_gains import visible_gains
 from superex_deploy.onboard.visibility import (VisibilityConfig, connected_unknown_gains, predicted_visibility,
-                                               reachable_frontiers, visible_gains, visible_ranges)
+                                               reachable_frontiers, visible_ranges)
 
 __all__ = [
     "VisibilityConfig", "visible_ranges", "predicted_visibility", "visible_gains", "connected_unknown_gains",

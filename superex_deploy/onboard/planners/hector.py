@@ -9,8 +9,9 @@ import numpy as np
 
 from superex_deploy.onboard.planners.config_checks import check_instance, check_real
 from superex_deploy.onboard.types import Planner, PlanningContext, Prediction
+from superex_deploy.onboard.viewpoint_gains import visible_gains
 from superex_deploy.onboard.visibility import (VisibilityConfig, best_frontier, connected_unknown_gains,
-                                               reachable_frontiers, visible_gains)
+                                               reachable_frontiers)
 
 __all__ = ["HectorConfig", "HectorPlanner"]
 

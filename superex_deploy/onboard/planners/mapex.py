@@ -12,7 +12,8 @@ from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, Expected
                                                         expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_real
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
-from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers, visible_gains
+from superex_deploy.onboard.viewpoint_gains import visible_gains
+from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers
 
 __all__ = ["MapexConfig", "MapexPlanner"]
 

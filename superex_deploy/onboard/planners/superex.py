@@ -35,6 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+import numba
 import numpy as np
 
 from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
@@ -43,11 +44,13 @@ from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, Expected
 from superex_deploy.onboard.frontiers import find_frontiers
 from superex_deploy.onboard.motion import dijkstra
 from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
-from superex_deploy.onboard.visibility import (MAX_RAYS, VisibilityConfig, predicted_visibility, reachable_frontiers,
-                                               union_visible_unknown, visible_gains)
+from superex_deploy.onboard.viewpoint_gains import union_visible_unknown_flat, visible_gains
+from superex_deploy.onboard.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map, predicted_visibility,
+                                               reachable_frontiers)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
-__all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend"]
+__all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend",
+           "descend_all", "path_viewpoints"]
 
 MAX_ROLLOUT_CELL_M = 10.0
 """The largest rollout cell (metres): the rollout world is padded to a whole number of cells."""
@@ -302,6 +305,78 @@ def tour_first(world: RolloutWorld, goals_rc: list, robot_costs: np.ndarray) -> 
     return int(before if after == n + 1 else after)
 
 
+@numba.njit(cache=True)
+def _descend_paths(travel_cost, goal_rows, goal_cols):
+    """The descents of :func:`descend` from every goal (each finite), in one compiled pass.
+
+    Each step goes to the cell of least cost in the 3 x 3 window around the current cell (clipped at the
+    border; ties to the first in row-major order, as ``np.argmin``), until the robot (cost 0) or a cell with no
+    lower neighbour. Returns ``(rows int64 [M], cols int64 [M], offsets int64 [N + 1])``: path ``i``, from the
+    robot's end to goal ``i``, is ``[offsets[i], offsets[i + 1])``."""
+    n_rows, n_cols = travel_cost.shape
+    n_goals = goal_rows.shape[0]
+    rows = np.empty(64, np.int64)
+    cols = np.empty(64, np.int64)
+    offsets = np.zeros(n_goals + 1, np.int64)
+    n = 0
+    for i in range(n_goals):
+        r, c = goal_rows[i], goal_cols[i]
+        start = n
+        while True:
+            if n == rows.shape[0]:  # amortised doubling
+                grown_rows = np.empty(2 * n, np.int64)
+                grown_cols = np.empty(2 * n, np.int64)
+                grown_rows[:n] = rows[:n]
+                grown_cols[:n] = cols[:n]
+                rows, cols = grown_rows, grown_cols
+            rows[n] = r
+            cols[n] = c
+            n += 1
+            here = travel_cost[r, c]
+            if not here > 0.0:
+                break
+            best_r, best_c = max(r - 1, 0), max(c - 1, 0)
+            best = travel_cost[best_r, best_c]
+            for rr in range(max(r - 1, 0), min(r + 2, n_rows)):
+                for cc in range(max(c - 1, 0), min(c + 2, n_cols)):
+                    if travel_cost[rr, cc] < best:
+                        best, best_r, best_c = travel_cost[rr, cc], rr, cc
+            if best >= here:
+                break  # a local minimum other than the robot: cannot happen on a Dijkstra field
+            r, c = best_r, best_c
+        # Walked from the goal down: reverse to run from the robot's end.
+        rows[start:n] = rows[start:n][::-1].copy()
+        cols[start:n] = cols[start:n][::-1].copy()
+        offsets[i + 1] = n
+    return rows[:n], cols[:n], offsets
+
+
+def descend_all(travel_cost: np.ndarray, goals_rc) -> tuple[np.ndarray, np.ndarray]:
+    """The least-cost paths from the robot (cost 0) to several goals down a Dijkstra cost-to-go field (each as
+    :func:`descend`), in one compiled pass.
+
+    Args:
+        travel_cost: float64 ``[H, W]`` cost-to-go from the robot, ``inf`` where unreachable.
+        goals_rc: ``[N, 2]`` goal cells (row, col), each of finite cost.
+
+    Returns:
+        ``(cells int64 [M, 2], offsets int64 [N + 1])``: path ``i`` is ``cells[offsets[i]:offsets[i + 1]]``, from
+        the robot's cell to goal ``i``.
+
+    Raises:
+        ValueError: a cost map that is not float64 ``[H, W]``, a goal off the map or of infinite cost.
+    """
+    travel_cost = check_map("travel_cost", travel_cost, np.float64)
+    goals = check_cells(goals_rc, travel_cost.shape)
+    unreachable = ~np.isfinite(travel_cost[goals[:, 0], goals[:, 1]])
+    if unreachable.any():
+        r, c = goals[np.argmax(unreachable)]
+        raise ValueError(f"goal {(int(r), int(c))} is unreachable (infinite travel cost)")
+    rows, cols, offsets = _descend_paths(travel_cost, np.ascontiguousarray(goals[:, 0]),
+                                         np.ascontiguousarray(goals[:, 1]))
+    return np.stack([rows, cols], axis=1), offsets
+
+
 def descend(travel_cost: np.ndarray, goal_rc) -> list[tuple[int, int]]:
     """The least-cost path from the robot (cost 0) to ``goal_rc`` down a Dijkstra cost-to-go field.
 
@@ -310,22 +385,28 @@ def descend(travel_cost: np.ndarray, goal_rc) -> list[tuple[int, int]]:
         goal_rc: a cell of finite cost.
 
     Returns:
-        Cells from the robot's to the goal's, 8-connected; each step goes to the neighbour of least cost.
+        Cells from the robot's to the goal's, 8-connected; each step goes to the neighbour of least cost (ties
+        to the first in row-major order).
     """
-    r, c = int(goal_rc[0]), int(goal_rc[1])
-    if not np.isfinite(travel_cost[r, c]):
-        raise ValueError(f"goal {(r, c)} is unreachable (infinite travel cost)")
-    path = [(r, c)]
-    n_rows, n_cols = travel_cost.shape
-    while travel_cost[r, c] > 0.0:
-        window = travel_cost[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2]
-        k = int(np.argmin(window))
-        nr, nc = max(r - 1, 0) + k // window.shape[1], max(c - 1, 0) + k % window.shape[1]
-        if travel_cost[nr, nc] >= travel_cost[r, c]:
-            break  # a local minimum other than the robot: cannot happen on a Dijkstra field
-        r, c = nr, nc
-        path.append((r, c))
-    return path[::-1]
+    cells, _ = descend_all(np.asarray(travel_cost, np.float64), [goal_rc])
+    return [(int(r), int(c)) for r, c in cells]
+
+
+def path_viewpoints(travel_cost: np.ndarray, goals_rc, every: int) -> tuple[np.ndarray, np.ndarray]:
+    """The viewpoints of the pathwise gain: for each goal, the cells of its :func:`descend` path every ``every``
+    cells from the robot's end (the robot's own cell excluded) and the goal cell.
+
+    Returns:
+        ``(cells int64 [V, 2], offsets int64 [N + 1])``: goal ``i``'s viewpoints are
+        ``cells[offsets[i]:offsets[i + 1]]``, in path order.
+    """
+    cells, path_offsets = descend_all(travel_cost, goals_rc)
+    picked = []
+    for start, stop in zip(path_offsets[:-1], path_offsets[1:]):
+        picked.append(np.append(np.arange(start + every, stop - 1, every), stop - 1))
+    sizes = [len(p) for p in picked]
+    index = np.concatenate(picked) if picked else np.zeros(0, np.int64)
+    return cells[index.astype(np.int64)], np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
 
 
 class SuperexPlanner(Planner):
@@ -349,25 +430,23 @@ class SuperexPlanner(Planner):
         """float64 ``[N]`` gain of each frontier (``cfg.gain``): unknown cells predicted visible from its goal
         cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it; counted on the
         thresholded prediction, or expected (``"expected"``, ``"expected_goal"``)."""
+        goals = np.array([f.cell_rc for f in frontiers], np.int64).reshape(-1, 2)
         if self.cfg.gain in ("goal", "expected_goal"):
-            viewpoints = [[f.cell_rc] for f in frontiers]
+            cells, offsets = goals, np.arange(len(goals) + 1)
         else:
             every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
-            viewpoints = []
-            for frontier in frontiers:
-                path = descend(ctx.travel_cost, frontier.cell_rc)
-                viewpoints.append([path[k] for k in list(range(every, len(path) - 1, every)) + [len(path) - 1]])
+            cells, offsets = path_viewpoints(ctx.travel_cost, goals, every)
         if self.cfg.gain in ("expected", "expected_goal"):
             rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
                                       transmittance=self.cfg.transmittance)
+            viewpoints = [cells[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
             return expected_visible_gains(prediction.mean, ctx.observed, viewpoints, rays, ctx.resolution_m)[0]
         visibility = VisibilityConfig(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
                                       hit_threshold=self.cfg.wall_threshold)
         if self.cfg.gain == "goal":
-            cells = np.array([f.cell_rc for f in frontiers], np.int64)
             return visible_gains(prediction, ctx.observed, cells, visibility, ctx.resolution_m)[0].astype(float)
-        return union_visible_unknown(prediction.mean, ctx.observed, viewpoints, visibility,
-                                     ctx.resolution_m).astype(float)
+        return union_visible_unknown_flat(prediction.mean, ctx.observed, cells, offsets, visibility,
+                                          ctx.resolution_m).astype(float)
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         self._resolution_m = float(ctx.resolution_m)
