@@ -101,7 +101,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
             if found == starts:
                 break
             start = random_start(grid, rng, 0.5)
-            reach = robot_cells(grid.occupied, grid.valid, start, cfg.robot_radius_m / grid.resolution_m)
+            reach = robot_cells(grid.occupied, start, cfg.robot_radius_m / grid.resolution_m)
             if reach.sum() < min_reach * grid.valid.sum():
                 continue
             seed = zlib.crc32(f"{name}:{start[0]}:{start[1]}".encode())

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
-__all__ = ["ScenarioTask", "run_scenario", "with_noise", "with_spad_noise"]
+__all__ = ["ScenarioTask", "run_scenario", "make_altered_floor", "with_noise", "with_spad_noise"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -30,6 +30,13 @@ class ScenarioTask:
         pose_noise: ``(sigma_m, sigma_deg)`` of the localisation error, or None (see :func:`with_noise`).
         lidar_noise: ``(sigma_m, dropout, spurious)`` of the LiDAR, or None.
         spad_noise: the SPAD photon budget's preset name (:data:`superex_deploy.spad_types.SPAD_PRESETS`).
+        alteration_seed: None (the default): the bundled floor as it is. Else the episode runs on the floor altered
+            with this seed (:func:`superex_deploy.sim.alterations.alter_floor`; ``superex benchmark --suite
+            altered`` passes :func:`~superex_deploy.sim.altered_floors.alteration_seed`), cached under
+            ``floors_dir``, and its summary gains ``dead_ends`` (:func:`superex_deploy.sim.dead_ends.dead_end_entries`)
+            and ``alteration`` (the seed, the dead ends made, the reachable share kept).
+        floors_dir: where the altered floors are cached (:func:`superex_deploy.sim.altered_floors.make_floor`); needed
+            with ``alteration_seed``.
     """
 
     map_name: str
@@ -47,6 +54,12 @@ class ScenarioTask:
     pose_noise: Optional[tuple[float, float]] = None
     lidar_noise: Optional[tuple[float, float, float]] = None
     spad_noise: str = "off"
+    alteration_seed: Optional[int] = None
+    floors_dir: Optional[str] = None
+
+    def __post_init__(self) -> None:
+        if self.alteration_seed is not None and not self.floors_dir:
+            raise ValueError("ScenarioTask: an alteration_seed needs floors_dir (where the altered floors are cached)")
 
 
 def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Optional[tuple[float, float, float]],
@@ -78,14 +91,21 @@ def with_spad_noise(sensing, preset: str):
 
 def run_scenario(task: ScenarioTask) -> dict:
     """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings), with
-    the task's ``start_index`` and ``profile``."""
+    the task's ``start_index`` and ``profile`` (and, on an altered floor, ``alteration`` and ``dead_ends``)."""
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
     from superex_deploy.onboard.planners import make_planner
     from superex_deploy.maps import load_map
 
     profile = PROFILES[task.profile]
-    grid = load_map(task.map_name)
+    dead_ends = alteration = None
+    if task.alteration_seed is None:
+        grid = load_map(task.map_name)
+    else:
+        from superex_deploy.sim.altered_floors import load_floor
+
+        grid, dead_ends, meta = load_floor(task.map_name, task.start_rc, task.floors_dir, seed=task.alteration_seed)
+        alteration = {"seed": meta["seed"], "dead_ends": len(dead_ends), "kept_fraction": meta["kept_fraction"]}
     cfg = with_noise(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
                      task.pose_noise, task.lidar_noise, task.seed)
     sensing = with_spad_noise(make_sensing(task.predictor, task.spad, task.seed, profile=profile), task.spad_noise)
@@ -95,6 +115,21 @@ def run_scenario(task: ScenarioTask) -> dict:
     summary = result.to_json()
     summary["start_index"] = task.start_index
     summary["profile"] = task.profile
+    if alteration is not None:
+        from superex_deploy.sim.dead_ends import dead_end_entries
+
+        summary["alteration"] = alteration
+        summary["dead_ends"] = dead_end_entries(dead_ends, result.poses, result.path_length_m).to_json()
     summary.pop("poses")
     summary.pop("timings_s")
     return summary
+
+
+def make_altered_floor(task: tuple) -> dict:
+    """``superex benchmark --suite altered``'s first pass, in a worker process: the altered floor of one scenario,
+    ``task = (map_name, start_rc, folder)``, made once into ``folder``
+    (:func:`superex_deploy.sim.altered_floors.make_floor`); returns its summary."""
+    from superex_deploy.sim.altered_floors import make_floor
+
+    map_name, start_rc, folder = task
+    return make_floor(map_name, tuple(start_rc), folder)

@@ -75,7 +75,7 @@ def test_every_floor_gets_a_dead_end(altered_floors):
 def test_the_start_stays_connected_and_the_valid_area_is_what_the_robot_reaches(altered_floors):
     for record in altered_floors:
         grid, start = record.grid, record.start_rc
-        reach = robot_cells(grid.occupied, record.original.valid, start, RADIUS_CELLS)
+        reach = robot_cells(grid.occupied, start, RADIUS_CELLS)
         assert reach[start] and reach.sum() > 100
         assert grid.valid[start] and not grid.occupied[start]
         assert not (grid.valid & grid.occupied).any() and not (grid.valid & ~record.original.valid).any()
@@ -84,8 +84,7 @@ def test_the_start_stays_connected_and_the_valid_area_is_what_the_robot_reaches(
         if grid.name == "ring":  # the brute-force footprint on the small grid
             expected = _footprint_naive(reach, RADIUS_CELLS) & record.original.valid & ~grid.occupied
             np.testing.assert_array_equal(grid.valid, expected)
-        assert reach.sum() >= record.cfg.min_kept_fraction * robot_cells(
-            record.original.occupied, record.original.valid, start, RADIUS_CELLS).sum()
+        assert reach.sum() >= record.cfg.min_kept_fraction * robot_cells(record.original.occupied, start, RADIUS_CELLS).sum()
 
 
 def test_the_start_surroundings_are_never_touched(altered_floors):
@@ -104,7 +103,7 @@ def test_the_start_surroundings_are_never_touched(altered_floors):
 
 def test_each_obstruction_makes_a_dead_end_hidden_from_its_entrance(altered_floors):
     for record in altered_floors:
-        reach = robot_cells(record.grid.occupied, record.original.valid, record.start_rc, RADIUS_CELLS)
+        reach = robot_cells(record.grid.occupied, record.start_rc, RADIUS_CELLS)
         for alteration in record.alterations:
             dead_end = alteration.dead_end
             assert dead_end.length_m >= record.cfg.min_dead_end_m
@@ -130,7 +129,7 @@ def test_each_obstruction_makes_a_dead_end_hidden_from_its_entrance(altered_floo
 
 def test_the_dead_ends_are_new_the_unaltered_branch_led_on(altered_floors):
     for record in altered_floors:
-        before = robot_cells(record.original.occupied, record.original.valid, record.start_rc, RADIUS_CELLS)
+        before = robot_cells(record.original.occupied, record.start_rc, RADIUS_CELLS)
         for alteration in record.alterations:
             mouth = np.zeros(before.shape, bool)
             mouth[tuple(alteration.dead_end.mouth.T)] = True
@@ -229,15 +228,29 @@ def test_dead_end_entries_count_the_drives_into_a_dead_end(altered_floors):
         dead_end_entries(record.dead_ends, [[-1, 0]], [0.0])
 
 
+def test_the_robot_drives_through_a_doorway_outside_the_valid_area():
+    """The eval floors' valid areas leave the doorways out; the robot's reach (and so the alterations' robot cells)
+    goes through them."""
+    occupied = np.zeros((40, 80), bool)
+    occupied[[0, -1], :], occupied[:, [0, -1]] = True, True
+    occupied[:, 38:42] = True
+    occupied[15:25, 38:42] = False  # a doorway 1 m wide through a wall 0.4 m thick
+    valid = ~occupied
+    valid[:, 38:42] = False  # the doorway is not in the valid area
+    reach = robot_cells(occupied, (20, 10), 1.5)
+    assert reach[20, 70] and reach[20, 40], "the room beyond the doorway is reached through it"
+    assert not reach[occupied].any()
+
+
 def test_the_dead_end_helpers_refuse_bad_grids():
     grid = ring_floor()
     with pytest.raises(ValueError, match="bool"):
-        robot_cells(grid.occupied.astype(np.uint8), grid.valid, RING_START, 1.5)
-    with pytest.raises(ValueError, match="shape"):
-        robot_cells(grid.occupied, grid.valid[:-1], RING_START, 1.5)
+        robot_cells(grid.occupied.astype(np.uint8), RING_START, 1.5)
+    with pytest.raises(ValueError, match="bool"):
+        robot_cells(grid.occupied[0], RING_START, 1.5)
     with pytest.raises(ValueError, match="outside"):
-        robot_cells(grid.occupied, grid.valid, (999, 0), 1.5)
-    reach = robot_cells(grid.occupied, grid.valid, RING_START, 1.5)
+        robot_cells(grid.occupied, (999, 0), 1.5)
+    reach = robot_cells(grid.occupied, RING_START, 1.5)
     cut = np.zeros(grid.shape, bool)
     with pytest.raises(ValueError, match="not a reachable cell"):
         measure_dead_end(grid.occupied, reach, cut, (0, 0), np.array([[50, 50]]), RING_START, 0.1)

@@ -1,6 +1,7 @@
 """``superex benchmark``: every start pose of a set of maps x planners, in parallel processes.
 
-``--suite paper`` runs the paper's table instead: the named rows of :data:`~superex_deploy.sim.suite.PAPER_ROWS`
+``--suite paper`` runs the paper's table instead (``--suite altered``: on altered eval floors, see
+:mod:`superex_deploy.commands.paper_benchmark`): the named rows of :data:`~superex_deploy.sim.suite.PAPER_ROWS`
 (planner x predictor x sensing) on the 40 eval scenarios, each row written to ``OUT/rows/ROW.json`` as soon as it
 is done (a rerun skips the rows already there), then the summary paired by scenario against MapEx on LaMa-LOS:
 ``results.md``, ``results.json``, ``coverage.png``, ``iou_vs_coverage.png``.
@@ -41,12 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out: skip the episodes OUT/episodes.jsonl already holds (the "
                              "settings must be the same)")
-    parser.add_argument("--suite", choices=("paper",), default=None,
+    parser.add_argument("--suite", choices=("paper", "altered"), default=None,
                         help="paper: the paper's rows (see --rows), IoU every 10 steps up to 35 %% coverage, "
                              "paired against MapEx on LaMa-LOS, always with the full profile (the table measures models and "
-                             "planners); --planners / --predictor / --spad / --profile are ignored")
+                             "planners); --planners / --predictor / --spad / --profile are ignored. altered: the same "
+                             "on the eval floors altered with a fixed seed per scenario (dead ends hidden behind a "
+                             "turn), with the dead-end entries, also paired against MapEx on the observed map")
     parser.add_argument("--rows", type=name_list, default="all",
-                        help="with --suite paper: comma-separated row names, or 'all'")
+                        help="with --suite paper or altered: comma-separated row names, or 'all'")
 
 
 def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
@@ -81,12 +84,12 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     noise = noise_options(args)
-    if args.suite == "paper":
+    if args.suite in ("paper", "altered"):
         from superex_deploy.commands.paper_benchmark import run_paper
 
         if noise_settings(noise):
-            raise ValueError("--suite paper runs the paper's noise-free protocol: drop --pose-noise, --lidar-noise "
-                             "and --spad-noise (or run without --suite)")
+            raise ValueError(f"--suite {args.suite} runs the paper's noise-free protocol: drop --pose-noise, "
+                             f"--lidar-noise and --spad-noise (or run without --suite)")
 
         return run_paper(args)
     from superex_deploy.sim.metrics import results_markdown, summarise

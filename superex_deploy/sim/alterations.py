@@ -6,9 +6,10 @@ sight learns that the branch leads nowhere only once it has driven into it, whil
 map that knows) can tell earlier. The rules, all drawn from the floor's geometry, the start cell and the seed, never
 from where a planner drives:
 
-1. **Robot cells.** The robot's centre may occupy the cells inside the floor's valid area farther than
-   ``robot_radius_m`` from every wall (the planner's traversability, :mod:`superex_deploy.onboard.motion`),
-   8-connected to the start (:func:`superex_deploy.sim.dead_ends.robot_cells`).
+1. **Robot cells.** The robot's centre may occupy the free cells farther than ``robot_radius_m`` from every wall
+   (the planner's traversability, :mod:`superex_deploy.onboard.motion`), 8-connected to the start
+   (:func:`superex_deploy.sim.dead_ends.robot_cells`), inside the valid area or not: the eval floors' valid areas
+   leave the doorways out, and the robot drives through them.
 2. **Passages.** Candidate cuts sit on the medial axis of the free space, read from the nearest-wall feature
    transform (``scipy.ndimage.distance_transform_edt``): two 8-neighbouring robot cells whose nearest wall cells
    ``a`` and ``b`` face each other across the cell (``|a - b| >= facing_ratio * clearance``) mark a passage, and
@@ -338,7 +339,7 @@ def alter_floor_with_record(grid: OccupancyGrid, start_rc, seed: int,
     resolution = grid.resolution_m
     radius_cells = cfg.robot_radius_m / resolution
     occupied, valid = grid.occupied.copy(), grid.valid
-    reach0 = robot_cells(occupied, valid, start, radius_cells)
+    reach0 = robot_cells(occupied, start, radius_cells)
     reach = reach0
     rng = np.random.default_rng(int(seed))
     candidates = _passages(occupied, reach0, resolution, cfg) if cfg.alterations else np.zeros((0, 5))
@@ -375,7 +376,7 @@ def alter_floor_with_record(grid: OccupancyGrid, start_rc, seed: int,
         faces = _faces(after, cut, candidate[:2], candidate[2:4], window)
         if faces is None:
             continue
-        reach_after = robot_cells(after, valid, start, radius_cells)
+        reach_after = robot_cells(after, start, radius_cells)
         if reach_after.sum() < cfg.min_kept_fraction * reach0.sum() or any(
                 not reach_after[m.dead_end.pocket].all() for m in made):
             continue

@@ -57,21 +57,22 @@ def _check_grids(cells: dict, **grids: np.ndarray) -> None:
             raise ValueError(f"{name} {(row, col)} lies outside the grid of shape {shape}")
 
 
-def robot_cells(occupied: np.ndarray, valid: np.ndarray, start_rc, robot_radius_cells: float) -> np.ndarray:
-    """bool ``[H, W]``: the cells the robot's centre can reach from ``start_rc``, 8-connected, each inside ``valid``
-    and farther than ``robot_radius_cells`` (centre to centre) from every occupied cell: the planner's
-    traversability (:mod:`superex_deploy.onboard.motion`) on the true map. The start cell itself always counts, as
-    the planner counts the robot's own cell.
+def robot_cells(occupied: np.ndarray, start_rc, robot_radius_cells: float) -> np.ndarray:
+    """bool ``[H, W]``: the cells the robot's centre can reach from ``start_rc``, 8-connected, each free and farther
+    than ``robot_radius_cells`` (centre to centre) from every occupied cell: the planner's traversability
+    (:mod:`superex_deploy.onboard.motion`) on the true map. The valid area plays no part: the robot drives through
+    every free cell, and the eval floors' valid areas leave the doorways out (on the train floors they hold them). The
+    start cell itself always counts, as the planner counts the robot's own cell.
 
     Raises:
-        ValueError: grids that are not bool ``[H, W]`` arrays of one shape, a start outside them, a negative radius.
+        ValueError: a grid that is not a bool ``[H, W]`` array, a start outside it, a negative radius.
     """
     start_rc = tuple(int(v) for v in start_rc)
-    _check_grids({"start_rc": start_rc}, occupied=occupied, valid=valid)
+    _check_grids({"start_rc": start_rc}, occupied=occupied)
     if not float(robot_radius_cells) >= 0.0:
         raise ValueError(f"robot_radius_cells must be >= 0, got {robot_radius_cells}")
     clearance = ndimage.distance_transform_edt(np.pad(~occupied, 1, constant_values=False))[1:-1, 1:-1]
-    traversable = valid & ~occupied & (clearance > robot_radius_cells)
+    traversable = ~occupied & (clearance > robot_radius_cells)
     traversable[start_rc] = True
     labels, _ = ndimage.label(traversable, structure=_EIGHT)
     return labels == labels[start_rc]

@@ -5,6 +5,10 @@ A row's episodes are :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` d
 as ``superex benchmark`` writes them. Coverage is the known share of the valid area **with NLOS carving**
 (``coverage_with_carving``; equal to the line-of-sight coverage for rows without SPAD sensing); the line-of-sight
 share is reported beside it. An episode that ends early (nothing left to explore) keeps its final coverage.
+
+Episodes on altered floors (``superex benchmark --suite altered``) carry ``dead_ends``
+(:meth:`~superex_deploy.sim.dead_ends.DeadEndEntries.to_json`); their metrics gain the dead-end entries
+(:data:`DEAD_END_METRICS`), paired like every other metric.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ import numpy as np
 from superex_deploy.sim.metrics import coverage_at, difference_counts, pair_by_scenario
 
 __all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
-           "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary", "coverage_curves"]
+           "DEAD_END_METRICS", "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary",
+           "coverage_curves", "common_scenarios"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,11 @@ REFERENCE_ROW = "mapex_lama_los"
 CHECKPOINTS = (100, 250, 500, 1000)
 IOU_LEVELS = (0.05, 0.10, 0.20, 0.30)
 IOU_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))
+DEAD_END_METRICS = {"dead_end_entries": "entries", "dead_end_metres_in": "metres_in",
+                    "dead_end_metres_inside": "metres_inside", "dead_end_reached": "reached_end"}
+"""Metric name -> field of :class:`~superex_deploy.sim.dead_ends.DeadEndEntries`: entries into dead ends (at least
+1 m deep), metres driven from each entry to its deepest pose (into a region that then closes with no new frontier),
+metres driven inside dead ends in all, entries that reached the obstruction."""
 
 
 def _series(episode: dict, key: str) -> list[float]:
@@ -104,6 +114,9 @@ def scenario_metrics(episode: dict, steps: int = 1000) -> dict[str, float]:
         choices = len(episode["goals"]["steps"])
         for stage in ("scoring", "prediction"):
             out[f"{stage}_ms_per_goal"] = 1000 * episode["mean_step_s"][stage] * episode["steps"] / choices
+    if "dead_ends" in episode:
+        for metric, field in DEAD_END_METRICS.items():
+            out[metric] = float(episode["dead_ends"][field])
     return out
 
 
@@ -169,6 +182,13 @@ def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie
                        "ratio": float(pairs[:, 1].mean() / base - 1.0) if base else float("nan"),
                        **difference_counts(diff, tie_tolerance)}
     return out
+
+
+def common_scenarios(reference: list[dict], candidate: list[dict]) -> tuple[list[dict], list[dict]]:
+    """The episodes of two rows on the scenarios (map, start index) both hold, each row's in its own order: a row
+    run on fewer scenarios (an expensive one) is paired on those."""
+    shared = {_key(e) for e in reference} & {_key(e) for e in candidate}
+    return [e for e in reference if _key(e) in shared], [e for e in candidate if _key(e) in shared]
 
 
 def coverage_curves(episodes: list[dict], steps: int) -> np.ndarray:
