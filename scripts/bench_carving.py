@@ -226,6 +226,49 @@ def _property_floor(task: tuple) -> dict:
     return {"map": name, "poses": len(poses), "variants": out, "normal_error_deg": errors.tolist()}
 
 
+def noisy_property(n_poses: int, names: list[str], sigma_xy_m: float = 0.05, sigma_yaw_deg: float = 1.0
+                   ) -> tuple[dict, str]:
+    """tests/test_noisy_carving.py's property for the variants (360 primaries): scans from the true cell,
+    placed by a belief drawn at the declared sigmas and carved with that covariance (generator 24, floor
+    ``trial % floors``). Returns the poses carving a true wall and the carved cells per scan."""
+    from superex_deploy.messages import MapFrame, Pose2D, SpadFrame
+    from superex_deploy.onboard.spad_processing import scan_from_frame
+    from superex_deploy.sim.spad import simulate_scan
+
+    sigma_yaw = np.deg2rad(sigma_yaw_deg)
+    rng = np.random.default_rng(24)
+    floors = list_maps("train")
+    out = {v: {"poses_carving_walls": 0, "examples": [], "carved_per_scan": 0.0} for v in names}
+    for trial in range(n_poses):
+        grid = load_map(floors[trial % len(floors)])
+        candidates = np.argwhere(grid.valid & ~grid.occupied)
+        pose = tuple(int(v) for v in candidates[rng.integers(len(candidates))])
+        frame = MapFrame(grid.shape, grid.resolution_m)
+        x, y = frame.centre_xy(pose)
+        dx, dy = rng.normal(0.0, sigma_xy_m, 2)
+        belief = Pose2D(x + dx, y + dy, rng.normal(0.0, sigma_yaw))
+        for k in sorted({VARIANTS[v][0] for v in names}):
+            cfg = SpadConfig(n_rays=360, n_secondary=k)
+            simulated = simulate_scan(grid, pose, cfg)
+            sparse = simulated.sparse
+            measured = SpadFrame(angles=-simulated.angles, bin_width_s=cfg.bin_width_s, n_bins=sparse.n_bins,
+                                 row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
+            scan = scan_from_frame(measured, frame, belief, cfg)
+            for v in (v for v in names if VARIANTS[v][0] == k):
+                nlos_cfg = nlos_config(v)
+                carved = carve(scan, estimate_los(scan, nlos_cfg), nlos_cfg, (sigma_xy_m, sigma_yaw))
+                out[v]["carved_per_scan"] += int(carved.sum()) / n_poses
+                if np.any(carved & grid.occupied):
+                    out[v]["poses_carving_walls"] += 1
+                    out[v]["examples"].append([grid.name, list(pose)])
+    lines = [f"Soundness under pose error: {n_poses} random train poses, belief {100 * sigma_xy_m:.0f} cm / "
+             f"{sigma_yaw_deg:g} degree off and carved with that covariance, 360 primary rays", "",
+             "| carving | poses carving a true wall | carved cells / scan |", "|---|---:|---:|"]
+    lines += [f"| {v} | {o['poses_carving_walls']} | {o['carved_per_scan']:.0f} |" for v, o in out.items()]
+    return {"poses": n_poses, "sigma_xy_m": sigma_xy_m, "sigma_yaw_deg": sigma_yaw_deg, "variants": out}, \
+        "\n".join(lines)
+
+
 def _floor_poses(n_poses: int) -> dict[str, list]:
     """floor -> poses: the property test's draws (generator 2026, floor ``trial % floors``), grouped by floor."""
     rng = np.random.default_rng(2026)
@@ -346,6 +389,27 @@ def summarise(results: list[dict], names: list[str]) -> tuple[list[dict], str]:
     return rows, "\n".join(lines)
 
 
+def plot(rows: list[dict], title: str, path: Path) -> None:
+    """Bar chart of each variant's paired first-half coverage gain over line of sight (points, 95 % interval)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 0.35 * len(rows) + 1.2))
+    y = np.arange(len(rows))[::-1]
+    gain = np.array([r["paired_points"] for r in rows])
+    err = np.array([[r["paired_points"] - r["low"], r["high"] - r["paired_points"]] for r in rows]).T
+    colours = ["tab:red" if r["true_walls_carved"] else "tab:blue" for r in rows]
+    ax.barh(y, gain, xerr=err, color=colours, capsize=2)
+    ax.set_yticks(y, [f"{r['variant']} ({r['ratio_vs_los']:+.1%})" for r in rows], fontsize=8)
+    ax.set_xlabel("first-half coverage gain over line of sight (points; red: carved a true wall)")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=("train", "eval"), default="train")
@@ -356,14 +420,31 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--property", type=int, default=0, metavar="POSES",
                         help="instead: the soundness property over this many random train poses")
+    parser.add_argument("--noisy-property", type=int, default=0, metavar="POSES",
+                        help="instead: the soundness property under a 5 cm / 1 degree pose error")
     parser.add_argument("--bp-change", type=int, default=0, metavar="POSES",
                         help="instead: how a 256-ray fan changes the back-projection, over this many train poses")
     parser.add_argument("--property-rays", type=int, default=360, help="primary rays of the property's scans")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--plot-from", type=Path, default=None, metavar="JSON",
+                        help="instead: plot an episode run's JSON next to it (.png)")
     args = parser.parse_args()
+    if args.plot_from is not None:
+        run = json.loads(args.plot_from.read_text())
+        plot(run["rows"], f"{len(run['scenarios'])} {run['split']} scenarios, {run['steps']} steps, fixed MapEx "
+             "trajectories", args.plot_from.with_suffix(".png"))
+        return
     names = list(VARIANTS) if args.variants == "all" else [v.strip() for v in args.variants.split(",")]
     if any(v not in VARIANTS for v in names):
         raise SystemExit(f"unknown variant(s); choose from {list(VARIANTS)}")
+    if args.noisy_property:
+        out, text = noisy_property(args.noisy_property, names)
+        print(text)
+        if args.out is not None:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(out, indent=1))
+            args.out.with_suffix(".md").write_text(text + "\n")
+        return
     if args.bp_change:
         out, text = back_projection_change(args.bp_change)
         print(text)
