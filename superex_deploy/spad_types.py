@@ -70,7 +70,11 @@ class SpadConfig:
         n_rays: primary rays over 360 degrees.
         range_m: maximum range of primary and secondary rays (metres).
         bin_width_s: histogram bin width (seconds); see :attr:`bin_path_m`.
-        n_secondary: secondary rays per wall hit, spread over [-90, 90] degrees about the normal.
+        n_secondary: secondary rays per wall hit, spread over [-90, 90] degrees about the normal. The carving's
+            radius cap grows with it (``onboard.nlos.carve_radius_cap_m``: 2.0 m at 64, 8.1 m at 256). 256 rays
+            cost the simulator 2-3x the time per scan of 64 with the fan cache (benchmarks/carving/), but
+            change the histograms (4x the late photons, about 2x the non-zero late bins): the Pix2Pix filter and
+            LaMa-BP were trained on 64-ray scans and would need retraining before the full pipeline runs at 256.
         reflectance: Lambertian surface reflectance rho in (0, 1].
         detector_efficiency: photon detection efficiency alpha in (0, 1].
         pulse_energy_j: laser pulse energy E (joules).

@@ -11,7 +11,8 @@ needs three more arguments, each a margin below:
    directions, ``pi / K`` apart. A wall cell of side ``s`` at distance ``rho`` spans an angle of at least
    ``~ s / rho``; it is certain to be crossed by a sampled direction only while ``s / rho >= pi / K``. Beyond
    ``rho_max = s K / pi`` a thin wall end pointing at the wall point can slip between two rays, and the first
-   return then overstates the empty radius. The carve radius is therefore capped at ``rho_max``.
+   return then overstates the empty radius. The carve radius is therefore capped at ``rho_max``: a denser
+   fan (``SpadConfig.n_secondary``) carves further (2.0 m at 64 rays of 0.1 m cells, 8.1 m at 256).
 2. **Where the wall point is.** The processing knows ``h1`` only from the direct-return bin: its estimate can
    be one cell off, and the simulator's fans start at ``X1`` on the cell's face. The radius is reduced by
    ``apex_margin_cells`` plus ``s / sqrt(2)`` (a cell counts as a wall when any part of it is hit, and we test

@@ -24,6 +24,11 @@ class NlosConfig:
         window_m: back-projection is computed within this distance of the robot (square window, metres).
         apex_margin_cells: carve-radius reduction for the wall point's estimate (cells).
         sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal.
+            Measured (benchmarks/carving/): 20 carved no true wall over 2,000 random train poses (64, 256 and
+            512 secondary rays), on 6 train and 20 eval MapEx trajectories, nor over 1,000 poses with a belief
+            5 cm / 1 degree off (256 rays); 15 passed the 2,000 poses but carved true walls on 2 eval floors, 10 on
+            train trajectories. With ``SpadConfig(n_secondary=256)`` (radius cap 8.1 m) 20 adds +2.5 % first-half
+            coverage over line of sight on fixed eval trajectories, against +0.7 % for the defaults.
         wall_strip_cells: cells within this distance of the wall's own line are never carved.
         false_alarm_rate: noisy mode: probability that a ray's late part holds a false detection.
         normal_radius_cells: observed wall hits within this radius of a wall cell estimate its normal.
@@ -189,7 +194,8 @@ class NlosResult:
 
 
 def carve_radius_cap_m(n_secondary: int, resolution_m: float) -> float:
-    """Largest radius (metres) within which ``n_secondary`` rays over 180 degrees must cross every cell."""
+    """Largest radius (metres) within which ``n_secondary`` rays over 180 degrees must cross every cell: the fan
+    density sets it (2.0 m at 64 rays and 0.1 m cells, 4.1 m at 128, 8.1 m at 256), not the physics."""
     return resolution_m * n_secondary / np.pi
 
 
