@@ -21,6 +21,10 @@ import numpy as np
 VARIANTS = {
     "off": dict(enabled=False),
     "default": dict(),
+    "fuse03": dict(match_sigma_cells=0.3, match_sigma_deg=0.1),
+    "fuse05": dict(match_sigma_cells=0.5, match_sigma_deg=0.2),
+    "delay10": dict(start_after_scans=10),
+    
     "gain0": dict(min_gain=0.0),
     "gain05": dict(min_gain=0.05),
     "fit03": dict(min_fit=0.3),

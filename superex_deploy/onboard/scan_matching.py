@@ -67,6 +67,16 @@ class ScanMatchingConfig:
         min_gain: ... and beat the believed pose's fit by this much.
         prior_weight: weight of the Mahalanobis prior (fit units per unit of ``m^2 / 2``).
         refine_levels: fine search levels after the lattice (each halves the steps).
+        match_sigma_cells, match_sigma_deg: the match's own standard deviation (cells, degrees) relative to the
+            map. An accepted match is fused with the believed pose as two independent estimates (per axis, weights
+            inverse to the variances), so the map, anchored where the first scans were believed to be, keeps being
+            pulled towards the unbiased belief instead of keeping the first scan's error for good; 0 (the
+            default) takes the match alone. On 2 train floors x 80 steps at 5 cm / 1 deg, 0.3 cells / 0.1 deg
+            lowered the mean pose error (4.4 cm against 7.6 cm) but held more true walls free (104 against 45 per
+            1,000 seen) and lowered the first-half coverage (-18 % against -4 % of noise-free).
+        start_after_scans: scans integrated at the believed pose before matching starts (the map's anchor is
+            their average rather than the first scan's error); 0 by default (10 on the same train runs: 42 per
+            1,000 held free but -28 % coverage).
     """
 
     enabled: bool = True
@@ -84,6 +94,9 @@ class ScanMatchingConfig:
     min_gain: float = 0.02
     prior_weight: float = 0.01
     refine_levels: int = 3
+    match_sigma_cells: float = 0.0
+    match_sigma_deg: float = 0.0
+    start_after_scans: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
@@ -93,11 +106,12 @@ class ScanMatchingConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("min_fit", "min_gain", "prior_weight"):
+        for name in ("min_fit", "min_gain", "prior_weight", "match_sigma_cells", "match_sigma_deg"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number >= 0, got {value!r}")
-        for name, low in (("max_points", 1), ("starts", 1), ("min_points", 1), ("min_map_walls", 0), ("refine_levels", 0)):
+        for name, low in (("max_points", 1), ("starts", 1), ("min_points", 1), ("min_map_walls", 0), ("refine_levels", 0),
+                          ("start_after_scans", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"ScanMatchingConfig.{name} must be an integer >= {low}, got {value!r}")
@@ -195,6 +209,18 @@ def likelihood_field(walls: np.ndarray, sigma_cells: float) -> np.ndarray:
     return np.exp(-0.5 * (distance / float(sigma_cells)) ** 2)
 
 
+def _fuse(believed: Pose2D, matched: Pose2D, belief_sigmas, match_sigmas) -> Pose2D:
+    """Per axis, the inverse-variance weighted mean of the believed and the matched pose."""
+    def weight(belief_sigma: float, match_sigma: float) -> float:  # the belief's weight
+        total = belief_sigma ** 2 + match_sigma ** 2
+        return match_sigma ** 2 / total if total > 0.0 else 0.0
+
+    wx, wy, wyaw = (weight(b, m) for b, m in zip(belief_sigmas, match_sigmas))
+    turn = math.remainder(believed.yaw - matched.yaw, 2.0 * math.pi)
+    return Pose2D(matched.x + wx * (believed.x - matched.x), matched.y + wy * (believed.y - matched.y),
+                  math.remainder(matched.yaw + wyaw * turn, 2.0 * math.pi))
+
+
 def _lattice(half: float, step: float) -> np.ndarray:
     count = int(math.floor(half / step + 1e-9))
     return np.arange(-count, count + 1, dtype=np.float64) * step
@@ -211,6 +237,7 @@ class ScanMatcher:
         if not isinstance(cfg, ScanMatchingConfig):
             raise ValueError(f"cfg must be a ScanMatchingConfig, got {type(cfg).__name__}")
         self.cfg = cfg
+        self.scans_seen = 0  # scans offered to match() with a covariance
 
     def returns(self, scan: LaserScan, resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
         """The usable returns of ``scan``: float64 ``[N]`` ranges (cells) and robot-frame angles (radians), at most
@@ -234,6 +261,9 @@ class ScanMatcher:
         if covariance is None or not self.cfg.enabled:
             return ScanMatch(pose, False, nan, nan, "no covariance" if covariance is None else "disabled")
         cfg, res = self.cfg, frame.resolution_m
+        self.scans_seen += 1
+        if self.scans_seen <= cfg.start_after_scans:
+            return ScanMatch(pose, False, nan, nan, "before start_after_scans")
         rho, angles = self.returns(scan, res)
         if rho.size < cfg.min_points:
             return ScanMatch(pose, False, nan, nan, "too few returns")
@@ -298,4 +328,6 @@ class ScanMatcher:
         cell = frame.cell_of(corrected.x, corrected.y)
         if not frame.contains(cell) or walls[cell]:
             return ScanMatch(pose, False, best_fit, believed_fit, "corrected pose in a wall or off the map")
-        return ScanMatch(corrected, True, best_fit, believed_fit, "")
+        fused = _fuse(pose, corrected, (sigma_x, sigma_y, sigma_yaw),
+                      (cfg.match_sigma_cells * res, cfg.match_sigma_cells * res, math.radians(cfg.match_sigma_deg)))
+        return ScanMatch(fused, True, best_fit, believed_fit, "")
