@@ -150,7 +150,27 @@ def superex_gain(pipeline: list[dict], los: list[dict], level: float) -> float:
     return float(np.mean(gains)) if gains else float("nan")
 
 
-def report(out: Path, results: dict, steps: int, superex_settings: list) -> dict:
+def side_by_side(before: dict, rows: dict) -> list[str]:
+    """Markdown lines: each setting's headline measures in a previous run (``before``: its robustness.json) and in
+    this one."""
+    lines = ["", "## Before and after (the previous run's robustness.json given by --before)", "",
+             "| pose noise | SPAD | LiDAR | held free / 1000 seen | map IoU / noise-free | AUC vs noise-free | "
+             "collisions | walls carved | episodes |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, row in rows.items():
+        old = before.get("settings", {}).get(name)
+        if old is None:
+            continue
+        lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
+                     f"{row['lidar_m'] * 100:g} cm | {old['held_free_per_1000_seen']:.2f} -> "
+                     f"{row['held_free_per_1000_seen']:.2f} | {old['map_iou_vs_noise_free']:.3f} -> "
+                     f"{row['map_iou_vs_noise_free']:.3f} | {old['auc_vs_noise_free'][0] * 100:+.1f} % -> "
+                     f"{row['auc_vs_noise_free'][0] * 100:+.1f} % | {old['collisions']} -> {row['collisions']} | "
+                     f"{old['true_walls_carved']} -> {row['true_walls_carved']} | {old['episodes']} -> "
+                     f"{row['episodes']} |")
+    return lines
+
+
+def report(out: Path, results: dict, steps: int, superex_settings: list, before: dict = None) -> dict:
     rng = np.random.default_rng(0)
     nearest = {name: eps for (group, name), eps in results.items() if group == "nearest"}
     base_name = setting_name((0.0, 0.0), "off", 0.0)
@@ -193,6 +213,8 @@ def report(out: Path, results: dict, steps: int, superex_settings: list) -> dict
         for name, gain in gains.items():
             lines.append(f"| {name} | {gain['episodes']} | {gain['iou_gain@10%']:+.3f} | "
                          f"{gain['iou_gain@20%']:+.3f} | {gain['collisions']} | {gain['true_walls_carved']} |")
+    if before:
+        lines += side_by_side(before, rows)
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
     plot(out, rows)
     return summary
@@ -243,6 +265,8 @@ def main(argv=None) -> int:
                         help="'targets': only the noise-free point and the pose levels at SPAD realistic, LiDAR 2 cm")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--report-only", action="store_true", help="rewrite the tables from the journal")
+    parser.add_argument("--before", type=Path, default=None,
+                        help="a previous run's robustness.json: the table gains a before / after comparison")
     args = parser.parse_args(argv)
     if not 1 <= args.scenarios <= 40 or not 0 <= args.superex_scenarios <= 40 or args.steps < 2 or args.jobs < 1:
         parser.error("--scenarios in 1..40, --superex-scenarios in 0..40, --steps >= 2, --jobs >= 1")
@@ -279,7 +303,8 @@ def main(argv=None) -> int:
         group, name, _, _, steps = key.split("|")
         if int(steps) == args.steps:
             results.setdefault((group, name), []).append(value)
-    summary = report(args.out, results, args.steps, args.superex_settings)
+    before = json.loads(args.before.read_text()) if args.before is not None else None
+    summary = report(args.out, results, args.steps, args.superex_settings, before)
     print((args.out / "robustness.md").read_text())
     print(f"{len(done)} episodes in {journal}; {len(summary['settings'])} settings")
     return 0

@@ -571,6 +571,34 @@ def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit,
     return out
 
 
+# --- onboard.scan_matching ---
+
+
+def naive_score_poses(field, rho, angles, y0, x0, yaw, offsets):
+    """onboard.scan_matching._score_poses, one return at a time: each return placed from each candidate pose in the
+    grid's (y down, x right) cells, the field read by bilinear interpolation between the four surrounding cell
+    centres (0 where they are not all inside the grid), averaged over the returns."""
+    n_rows, n_cols = field.shape
+    scores = []
+    for dy, dx, dyaw in offsets:
+        values = []
+        for r, a in zip(rho, angles):
+            heading = yaw + dyaw + a
+            y = y0 + dy - r * np.sin(heading)  # map y up, rows down
+            x = x0 + dx + r * np.cos(heading)
+            u, v = y - 0.5, x - 0.5  # cell centres at half-integers
+            i, j = int(np.floor(u)), int(np.floor(v))
+            if not (0 <= i and 0 <= j and i + 1 < n_rows and j + 1 < n_cols):
+                values.append(0.0)
+                continue
+            wu, wv = u - i, v - j
+            corners = [(i, j, (1 - wu) * (1 - wv)), (i, j + 1, (1 - wu) * wv), (i + 1, j, wu * (1 - wv)),
+                       (i + 1, j + 1, wu * wv)]
+            values.append(sum(w * field[a_, b_] for a_, b_, w in corners))
+        scores.append(float(np.mean(values)))
+    return np.array(scores)
+
+
 # --- expected visibility ---
 
 

@@ -14,6 +14,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.onboard.motion import MotionConfig
 from superex_deploy.onboard.planners import make_planner
 from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.pipeline import PROFILES, make_sensing
 from superex_deploy.recording import EpisodeRecorder, read_recording
@@ -101,7 +102,10 @@ def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goal
     grid = load_map(MAP)
     sensing = make_sensing("observed", True, 0)
     world = World(grid, start_poses(MAP)[2], WorldConfig(spad=sensing.spad))
-    cfg = ExplorerConfig()
+    # This world moves cell to cell and wants each path from the robot's cell: the scan matcher's correction is
+    # fused with the belief (which stays in that cell) so that it is exercised, recorded and replayed without moving
+    # the believed cell.
+    cfg = ExplorerConfig(scan_matching=ScanMatchingConfig(match_sigma_cells=0.3, match_sigma_deg=0.1))
     own = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction(), spad_processing=sensing.processing(),
                    cfg=cfg, seed=1)
     rng = np.random.default_rng(5)
@@ -122,12 +126,15 @@ def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goal
     metadata = {"map": MAP, "planner": "nearest", "planner_options": {}, "predictor": "observed", "seed": 1,
                 "spad": True, "models": None, "sensor": asdict(sensing.spad), "nlos": asdict(sensing.nlos_cfg),
                 "explorer": asdict(cfg), "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+    matched = []
     with EpisodeRecorder(record_path, world.frame, metadata) as recorder:
         def record(observation, command, explorer):
             recorder.write(observation, command, explorer.observed)
+            matched.append(explorer.scan_match is not None and explorer.scan_match.accepted)
             slam["map"] = _as_slam_map(explorer.frame, explorer.mapper.observed(include_carved=False))
 
         commands = _drive(world, own, 20, observe=noisy, after=record)
+    assert any(matched)  # the replay below repeats scan-matched steps
     recording = read_recording(record_path)
     assert recording.error is None and len(recording.steps) == len(commands)
     with_map = [s.observation for s in recording.steps if s.observation.occupancy_grid is not None]

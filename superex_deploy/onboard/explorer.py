@@ -38,6 +38,7 @@ seed (the seed feeds only the planner's generator).
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from dataclasses import dataclass, field
@@ -53,6 +54,7 @@ from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPred
 from superex_deploy.onboard.inference.sessions import ThreadBudget
 from superex_deploy.onboard.prediction_schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
                                                         StalePrediction, set_numba_threads)
+from superex_deploy.onboard.scan_matching import ScanMatch, ScanMatcher, ScanMatchingConfig
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
 from superex_deploy.messages import Command, MapFrame, Observation
@@ -81,6 +83,10 @@ class ExplorerConfig:
         occupancy: the map's log-odds parameters and the SLAM map's thresholds
             (:class:`~superex_deploy.onboard.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
             recording's metadata holds it).
+        scan_matching: the correlative scan-to-map matcher
+            (:class:`~superex_deploy.onboard.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
+            observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
+            start from the corrected pose when the match passes its acceptance rule).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -88,10 +94,15 @@ class ExplorerConfig:
     prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.occupancy, dict):
             object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
+        if isinstance(self.scan_matching, dict):
+            object.__setattr__(self, "scan_matching", ScanMatchingConfig(**self.scan_matching))
+        if not isinstance(self.scan_matching, ScanMatchingConfig):
+            raise ValueError(f"scan_matching must be a ScanMatchingConfig, got {type(self.scan_matching).__name__}")
         if not isinstance(self.occupancy, OccupancyConfig):
             raise ValueError(f"occupancy must be an OccupancyConfig, got {type(self.occupancy).__name__}")
         if not isinstance(self.motion, MotionConfig):
@@ -132,6 +143,10 @@ class Explorer:
             when those may not be driven on, see the module docstring).
         goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
         path: cells from the robot to the goal.
+        pose_estimate: the pose the latest step integrated and planned from (the observation's, or the scan
+            matcher's correction of it; None before the first step).
+        scan_match: the latest step's :class:`~superex_deploy.onboard.scan_matching.ScanMatch`, or None (no
+            covariance, or a SLAM map).
         steps: observations processed so far.
         finished: whether the latest step found the exploration finished (see above).
         reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
@@ -163,6 +178,9 @@ class Explorer:
                                                     if cfg.reuse.reuses else None)
         self._predictor: MapPredictor = self.reusing if self.reusing is not None else predictor
         self.mapper = Mapper(frame.shape, cfg.occupancy)
+        self.scan_matcher = ScanMatcher(cfg.scan_matching)
+        self.pose_estimate = None
+        self.scan_match: Optional[ScanMatch] = None
         self.observed = self.mapper.observed()
         self._planning = self.observed  # the map the latest step planned on (see the module docstring)
         self.frontiers: tuple[Frontier, ...] = ()
@@ -316,10 +334,18 @@ class Explorer:
         t = self.steps
 
         clock = time.perf_counter()
+        self.scan_match = None
         if obs.occupancy_grid is not None:
             self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
         else:
+            if obs.pose_covariance is not None:
+                self.scan_match = self.scan_matcher.match(self.frame, self.mapper.seen_wall, obs.pose,
+                                                          obs.pose_covariance, obs.scan)
+                if self.scan_match.accepted:  # the scan, the SPAD frame and the plan start from the correction
+                    obs = dataclasses.replace(obs, pose=self.scan_match.pose)
+                    pose = self._pose_cell(obs)
             self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
+        self.pose_estimate = obs.pose
         timings["scan"] = time.perf_counter() - clock
 
         clock = time.perf_counter()

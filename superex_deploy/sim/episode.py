@@ -325,6 +325,10 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
             logged = t + 1
             break
         clock = time.perf_counter()
+        if world.pose_error is not None:
+            # The controller drives from the pose the explorer planned from (its scan-matched correction of the
+            # localisation's estimate, fed back as a map -> odom correction is): the path is read relative to it.
+            world.belief = explorer.pose_estimate
         world.apply(command)
         simulation_s[t] += time.perf_counter() - clock
 
