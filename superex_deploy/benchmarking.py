@@ -67,12 +67,18 @@ def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Opti
     """The :class:`~superex_deploy.sim.episode.ExplorationConfig` ``cfg`` with the simulator's noise: the
     localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.localization.PoseNoise.from_sigmas>` of
     ``pose_noise = (sigma_m, sigma_deg)`` and the LiDAR noise ``lidar_noise = (sigma_m, dropout, spurious)``, both
-    seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None)."""
+    seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None). With LiDAR noise the
+    explorer's map is told the sensor's range sigma (``OccupancyConfig.range_sigma_m``: the robot's calibration is
+    the simulated sensor's sigma), as a robot's configuration would be."""
     from superex_deploy.sim.lidar_noise import LidarNoise
     from superex_deploy.sim.localization import PoseNoise
 
     if pose_noise is None and lidar_noise is None:
         return cfg
+    if lidar_noise is not None:
+        explorer = cfg.explorer
+        cfg = replace(cfg, explorer=replace(explorer, occupancy=replace(explorer.occupancy,
+                                                                        range_sigma_m=float(lidar_noise[0]))))
     return replace(cfg, pose_noise=None if pose_noise is None else PoseNoise.from_sigmas(*pose_noise, seed=seed),
                    lidar_noise=None if lidar_noise is None else LidarNoise(
                        sigma_m=lidar_noise[0], dropout_prob=lidar_noise[1], spurious_prob=lidar_noise[2], seed=seed))

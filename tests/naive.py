@@ -559,14 +559,23 @@ def naive_open_tour_first(between, from_robot):
 # --- onboard.mapper ---
 
 
-def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest):
-    """onboard.mapper._integrate_log_odds from the crossing lists of :func:`naive_mark_ranges`: every cell the scan
-    touched gets one update, ``hit`` where any ray returned in it, else ``miss``, clamped; returns a new float32
-    grid."""
-    free, hit_mask = naive_mark_ranges(log_odds.shape, y0, x0, angles, ranges_cells, max_t)
+def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest,
+                             hit_shift=0.0):
+    """onboard.mapper._integrate_log_odds one ray at a time from :func:`naive_mark_ranges`: each return placed
+    ``hit_shift`` farther (its ray walked up to it even beyond ``max_t``); every cell the scan touched gets one
+    update, ``hit`` where at least as many rays returned in it as crossed it, else ``miss``, clamped; returns a new
+    float32 grid."""
+    crossed = np.zeros(log_odds.shape, np.int64)
+    returned = np.zeros(log_odds.shape, np.int64)
+    for angle, distance in zip(angles, ranges_cells):
+        shifted = distance + hit_shift if np.isfinite(distance) else distance
+        limit = max(max_t, shifted + 1e-6) if hit_shift > 0.0 and np.isfinite(distance) else max_t
+        ray_free, ray_hit = naive_mark_ranges(log_odds.shape, y0, x0, [angle], [shifted], limit)
+        crossed += ray_free
+        returned += ray_hit
     out = log_odds.copy()
-    for r, c in np.argwhere(free | hit_mask):
-        delta = hit if hit_mask[r, c] else miss
+    for r, c in np.argwhere((crossed > 0) | (returned > 0)):
+        delta = hit if returned[r, c] > 0 and returned[r, c] >= crossed[r, c] else miss
         out[r, c] = np.float32(min(max(float(out[r, c]) + delta, lowest), highest))
     return out
 

@@ -262,7 +262,8 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lidar-noise", default=None, metavar="SIGMA_M[,DROPOUT,SPURIOUS]",
                         help="LiDAR range noise of SIGMA_M metres, with dropouts and spurious short returns at "
                              "DROPOUT and SPURIOUS per ray (default 0.01 and 0.001; superex_deploy.sim.lidar_noise). "
-                             "0: off (the default)")
+                             "The explorer's map is calibrated to SIGMA_M (OccupancyConfig.range_sigma_m), as a "
+                             "robot's would be to its LiDAR. 0: off (the default)")
     parser.add_argument("--spad-noise", default="off", choices=SPAD_NOISE_CHOICES,
                         help="the SPAD LiDAR's photon budget (superex_deploy.spad_types.SPAD_PRESETS): off (the "
                              "paper's noise-free model), realistic (indoors), low (weak laser, daylight); the "

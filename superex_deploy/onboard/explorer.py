@@ -298,6 +298,19 @@ class Explorer:
         """The latest step's prediction if anything has computed it, else None (never computes)."""
         return None if self._prediction is None else self._prediction.value
 
+    def _clear_footprint(self, obs: Observation) -> None:
+        """The robot's body is free space: a spurious short return under it (a phantom wall that would make every
+        neighbour untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapper.Mapper.clear_footprint`),
+        on a disc of the robot radius shrunk by ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
+        occupancy = self.cfg.occupancy
+        if not occupancy.footprint_clearing:
+            return
+        radius_m = self.cfg.motion.robot_radius_m
+        if obs.pose_covariance is not None:
+            radius_m -= occupancy.footprint_margin_sigmas * obs.pose_covariance.sigma_xy_m
+        origin, _ = self.frame.locate(obs.pose.x, obs.pose.y)
+        self.mapper.clear_footprint(origin, max(radius_m, 0.0) / self.frame.resolution_m)
+
     def _pose_cell(self, obs: Observation) -> tuple[int, int]:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
 
@@ -345,6 +358,7 @@ class Explorer:
                     obs = dataclasses.replace(obs, pose=self.scan_match.pose)
                     pose = self._pose_cell(obs)
             self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
+            self._clear_footprint(obs)
         self.pose_estimate = obs.pose
         timings["scan"] = time.perf_counter() - clock
 

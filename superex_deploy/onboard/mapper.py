@@ -4,7 +4,7 @@ taken from a SLAM map) and, in a layer of its own, from NLOS space carving.
 Line of sight (as costmap_2d's voxel layer and OctoMap keep it): each scan is walked ray by ray with the exact DDA
 of :mod:`superex_deploy.geometry` (the cells a ray leaves before its return were crossed, the cell of the return
 was hit: :func:`~superex_deploy.geometry.mark_ranges`); then every cell the scan touched gets **one** update, a
-hit if any ray returned in it (a hit wins over the misses of the same scan), else a miss:
+hit if at least as many rays returned in it as crossed it (a hit wins a tie), else a miss:
 ``l += hit`` or ``l += miss`` (negative), clamped to ``[lowest, highest]``. A cell is **occupied** at
 ``l >= occupied_threshold``, **free** at ``l <= free_threshold``, unknown in between. Clamping bounds what any
 history weighs, so no cell is decided for good by one reading: a wall hit once is cleared by a few scans that see
@@ -14,6 +14,25 @@ The defaults (:class:`OccupancyConfig`) reproduce the binary map this replaced o
 an unknown cell free, one hit makes any cell occupied (a wall wins over a free history, as ``seen_wall`` did), and
 a wall hit once stays occupied through 5 scans that cross it (through 8 once confirmed). Measured on noise-free
 episodes, no cell is ever both hit and crossed, so the thresholded map is exactly the old one.
+
+**A noisy LiDAR** (issue #24). The per-scan vote is an inverse sensor model: a spurious short return in free
+space is one return against the many rays of the same scan that cross its cell, so it never becomes a wall (the
+binary rule, "a hit wins", put one there that took 7 scans to clear); and a few rays that return in a cell they
+only grazed do not outvote those that crossed it. Range noise needs one more thing: a wall's face is where the
+exact ranges end, and ``N(0, sigma)`` puts half of the returns in the free cell in front of it, which then holds
+as many returns as crossings and becomes a wall (walls thicken towards the robot, doorways close). With
+``range_sigma_m`` set (the LiDAR's calibration) each return is placed ``range_hit_sigmas`` sigmas farther (2: 2.3 %
+of the returns still fall short), and the misses stop before that cell; at ``range_sigma_m = 0`` (the default) the
+ranges are taken as they are. A return placed beyond a thin wall (2.3 % of them at 2 sigmas, with 2 cm at 10 cm
+cells only beyond 3 sigmas) is outvoted in the wall's cell by the returns that end there.
+
+**Footprint clearing** (costmap_2d's): the robot's body is free space. Each step the explorer frees the known cells
+under a disc of the robot radius less ``footprint_margin_sigmas`` position sigmas of the pose covariance
+(:meth:`Mapper.clear_footprint`), so that a phantom under the robot (which makes every neighbour untraversable,
+and no path, and the explorer "finished") is gone at once. A cell at the ``highest`` clamp (hit by at least two
+scans) is kept: a pose error can put a true wall under the believed footprint, and a wall seen twice is safer
+kept than driven through. Unknown cells stay unknown. In the noise-free protocol the cells under the robot are
+known free already (the robot starts and moves clear of walls), so no class changes.
 
 **SLAM map.** :meth:`Mapper.set_line_of_sight` replaces the line-of-sight layer by a published map
 (``nav_msgs/OccupancyGrid`` percentages, thresholded as costmap_2d does: occupied at or above
@@ -57,6 +76,13 @@ class OccupancyConfig:
             much in all, and never frees a cell the line of sight holds occupied.
         slam_occupied_percent: a SLAM map's cell is occupied at or above this (costmap_2d: 65).
         slam_free_percent: ... and free at or below this (costmap_2d's ``free_thresh`` 0.25: 25).
+        range_sigma_m: the LiDAR's range noise (standard deviation, metres; its calibration, or the simulated
+            sensor's ``--lidar-noise`` sigma). 0: the ranges are taken as exact (the noise-free protocol).
+        range_hit_sigmas: with ``range_sigma_m > 0`` each return's hit is placed this many sigmas beyond the
+            measured range, and the misses stop before that cell (see the module docstring).
+        footprint_clearing: each step, the cells under the robot's body become free (:meth:`Mapper.clear_footprint`).
+        footprint_margin_sigmas: the footprint disc is the robot radius less this many position sigmas of the
+            pose covariance (an exact pose: the whole radius).
     """
 
     hit: float = 2.5
@@ -69,8 +95,19 @@ class OccupancyConfig:
     carve_lowest: float = -1.0
     slam_occupied_percent: int = 65
     slam_free_percent: int = 25
+    range_sigma_m: float = 0.0
+    range_hit_sigmas: float = 2.0
+    footprint_clearing: bool = True
+    footprint_margin_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
+        for name in ("range_sigma_m", "range_hit_sigmas", "footprint_margin_sigmas"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)) \
+                    or not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"OccupancyConfig.{name} must be a finite number >= 0, got {value!r}")
+        if not isinstance(self.footprint_clearing, (bool, np.bool_)):
+            raise ValueError(f"OccupancyConfig.footprint_clearing must be a bool, got {self.footprint_clearing!r}")
         values = [getattr(self, name) for name in ("hit", "miss", "lowest", "highest", "occupied_threshold",
                                                    "free_threshold", "carve_step", "carve_lowest")]
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values):
@@ -93,42 +130,47 @@ class OccupancyConfig:
 
 
 @numba.njit(cache=True)
-def _integrate_log_odds(y0, x0, angles, ranges, max_t, tolerance, log_odds, touched, hit, miss, lowest, highest):
-    """One scan's log-odds update: walk every ray as :func:`superex_deploy.geometry._mark_ranges` does, noting in
-    ``touched`` (int8, zero on entry and on return) 1 for a crossed cell and 2 for a return's cell, then give each
-    touched cell one update (``hit`` where any ray returned, else ``miss``), clamped to ``[lowest, highest]``.
-    ``ranges[i] < 0``: no return."""
+def _integrate_log_odds(y0, x0, angles, ranges, max_t, tolerance, hit_shift, log_odds, touched, hit, miss, lowest,
+                        highest):
+    """One scan's log-odds update: walk every ray as :func:`superex_deploy.geometry._mark_ranges` does, its return
+    moved ``hit_shift`` cells farther (walked past ``max_t`` if need be), counting in ``touched`` (int32
+    ``[H, W, 2]``, zero on entry and on return) the rays that crossed each cell (``[..., 0]``) and that returned in
+    it (``[..., 1]``), then give each touched cell one update: ``hit`` where at least as many rays returned in it
+    as crossed it, else ``miss``; clamped to ``[lowest, highest]``. ``ranges[i] < 0``: no return."""
     n_rows, n_cols = log_odds.shape
     top, left, bottom, right = n_rows, n_cols, -1, -1
     for i in range(angles.shape[0]):
         r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
             y0, x0, np.sin(angles[i]), np.cos(angles[i]))
-        hit_at = ranges[i] + tolerance if ranges[i] >= 0.0 else -1.0
+        hit_at = ranges[i] + hit_shift + tolerance if ranges[i] >= 0.0 else -1.0
+        # Without a shift the walk stops at max_t exactly as geometry.mark_ranges does (the noise-free map).
+        stop_t = max(max_t, hit_at) if hit_shift > 0.0 else max_t
         while True:
             top, bottom = min(top, r), max(bottom, r)
             left, right = min(left, c), max(right, c)
             t_exit = min(t_next_c, t_next_r)
             if hit_at >= 0.0 and t_exit > hit_at:
-                touched[r, c] = 2
+                touched[r, c, 1] += 1
                 break
-            if touched[r, c] == 0:
-                touched[r, c] = 1
+            touched[r, c, 0] += 1
             r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
                                                       t_delta_c)
-            if t > max_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
+            if t > stop_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
                 break
     for r in range(top, bottom + 1):
         for c in range(left, right + 1):
-            kind = touched[r, c]
-            if kind == 0:
+            crossed, returned = touched[r, c, 0], touched[r, c, 1]
+            if crossed == 0 and returned == 0:
                 continue
-            value = log_odds[r, c] + (hit if kind == 2 else miss)
+            value = log_odds[r, c] + (hit if returned > 0 and returned >= crossed else miss)
             log_odds[r, c] = min(max(value, lowest), highest)
-            touched[r, c] = 0
+            touched[r, c, 0] = 0
+            touched[r, c, 1] = 0
 
 
 def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, max_range_cells: float,
-                       cfg: OccupancyConfig = OccupancyConfig(), touched: np.ndarray = None) -> None:
+                       cfg: OccupancyConfig = OccupancyConfig(), touched: np.ndarray = None,
+                       hit_shift_cells: float = 0.0) -> None:
     """Update a log-odds grid with one measured scan (see the module docstring), in grid units.
 
     Args:
@@ -138,24 +180,31 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
         ranges_cells: float ``[N]`` measured ranges (cells, >= 0), ``inf`` for no return.
         max_range_cells: the sensor's maximum range (cells, > 0).
         cfg: the update and its clamps.
-        touched: optional int8 ``[H, W]`` all-zero scratch grid (kept all zero); None: one is made.
+        touched: optional int32 ``[H, W, 2]`` all-zero scratch (kept all zero); None: one is made.
+        hit_shift_cells: how much farther than measured each return is placed (cells, >= 0; the calibrated
+            sensor model's ``range_hit_sigmas * range_sigma_m``, see :class:`OccupancyConfig`): the misses stop
+            before the shifted return's cell. 0: the measured range as it is.
 
     Raises:
         ValueError: a grid that is not float32 ``[H, W]`` C-contiguous and writeable, a bad scratch grid, an origin
-            outside the grid, non-finite angles, NaN or negative ranges, lengths that differ.
+            outside the grid, non-finite angles, NaN or negative ranges, lengths that differ, a negative or
+            non-finite shift.
     """
     if not isinstance(log_odds, np.ndarray) or log_odds.dtype != np.float32 or log_odds.ndim != 2 \
             or min(log_odds.shape) < 1 or not log_odds.flags.c_contiguous or not log_odds.flags.writeable:
         raise ValueError("log_odds must be a non-empty, C-contiguous, writeable float32 [H, W] array")
     if touched is None:
-        touched = np.zeros(log_odds.shape, np.int8)
-    elif not isinstance(touched, np.ndarray) or touched.dtype != np.int8 or touched.shape != log_odds.shape \
+        touched = np.zeros(log_odds.shape + (2,), np.int32)
+    elif not isinstance(touched, np.ndarray) or touched.dtype != np.int32 or touched.shape != log_odds.shape + (2,) \
             or not touched.flags.c_contiguous or not touched.flags.writeable:
-        raise ValueError(f"touched must be a C-contiguous, writeable int8 array of shape {log_odds.shape}")
+        raise ValueError(f"touched must be a C-contiguous, writeable int32 array of shape {log_odds.shape + (2,)}")
+    if isinstance(hit_shift_cells, (bool, np.bool_)) or not isinstance(hit_shift_cells, (int, float, np.number)) \
+            or not (np.isfinite(hit_shift_cells) and hit_shift_cells >= 0.0):
+        raise ValueError(f"hit_shift_cells must be a finite number >= 0, got {hit_shift_cells!r}")
     y0, x0, angles, ranges, max_t = check_measured_rays(log_odds.shape, origin_yx, angles, ranges_cells,
                                                         max_range_cells)
-    _integrate_log_odds(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, log_odds, touched, float(cfg.hit),
-                        float(cfg.miss), float(cfg.lowest), float(cfg.highest))
+    _integrate_log_odds(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, float(hit_shift_cells), log_odds,
+                        touched, float(cfg.hit), float(cfg.miss), float(cfg.lowest), float(cfg.highest))
 
 
 class Mapper:
@@ -182,7 +231,7 @@ class Mapper:
         self.cfg = cfg
         self.log_odds = np.zeros(shape, np.float32)
         self.carve_log_odds = np.zeros(shape, np.float32)
-        self._touched = np.zeros(shape, np.int8)  # the scan kernel's scratch, all zero between scans
+        self._touched = np.zeros(shape + (2,), np.int32)  # the scan kernel's ray counts, all zero between scans
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -231,9 +280,11 @@ class Mapper:
         returned = valid & (ranges <= scan.range_max)
         angles = grid_angles(pose.yaw, scan.angles())
         self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
-                              scan.range_max / resolution)
+                              scan.range_max / resolution,
+                              hit_shift_cells=self.cfg.range_hit_sigmas * self.cfg.range_sigma_m / resolution)
 
-    def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float) -> None:
+    def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float,
+                         hit_shift_cells: float = 0.0) -> None:
         """Update the map with a measured scan, in grid units: see :func:`integrate_log_odds`.
 
         Args:
@@ -241,8 +292,46 @@ class Mapper:
             angles: float64 ``[N]`` ray angles (radians, grid convention: ``(dy, dx) = (sin, cos)``).
             ranges_cells: float64 ``[N]`` measured ranges (cells), ``inf`` for no return.
             max_range_cells: the sensor's maximum range (cells).
+            hit_shift_cells: how much farther each return's hit is placed (cells; :meth:`integrate_scan` passes
+                ``range_hit_sigmas * range_sigma_m`` over the resolution).
         """
-        integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched)
+        integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
+                           hit_shift_cells)
+
+    def clear_footprint(self, origin_yx, radius_cells: float) -> int:
+        """The robot's body is free space (costmap_2d's footprint clearing): the known cells whose centre lies
+        within ``radius_cells`` of ``origin_yx``, and the cell holding it, become free (``lowest``); a cell held
+        occupied at the ``highest`` clamp (hit by several scans) is kept, since a pose error can put a true wall
+        under the believed footprint. Unknown cells stay unknown.
+
+        Args:
+            origin_yx: the robot's position ``(y, x)`` in cells, inside the map.
+            radius_cells: the footprint's radius (cells, >= 0).
+
+        Returns:
+            How many occupied cells became free (known free cells are pushed to ``lowest`` without changing class).
+        """
+        y0, x0 = (float(v) for v in origin_yx)
+        rows, cols = self.shape
+        if not (np.isfinite(y0) and np.isfinite(x0) and 0.0 <= y0 < rows and 0.0 <= x0 < cols):
+            raise ValueError(f"origin_yx {origin_yx} lies outside the map of shape {self.shape}")
+        radius = float(radius_cells)
+        if not (np.isfinite(radius) and radius >= 0.0):
+            raise ValueError(f"radius_cells must be finite and >= 0, got {radius_cells!r}")
+        reach = int(np.ceil(radius)) + 1
+        r0, r1 = max(int(y0) - reach, 0), min(int(y0) + reach + 1, rows)
+        c0, c1 = max(int(x0) - reach, 0), min(int(x0) + reach + 1, cols)
+        centre_r = np.arange(r0, r1)[:, None] + 0.5
+        centre_c = np.arange(c0, c1)[None, :] + 0.5
+        disc = (centre_r - y0) ** 2 + (centre_c - x0) ** 2 <= radius * radius
+        disc[int(y0) - r0, int(x0) - c0] = True
+        window = self.log_odds[r0:r1, c0:c1]
+        cfg = self.cfg
+        known = (window <= cfg.free_threshold) | (window >= cfg.occupied_threshold)
+        clear = disc & known & (window < np.float32(cfg.highest))
+        changed = int(np.count_nonzero(clear & (window > cfg.free_threshold)))
+        window[clear] = cfg.lowest
+        return changed
 
     def set_line_of_sight(self, occupancy_percent: np.ndarray) -> None:
         """Replace the line-of-sight layer by a SLAM map on this grid (the carving layer is kept).
