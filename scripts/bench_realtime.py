@@ -100,7 +100,8 @@ except the free-running repeats (``SETTING@freeR``)."""
 
 CHOSEN = DEFAULT_PROFILE
 """The setting that ``pipeline.PROFILES[DEFAULT_PROFILE]`` is (marked in the plot): on the robot it never waits
-(``free``), in error runs it predicts on the simulated clock (the ``async_crop_2_2_first_members_1`` episodes)."""
+(``free``), in error runs it predicts on the simulated clock (the ``async_crop_2_2_first_members_1`` episodes, but
+for the SPAD evidence on every 2nd frame)."""
 
 FREE = "@free"
 """``NAME@freeR``: repeat R of setting NAME's error episodes on its robot clock (free-running: where the
