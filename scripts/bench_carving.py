@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.files import write_atomically
 from superex_deploy.maps import list_maps, load_map, random_start, start_poses
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
 from superex_deploy.onboard.nlos.carving import _carve_sectors
@@ -440,26 +441,17 @@ def main() -> None:
     if args.noisy_property:
         out, text = noisy_property(args.noisy_property, names)
         print(text)
-        if args.out is not None:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(out, indent=1))
-            args.out.with_suffix(".md").write_text(text + "\n")
+        _write(args.out, out, text)
         return
     if args.bp_change:
         out, text = back_projection_change(args.bp_change)
         print(text)
-        if args.out is not None:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(out, indent=1))
-            args.out.with_suffix(".md").write_text(text + "\n")
+        _write(args.out, out, text)
         return
     if args.property:
         summary, table = property_run(args.property, names, args.property_rays, args.jobs)
         print(table)
-        if args.out is not None:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(summary, indent=1))
-            args.out.with_suffix(".md").write_text(table + "\n")
+        _write(args.out, summary, table)
         return
     places = scenarios(args.split, args.scenarios)
     print(f"{len(places)} {args.split} scenarios, {args.steps} steps, variants {names}", flush=True)
@@ -473,14 +465,19 @@ def main() -> None:
                   + ", ".join(f"{v} {100 * a:.2f}" for v, a in r["auc_first_half"].items() if v != "los"), flush=True)
             # Rewritten after every scenario: a run cut short still leaves its finished scenarios summarised.
             rows, table = summarise(results, shown)
-            if args.out is not None:
-                args.out.parent.mkdir(parents=True, exist_ok=True)
-                args.out.write_text(json.dumps({"split": args.split, "steps": args.steps, "rows": rows,
-                                                "scenarios": results}, indent=1))
-                args.out.with_suffix(".md").write_text(
-                    f"{len(results)} of {len(places)} {args.split} scenarios, {args.steps} steps (the first half of "
-                    f"{2 * args.steps}-step episodes)\n\n{table}\n")
+            _write(args.out, {"split": args.split, "steps": args.steps, "rows": rows, "scenarios": results},
+                   f"{len(results)} of {len(places)} {args.split} scenarios, {args.steps} steps (the first half of "
+                   f"{2 * args.steps}-step episodes)\n\n{table}")
     print(table)
+
+
+def _write(out, payload: dict, text: str) -> None:
+    """``payload`` as JSON to ``out`` and ``text`` as markdown beside it (``out`` None: nothing written)."""
+    if out is None:
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomically(out, json.dumps(payload, indent=1))
+    write_atomically(out.with_suffix(".md"), text + "\n")
 
 
 if __name__ == "__main__":

@@ -265,6 +265,11 @@ def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, step
         print(f"timing {key} done", flush=True)
 
 
+def _scenario_key(episode: dict) -> tuple:
+    """(map, start cell) of an error episode: what pairs two rows' episodes."""
+    return episode["map"], tuple(episode["start_rc"])
+
+
 def _load_rows(folder: Path) -> dict[str, list[dict]]:
     from superex_deploy.parallel import read_journal
 
@@ -319,12 +324,16 @@ def report(out: Path) -> None:
         if "full" not in rows:
             continue
         steps = json.loads((out / f"error_{split}" / "full.setting.json").read_text())["steps"]
-        complete = {n: e for n, e in rows.items() if len(e) == len(rows["full"])}
+        # Every row on the scenarios all of them finished (an interrupted or --scenarios-limited run pairs on those).
+        shared = set.intersection(*({_scenario_key(e) for e in episodes} for episodes in rows.values()))
+        complete = {n: sorted((e for e in episodes if _scenario_key(e) in shared), key=_scenario_key)
+                    for n, episodes in rows.items()}
         error[split] = {"summary": {n: row_summary(e, steps) for n, e in complete.items()},
                         "paired": {n: paired_summary(complete["full"], e, steps) for n, e in complete.items()
                                    if n != "full"}, "scenarios": len(rows["full"]), "steps": steps,
                         "free_paired": {n: paired_summary(complete[CHOSEN], e, steps) for n, e in complete.items()
                                         if FREE in n and CHOSEN in complete}}
+        error[split]["scenarios"] = len(shared)
     lines = []
     full_t = timing.get("full", {})
     if timing:
@@ -385,7 +394,6 @@ def _free_lines(split: str, data: dict) -> list[str]:
     free = sorted(n for n in data["summary"] if n.startswith(CHOSEN + FREE))
     if not free or CHOSEN not in data["summary"]:
         return []
-    from superex_deploy.sim.suite import paired_summary
 
     metrics = ("auc_first_half", "iou@0.10", "iou@0.20", "iou@0.30")
     lines = ["", f"**Free-running vs simulated clock** ({split}: {data['scenarios']} scenarios, {data['steps']} "
