@@ -265,11 +265,6 @@ def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, step
         print(f"timing {key} done", flush=True)
 
 
-def _scenario_key(episode: dict) -> tuple:
-    """(map, start cell) of an error episode: what pairs two rows' episodes."""
-    return episode["map"], tuple(episode["start_rc"])
-
-
 def _load_rows(folder: Path) -> dict[str, list[dict]]:
     from superex_deploy.parallel import read_journal
 
@@ -315,7 +310,7 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 
 def report(out: Path) -> None:
-    from superex_deploy.sim.suite import paired_summary, row_summary
+    from superex_deploy.sim.suite import paired_summary, row_summary, scenario_key
 
     timing = _timing_rows(out)
     error = {}
@@ -325,8 +320,8 @@ def report(out: Path) -> None:
             continue
         steps = json.loads((out / f"error_{split}" / "full.setting.json").read_text())["steps"]
         # Every row on the scenarios all of them finished (an interrupted or --scenarios-limited run pairs on those).
-        shared = set.intersection(*({_scenario_key(e) for e in episodes} for episodes in rows.values()))
-        complete = {n: sorted((e for e in episodes if _scenario_key(e) in shared), key=_scenario_key)
+        shared = set.intersection(*({scenario_key(e) for e in episodes} for episodes in rows.values()))
+        complete = {n: sorted((e for e in episodes if scenario_key(e) in shared), key=scenario_key)
                     for n, episodes in rows.items()}
         error[split] = {"summary": {n: row_summary(e, steps) for n, e in complete.items()},
                         "paired": {n: paired_summary(complete["full"], e, steps) for n, e in complete.items()

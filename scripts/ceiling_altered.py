@@ -47,18 +47,11 @@ def _floor_file(work: Path, name: str, start, cfg) -> Path:
 def _save_floor(path: Path, record) -> None:
     """The altered grid, the unaltered floor's recomputed valid area, and the dead ends, as one ``.npz``."""
     from superex_deploy.sim.alterations import AlterationConfig, alter_floor
+    from superex_deploy.sim.altered_floors import record_arrays
 
     unaltered_valid = alter_floor(record.original, record.start_rc, 0, AlterationConfig(alterations=0)).valid
-    arrays = {"occupied": record.grid.occupied, "valid": record.grid.valid, "original_occupied": record.original.occupied,
-              "unaltered_valid": unaltered_valid}
-    meta = []
-    for i, alteration in enumerate(record.alterations):
-        dead_end = alteration.dead_end
-        arrays[f"pocket_{i}"], arrays[f"depth_{i}"] = dead_end.pocket, dead_end.depth_m
-        arrays[f"mouth_{i}"], arrays[f"face_{i}"] = dead_end.mouth, dead_end.face
-        meta.append({"kind": alteration.kind, "segment_rc": alteration.segment_rc.tolist(),
-                     "length_m": dead_end.length_m, "hidden_m": dead_end.hidden_m, "area_m2": dead_end.area_m2,
-                     "cut_cells": int(alteration.cut.sum())})
+    arrays, meta = record_arrays(record)
+    arrays.update(original_occupied=record.original.occupied, unaltered_valid=unaltered_valid)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, meta=json.dumps({"name": record.grid.name, "resolution_m": record.grid.resolution_m,
                                                "seed": record.seed, "kept_fraction": record.kept_fraction,

@@ -20,7 +20,7 @@ import numpy as np
 
 from superex_deploy.files import write_atomically
 from superex_deploy.parallel import read_journal
-from superex_deploy.sim.suite import bootstrap_interval, scenario_metrics
+from superex_deploy.sim.suite import bootstrap_interval, scenario_key, scenario_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = ("auc_first_half", "iou@0.10", "iou@0.20", "iou@0.30")
@@ -30,14 +30,14 @@ def _paper_row(name: str) -> dict:
     path = ROOT / "benchmarks" / "eval_paper" / "rows" / f"{name}.json"
     if not path.is_file():
         raise SystemExit(f"no committed paper row {name!r} ({path})")
-    return {(e["map"], int(e["start_index"])): e for e in json.loads(path.read_text())["episodes"]}
+    return {scenario_key(e): e for e in json.loads(path.read_text())["episodes"]}
 
 
 def _new_row(folder: Path) -> dict:
     journal = folder / "episodes.jsonl"
     if not journal.is_file():
         raise SystemExit(f"{journal} does not exist: give a `superex benchmark` output folder")
-    return {(e["map"], int(e["start_index"])): e for e in read_journal(journal).values()}
+    return {scenario_key(e): e for e in read_journal(journal).values()}
 
 
 def pair(new: dict, old: dict, steps: int) -> dict:

@@ -208,11 +208,16 @@ def score_poses(field: np.ndarray, rho_cells: np.ndarray, robot_angles: np.ndarr
 def likelihood_field(walls: np.ndarray, sigma_cells: float) -> np.ndarray:
     """float64 ``[H, W]`` ``exp(-d^2 / (2 sigma^2))`` with ``d`` the Euclidean distance (cells) from each cell's
     centre to the nearest ``True`` cell of bool ``[H, W]`` ``walls`` (all zeros without walls)."""
+    return likelihood_fields(walls, (sigma_cells,))[0]
+
+
+def likelihood_fields(walls: np.ndarray, sigmas_cells) -> list[np.ndarray]:
+    """:func:`likelihood_field` for each of ``sigmas_cells``, from one distance transform."""
     walls = np.asarray(walls, bool)
     if not walls.any():
-        return np.zeros(walls.shape, np.float64)
+        return [np.zeros(walls.shape, np.float64) for _ in sigmas_cells]
     distance = distance_transform_edt(~walls)
-    return np.exp(-0.5 * (distance / float(sigma_cells)) ** 2)
+    return [np.exp(-0.5 * (distance / float(sigma)) ** 2) for sigma in sigmas_cells]
 
 
 def _fuse(believed: Pose2D, matched: Pose2D, belief_sigmas, match_sigmas) -> Pose2D:
@@ -285,8 +290,7 @@ class ScanMatcher:
         crop = np.asarray(walls[top:bottom, left:right], bool)
         if int(crop.sum()) < cfg.min_map_walls or min(crop.shape) < 2:
             return ScanMatch(pose, False, nan, nan, "too few walls in the map")
-        fine = likelihood_field(crop, cfg.field_sigma_cells)
-        coarse = likelihood_field(crop, cfg.coarse_sigma_cells)
+        fine, coarse = likelihood_fields(crop, (cfg.field_sigma_cells, cfg.coarse_sigma_cells))
         origin = (gy - top, gx - left)
         # Offsets are (dy down, dx right, dyaw): the prior reads them in the map frame (y up).
         inv_var = np.array([1.0 / max(sigma_y / res, 1e-9) ** 2, 1.0 / max(sigma_x / res, 1e-9) ** 2,

@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from superex_deploy.onboard.types import Prediction, check_observed
-from superex_deploy.onboard.visibility import (VisibilityConfig, _max_range_cells, _polygon_spans, _ray_visible_ranges,
+from superex_deploy.onboard.visibility import (VisibilityConfig, _max_range_cells, _polygon_runs, _ray_visible_ranges,
                                                check_cells, check_map)
 
 __all__ = ["visible_gains", "union_visible_unknown", "union_visible_unknown_flat"]
@@ -39,7 +39,7 @@ def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, acc
 @numba.njit(cache=True)
 def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast):
     """Visible-unknown count and variance sum of each viewpoint ``v`` (cell ``view_rows[v], view_cols[v]``, rays
-    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_spans`) is filled in the
+    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_runs`) is filled in the
     row-major order of ``_fill_visibility``, so counts and sums are the same additions. (Jumping over runs of
     known cells through per-row links was measured and dropped: no faster in the trie fill, slower here, where the
     views from frontier cells are mostly unknown.)
@@ -50,19 +50,16 @@ def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast
     counts = np.zeros(n_views, np.int64)
     var_sums = np.zeros(n_views)
     for v in range(n_views):
-        row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[view_cast[v]], view_rows[v] + 0.5,
-                                                            view_cols[v] + 0.5, n_rows)
+        rows, firsts, lasts = _polygon_runs(ranges[view_cast[v]], view_rows[v] + 0.5, view_cols[v] + 0.5, n_rows,
+                                            n_cols)
         count = 0
         var_sum = 0.0
-        for i in range(n_scan):
-            r = row_lo + i
-            for j in range(offsets[i], offsets[i + 1] - 1, 2):
-                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-                c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                for c in range(c_first, c_last + 1):
-                    if observed[r, c] == -1:
-                        count += 1
-                        var_sum += variance[r, c]
+        for k in range(rows.shape[0]):
+            r = rows[k]
+            for c in range(firsts[k], lasts[k] + 1):
+                if observed[r, c] == -1:
+                    count += 1
+                    var_sum += variance[r, c]
         counts[v] = count
         var_sums[v] = var_sum
     return counts, var_sums
@@ -85,17 +82,14 @@ def _trie_union_counts(ranges, observed, node_rows, node_cols, node_cast, subtre
     for p in range(n_nodes):
         end = subtree_end[p]
         added = 0
-        row_lo, n_scan, offsets, crossings = _polygon_spans(ranges[node_cast[p]], node_rows[p] + 0.5,
-                                                            node_cols[p] + 0.5, n_rows)
-        for i in range(n_scan):
-            r = row_lo + i
-            for j in range(offsets[i], offsets[i + 1] - 1, 2):
-                c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-                c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-                for c in range(c_first, c_last + 1):
-                    if observed[r, c] == -1 and covered_until[r, c] < p:
-                        covered_until[r, c] = end
-                        added += 1
+        rows, firsts, lasts = _polygon_runs(ranges[node_cast[p]], node_rows[p] + 0.5, node_cols[p] + 0.5, n_rows,
+                                            n_cols)
+        for k in range(rows.shape[0]):
+            r = rows[k]
+            for c in range(firsts[k], lasts[k] + 1):
+                if observed[r, c] == -1 and covered_until[r, c] < p:
+                    covered_until[r, c] = end
+                    added += 1
         difference[p] += added
         difference[end + 1] -= added
     return np.cumsum(difference[:n_nodes])

@@ -163,34 +163,54 @@ def _polygon_spans(ranges, y0, x0, n_rows):
 
 
 @numba.njit(cache=True)
+def _polygon_runs(ranges, y0, x0, n_rows, n_cols):
+    """The cells inside the polygon of :func:`_polygon_spans` as runs, in row-major order: run ``k`` is row
+    ``rows[k]``, columns ``firsts[k]..lasts[k]`` (inclusive; a cell is inside when its centre lies between
+    crossings ``2j`` and ``2j + 1`` of its row; runs clipped to the map may be empty, ``first > last``).
+
+    Returns ``(rows, firsts, lasts)``, int64 ``[K]`` each."""
+    row_lo, n_scan, offsets, crossings = _polygon_spans(ranges, y0, x0, n_rows)
+    n_runs = 0
+    for i in range(n_scan):
+        n_runs += (offsets[i + 1] - offsets[i]) // 2
+    rows = np.empty(n_runs, np.int64)
+    firsts = np.empty(n_runs, np.int64)
+    lasts = np.empty(n_runs, np.int64)
+    k = 0
+    for i in range(n_scan):
+        for j in range(offsets[i], offsets[i + 1] - 1, 2):
+            rows[k] = row_lo + i
+            firsts[k] = max(0, int(np.ceil(crossings[j] - 0.5)))
+            lasts[k] = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
+            k += 1
+    return rows, firsts, lasts
+
+
+@numba.njit(cache=True)
 def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
-    """Cells whose centre lies inside the polygon of :func:`_polygon_spans`, by scanline fill: a cell is inside
-    when its centre lies between crossings ``2j`` and ``2j + 1`` of its row. The work is the edges' row spans
-    plus the visible cells.
+    """Cells whose centre lies inside the polygon of :func:`_polygon_spans`, by scanline fill
+    (:func:`_polygon_runs`). The work is the edges' row spans plus the visible cells.
 
     Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
     is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
     ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
     one label count the union of their views. Nothing is visible when every range is zero."""
     n_rows, n_cols = observed.shape
-    row_lo, n_scan, offsets, crossings = _polygon_spans(ranges, y0, x0, n_rows)
+    rows, firsts, lasts = _polygon_runs(ranges, y0, x0, n_rows, n_cols)
     count = 0
     var_sum = 0.0
-    for i in range(n_scan):
-        r = row_lo + i
-        for j in range(offsets[i], offsets[i + 1] - 1, 2):
-            c_first = max(0, int(np.ceil(crossings[j] - 0.5)))
-            c_last = min(n_cols - 1, int(np.floor(crossings[j + 1] - 0.5)))
-            for c in range(c_first, c_last + 1):
-                if write_mask:
-                    visible_out[r, c] = True
-                if observed[r, c] == -1:
-                    if label >= 0:
-                        if stamp[r, c] == label:
-                            continue
-                        stamp[r, c] = label
-                    count += 1
-                    var_sum += variance[r, c]
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        for c in range(firsts[k], lasts[k] + 1):
+            if write_mask:
+                visible_out[r, c] = True
+            if observed[r, c] == -1:
+                if label >= 0:
+                    if stamp[r, c] == label:
+                        continue
+                    stamp[r, c] = label
+                count += 1
+                var_sum += variance[r, c]
     return count, var_sum
 
 

@@ -25,7 +25,8 @@ import numpy as np
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.sim.dead_ends import DeadEnd
 
-__all__ = ["ALTERATION_SEED_RULE", "alteration_seed", "floor_path", "make_floor", "load_floor", "floor_summary"]
+__all__ = ["ALTERATION_SEED_RULE", "alteration_seed", "floor_path", "record_arrays", "make_floor", "load_floor",
+           "floor_summary"]
 
 ALTERATION_SEED_RULE = 'zlib.crc32(f"{map}:{row}:{col}")'
 """How :func:`alteration_seed` derives a scenario's seed (recorded in the suite's settings)."""
@@ -69,6 +70,23 @@ def _cached_meta(path: Path, seed: int, cfg) -> Optional[dict]:
     return meta if meta.get("seed") == seed and meta.get("config") == _config_json(cfg) else None
 
 
+def record_arrays(record) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """What an altered floor's file holds of an :class:`~superex_deploy.sim.alterations.AlteredFloor`: the
+    arrays (the altered grid's ``occupied`` and ``valid``; per dead end ``i`` its ``pocket_i``, ``depth_i``,
+    ``mouth_i``, ``face_i``) and one JSON-ready summary per alteration (kind, segment, dead-end length / hidden
+    metres / area, cut cells)."""
+    arrays = {"occupied": record.grid.occupied, "valid": record.grid.valid}
+    alterations = []
+    for i, alteration in enumerate(record.alterations):
+        dead_end = alteration.dead_end
+        arrays[f"pocket_{i}"], arrays[f"depth_{i}"] = dead_end.pocket, dead_end.depth_m
+        arrays[f"mouth_{i}"], arrays[f"face_{i}"] = dead_end.mouth, dead_end.face
+        alterations.append({"kind": alteration.kind, "segment_rc": alteration.segment_rc.tolist(),
+                            "length_m": dead_end.length_m, "hidden_m": dead_end.hidden_m,
+                            "area_m2": dead_end.area_m2, "cut_cells": int(alteration.cut.sum())})
+    return arrays, alterations
+
+
 def make_floor(map_name: str, start_rc, folder: Union[str, Path], cfg=None, seed: Optional[int] = None) -> dict:
     """Make (or find cached) the altered floor of one scenario under ``folder`` and return its summary
     (:func:`floor_summary`). ``cfg``: the generator's configuration, by default ``AlterationConfig()``; ``seed``:
@@ -84,15 +102,7 @@ def make_floor(map_name: str, start_rc, folder: Union[str, Path], cfg=None, seed
     if meta is not None:
         return floor_summary(meta)
     record = alter_floor_with_record(load_map(map_name), _cell(start_rc), seed, cfg)
-    arrays = {"occupied": record.grid.occupied, "valid": record.grid.valid}
-    alterations = []
-    for i, alteration in enumerate(record.alterations):
-        dead_end = alteration.dead_end
-        arrays[f"pocket_{i}"], arrays[f"depth_{i}"] = dead_end.pocket, dead_end.depth_m
-        arrays[f"mouth_{i}"], arrays[f"face_{i}"] = dead_end.mouth, dead_end.face
-        alterations.append({"kind": alteration.kind, "segment_rc": alteration.segment_rc.tolist(),
-                            "length_m": dead_end.length_m, "hidden_m": dead_end.hidden_m,
-                            "area_m2": dead_end.area_m2, "cut_cells": int(alteration.cut.sum())})
+    arrays, alterations = record_arrays(record)
     meta = {"map": map_name, "start_rc": list(_cell(start_rc)), "seed": seed, "config": _config_json(cfg),
             "resolution_m": record.grid.resolution_m, "kept_fraction": record.kept_fraction,
             "candidates_tried": record.candidates_tried, "alterations": alterations}

@@ -22,7 +22,7 @@ from superex_deploy.sim.metrics import coverage_at, difference_counts, pair_by_s
 
 __all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
            "DEAD_END_METRICS", "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary",
-           "coverage_curves", "common_scenarios"]
+           "coverage_curves", "common_scenarios", "scenario_key"]
 
 
 @dataclass(frozen=True)
@@ -133,7 +133,8 @@ def bootstrap_interval(values: Sequence[float], confidence: float = 0.95, resamp
     return float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))
 
 
-def _key(episode: dict) -> tuple:
+def scenario_key(episode: dict) -> tuple:
+    """``(map, start index)``: what pairs two rows' episodes."""
     return episode["map"], int(episode["start_index"])
 
 
@@ -166,7 +167,7 @@ def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie
             (:func:`~superex_deploy.sim.metrics.pair_by_scenario`).
     """
     per_scenario = [(scenario_metrics(ref, steps), scenario_metrics(cand, steps))
-                    for ref, cand in pair_by_scenario(reference, candidate, _key, what="rows")]
+                    for ref, cand in pair_by_scenario(reference, candidate, scenario_key, what="rows")]
     out = {}
     for metric in per_scenario[0][0] if per_scenario else ():
         if metric.endswith("_ms_per_goal") or any(metric not in cand for _, cand in per_scenario):
@@ -187,8 +188,8 @@ def paired_summary(reference: list[dict], candidate: list[dict], steps: int, tie
 def common_scenarios(reference: list[dict], candidate: list[dict]) -> tuple[list[dict], list[dict]]:
     """The episodes of two rows on the scenarios (map, start index) both hold, each row's in its own order: a row
     run on fewer scenarios (an expensive one) is paired on those."""
-    shared = {_key(e) for e in reference} & {_key(e) for e in candidate}
-    return [e for e in reference if _key(e) in shared], [e for e in candidate if _key(e) in shared]
+    shared = {scenario_key(e) for e in reference} & {scenario_key(e) for e in candidate}
+    return [e for e in reference if scenario_key(e) in shared], [e for e in candidate if scenario_key(e) in shared]
 
 
 def coverage_curves(episodes: list[dict], steps: int) -> np.ndarray:
