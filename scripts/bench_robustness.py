@@ -16,9 +16,12 @@ Two groups of rows explore the eval scenarios (reporting only; nothing here is t
   LaMa-LOS) at the settings named by ``--superex-settings``, on ``--superex-scenarios`` scenarios: SuperEx's map
   IoU gain over LaMa-LOS at 10 / 20 % coverage, noise-free against noisy.
 
-Per setting: collisions, true wall cells held free per 1,000 true wall cells seen (pooled over episodes), true wall
-cells carved, the explorer map's wall IoU as a fraction of the same scenario's noise-free run (median), and the
-first-half coverage AUC paired with the noise-free run (mean relative difference with a bootstrap 95 % interval).
+Per setting: collisions, true wall cells held free per 1,000 true wall cells seen (pooled over episodes) and the
+part of them with no wall of the map within one cell ("missing": walls the map lacks, not walls it holds a cell
+off), true wall cells carved, the explorer map's wall IoU as a fraction of the same scenario's noise-free run
+(median; also the IoU that forgives a wall held one cell off), and the first-half coverage AUC paired with the
+noise-free run (mean relative difference with a bootstrap 95 % interval). SuperEx's gain is paired per scenario
+(bootstrap 95 % interval) and set against its noise-free gain (#24: at least half of it kept at 10 % coverage).
 The targets of #24 are checked per setting and the table says where each breaks.
 
 Every episode is journaled (``OUT/episodes.jsonl``): an interrupted run resumes where it stopped, and a second run
@@ -79,7 +82,8 @@ def run_episode_task(task) -> dict:
 
     summary = run_scenario(task)
     keep = ("map", "planner", "predictor", "start_index", "steps", "coverage", "iou", "collisions",
-            "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen", "final_coverage")
+            "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen", "true_walls_missing",
+            "map_iou_within_cell", "final_coverage")
     return {key: summary[key] for key in keep}
 
 
@@ -111,7 +115,8 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
     """One setting's row: pooled and paired measures against the noise-free episodes ``baseline`` (by scenario)."""
     seen = sum(e["true_walls_seen"] for e in episodes)
     held_free = sum(e["true_walls_held_free"] for e in episodes)
-    auc_rel, iou_ratio = [], []
+    missing = sum(e.get("true_walls_missing", 0) for e in episodes)
+    auc_rel, iou_ratio, tolerant_ratio = [], [], []
     for episode in episodes:
         reference = baseline.get((episode["map"], episode["start_index"]))
         if reference is None:
@@ -119,14 +124,19 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
         ref_auc = first_half_auc(reference["coverage"], steps)
         auc_rel.append(first_half_auc(episode["coverage"], steps) / ref_auc - 1.0 if ref_auc > 0 else np.nan)
         iou_ratio.append(episode["map_iou"] / reference["map_iou"] if reference["map_iou"] > 0 else np.nan)
+        tolerant = episode.get("map_iou_within_cell", np.nan), reference.get("map_iou_within_cell", np.nan)
+        tolerant_ratio.append(tolerant[0] / tolerant[1] if tolerant[1] > 0 else np.nan)
     auc_mean, auc_low, auc_high = bootstrap_mean(np.array(auc_rel), rng)
     return {
         "episodes": len(episodes),
         "collisions": int(sum(e["collisions"] for e in episodes)),
         "held_free_per_1000_seen": 1000.0 * held_free / seen if seen else float("nan"),
+        "missing_per_1000_seen": 1000.0 * missing / seen if seen else float("nan"),
         "true_walls_carved": int(sum(e["true_walls_carved"] for e in episodes)),
         "map_iou": float(np.mean([e["map_iou"] for e in episodes])),
         "map_iou_vs_noise_free": float(np.nanmedian(iou_ratio)) if iou_ratio else float("nan"),
+        "map_iou_within_cell_vs_noise_free": (float(np.nanmedian(tolerant_ratio))
+                                              if np.isfinite(tolerant_ratio).any() else float("nan")),
         "first_half_auc": float(np.mean([first_half_auc(e["coverage"], steps) for e in episodes])),
         "auc_vs_noise_free": [auc_mean, auc_low, auc_high],
         "final_coverage": float(np.mean([e["final_coverage"] for e in episodes])),
@@ -141,13 +151,13 @@ def targets_met(row: dict) -> dict:
             "AUC within 3 %": row["auc_vs_noise_free"][0] >= -0.03}
 
 
-def superex_gain(pipeline: list[dict], los: list[dict], level: float) -> float:
-    """Mean paired IoU gain (SuperEx pipeline - LaMa-LOS) at coverage ``level`` over the shared scenarios."""
+def superex_gain(pipeline: list[dict], los: list[dict], level: float, rng) -> list[float]:
+    """Mean paired IoU gain (SuperEx pipeline - LaMa-LOS) at coverage ``level`` over the shared scenarios that
+    reached it, with a bootstrap 95 % interval: ``[mean, low, high]``."""
     by_scenario = {(e["map"], e["start_index"]): e for e in los}
     gains = [iou_at_coverage(e, level) - iou_at_coverage(by_scenario[(e["map"], e["start_index"])], level)
              for e in pipeline if (e["map"], e["start_index"]) in by_scenario]
-    gains = [g for g in gains if np.isfinite(g)]
-    return float(np.mean(gains)) if gains else float("nan")
+    return list(bootstrap_mean(np.array(gains, float), rng))
 
 
 def side_by_side(before: dict, rows: dict) -> list[str]:
@@ -187,32 +197,41 @@ def report(out: Path, results: dict, steps: int, superex_settings: list, before:
         name = setting_name(*setting)
         pipeline, los = results.get(("superex_bp", name), []), results.get(("superex_los", name), [])
         if pipeline and los:
-            gains[name] = {f"iou_gain@{int(level * 100)}%": superex_gain(pipeline, los, level)
+            gains[name] = {f"iou_gain@{int(level * 100)}%": superex_gain(pipeline, los, level, rng)
                            for level in (0.1, 0.2)}
             gains[name]["episodes"] = min(len(pipeline), len(los))
             gains[name]["collisions"] = int(sum(e["collisions"] for e in pipeline))
             gains[name]["true_walls_carved"] = int(sum(e["true_walls_carved"] for e in pipeline))
+    noise_free_gain = gains.get(base_name, {}).get("iou_gain@10%", [float("nan")])[0]
+    for name, gain in gains.items():
+        # #24's target: at least half of the noise-free gain at 10 % coverage kept under noise.
+        gain["kept@10%"] = gain["iou_gain@10%"][0] / noise_free_gain if noise_free_gain > 0 else float("nan")
     summary = {"steps": steps, "settings": rows, "superex": gains, "first_half": FIRST_HALF}
     (out / "robustness.json").write_text(json.dumps(summary, indent=1))
     lines = [f"# Robustness: {steps} steps per episode, nearest frontier on the observed map with SPAD carving", "",
-             "| pose noise | SPAD | LiDAR | episodes | collisions | held free / 1000 seen | walls carved | "
-             "map IoU | IoU / noise-free | first-half AUC | AUC vs noise-free [95 %] | targets missed |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+             "| pose noise | SPAD | LiDAR | episodes | collisions | held free / 1000 seen | of them missing | "
+             "walls carved | map IoU | IoU / noise-free | IoU within a cell / noise-free | first-half AUC | "
+             "AUC vs noise-free [95 %] | targets missed |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for row in rows.values():
         mean, low, high = row["auc_vs_noise_free"]
         missed = ", ".join(k for k, ok in row["targets"].items() if not ok) or "-"
         lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
                      f"{row['lidar_m'] * 100:g} cm | {row['episodes']} | {row['collisions']} | "
-                     f"{row['held_free_per_1000_seen']:.2f} | {row['true_walls_carved']} | {row['map_iou']:.3f} | "
-                     f"{row['map_iou_vs_noise_free']:.3f} | {row['first_half_auc'] * 100:.1f} | "
+                     f"{row['held_free_per_1000_seen']:.2f} | {row['missing_per_1000_seen']:.2f} | "
+                     f"{row['true_walls_carved']} | {row['map_iou']:.3f} | "
+                     f"{row['map_iou_vs_noise_free']:.3f} | {row['map_iou_within_cell_vs_noise_free']:.3f} | "
+                     f"{row['first_half_auc'] * 100:.1f} | "
                      f"{mean * 100:+.1f} % [{low * 100:+.1f}, {high * 100:+.1f}] | {missed} |")
     if gains:
         lines += ["", "## The SuperEx pipeline against LaMa-LOS (superex planner), map IoU gain", "",
-                  "| setting | episodes | IoU gain @10 % | IoU gain @20 % | collisions | walls carved |",
-                  "|---|---:|---:|---:|---:|---:|"]
+                  "| setting | episodes | IoU gain @10 % [95 %] | IoU gain @20 % [95 %] | gain @10 % kept of noise-free "
+                  "| collisions | walls carved |",
+                  "|---|---:|---|---|---:|---:|---:|"]
         for name, gain in gains.items():
-            lines.append(f"| {name} | {gain['episodes']} | {gain['iou_gain@10%']:+.3f} | "
-                         f"{gain['iou_gain@20%']:+.3f} | {gain['collisions']} | {gain['true_walls_carved']} |")
+            cells = [f"{g[0]:+.3f} [{g[1]:+.3f}, {g[2]:+.3f}]" for g in (gain["iou_gain@10%"], gain["iou_gain@20%"])]
+            lines.append(f"| {name} | {gain['episodes']} | {cells[0]} | {cells[1]} | {gain['kept@10%']:.2f} | "
+                         f"{gain['collisions']} | {gain['true_walls_carved']} |")
     if before:
         lines += side_by_side(before, rows)
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
@@ -227,6 +246,7 @@ def plot(out: Path, rows: dict) -> None:
     import matplotlib.pyplot as plt
 
     measures = {"collisions": "collisions", "held_free_per_1000_seen": "true walls held free / 1000 seen",
+                "missing_per_1000_seen": "true walls missing (no map wall within a cell) / 1000 seen",
                 "true_walls_carved": "true wall cells carved", "map_iou_vs_noise_free": "map IoU / noise-free",
                 "auc_vs_noise_free": "first-half AUC vs noise-free"}
     for key, label in measures.items():
@@ -263,6 +283,9 @@ def main(argv=None) -> int:
                         help="settings for the SuperEx rows, each POSE_M,POSE_DEG,SPAD,LIDAR_M")
     parser.add_argument("--settings", choices=("all", "targets"), default="all",
                         help="'targets': only the noise-free point and the pose levels at SPAD realistic, LiDAR 2 cm")
+    parser.add_argument("--only", nargs="*", type=parse_setting, default=None,
+                        help="run only these settings (each POSE_M,POSE_DEG,SPAD,LIDAR_M) instead of --settings; the "
+                             "noise-free point is always run (every row is paired with it)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--report-only", action="store_true", help="rewrite the tables from the journal")
     parser.add_argument("--before", type=Path, default=None,
@@ -270,16 +293,20 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.scenarios <= 40 or not 0 <= args.superex_scenarios <= 40 or args.steps < 2 or args.jobs < 1:
         parser.error("--scenarios in 1..40, --superex-scenarios in 0..40, --steps >= 2, --jobs >= 1")
-    for setting in args.superex_settings:
+    for setting in args.superex_settings + (args.only or []):
         if setting[1] not in SPAD_PRESETS:
-            parser.error(f"--superex-settings: SPAD preset {setting[1]!r} is not one of {SPAD_PRESETS}")
+            parser.error(f"--superex-settings / --only: SPAD preset {setting[1]!r} is not one of {SPAD_PRESETS}")
 
     from superex_deploy.parallel import Interrupted, read_journal, run_tasks
 
     args.out.mkdir(parents=True, exist_ok=True)
     journal = args.out / "episodes.jsonl"
-    settings = all_settings() if args.settings == "all" else (
-        [((0.0, 0.0), "off", 0.0)] + [(pose, "realistic", 0.02) for pose in POSE_LEVELS])
+    noise_free = ((0.0, 0.0), "off", 0.0)
+    if args.only is not None:
+        settings = [noise_free] + [setting for setting in args.only if setting != noise_free]
+    else:
+        settings = all_settings() if args.settings == "all" else (
+            [noise_free] + [(pose, "realistic", 0.02) for pose in POSE_LEVELS])
     tasks, keys = [], []
     for scenario in eval_scenarios(args.scenarios):
         for setting in settings:

@@ -336,3 +336,26 @@ def test_explore_and_benchmark_run_with_noise(tmp_path, capsys):
     assert len(results["episodes"]) == 4 and "true_walls_carved" in results["summary"][0]
     assert json.loads((bench / "settings.json").read_text())["spad_noise"] == "realistic"
     assert "pose_noise [0.02, 0.5], spad_noise realistic" in (bench / "results.md").read_text()
+
+
+def test_map_errors_tell_a_wall_held_one_cell_off_from_a_missing_one():
+    from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
+    from superex_deploy.sim.metrics import explorer_map_errors
+
+    occupied = np.zeros((10, 12), bool)
+    occupied[:, 6] = True  # one true wall, a column
+    grid = OccupancyGrid(occupied, np.ones_like(occupied), 0.1, "column")
+    observed = np.full(occupied.shape, FREE, np.int8)
+    observed[:, 8:] = UNKNOWN
+    observed[:5, 7] = OCCUPIED  # rows 0-4: the wall held one cell off (its true cells free)
+    observed[5:, 6] = FREE      # rows 5-9: the wall not held at all
+    errors = explorer_map_errors(observed, grid, np.ones_like(occupied))
+    assert errors.held_free == 10 and errors.seen == 10
+    # Rows 0-5 have a map wall within one cell (row 5 touches row 4's diagonally); rows 6-9 do not.
+    assert errors.missing == 4
+    assert errors.map_iou == 0.0
+    # Within a cell the 5 map walls all count, and the true cells of rows 0-5 are found: 5 / (5 + 4).
+    assert errors.map_iou_within_cell == pytest.approx(5 / 9)
+    exact = observed.copy()
+    exact[:, 6], exact[:, 7] = OCCUPIED, FREE
+    assert explorer_map_errors(exact, grid, np.ones_like(occupied)) == (0, 1.0, 10, 0, 1.0)

@@ -133,8 +133,11 @@ class EpisodeResult:
         true_walls_carved: true wall cells the explorer carved at any step (each counted once).
         true_walls_held_free: true wall cells the explorer's final map holds free (seen or carved).
         true_walls_seen: true wall cells the explorer's final map holds known (free or occupied).
+        true_walls_missing: the held-free true wall cells with no wall of the final map among their 8 neighbours
+            (:class:`~superex_deploy.sim.metrics.MapErrors`).
         explorer_map_iou: wall-class IoU of the explorer's own final map (seen walls) against the truth, over
             the evaluation area (:func:`~superex_deploy.sim.metrics.evaluation_area`).
+        explorer_map_iou_within_cell: the same IoU forgiving a wall held one cell off (diagonals included).
         true_poses, believed_poses: float64 ``[T, 3]`` ``(x, y, yaw)`` (metres, radians) of the robot's true pose
             and of the pose its observation carried, at each step's scan.
     """
@@ -166,6 +169,8 @@ class EpisodeResult:
     true_walls_held_free: int = 0
     explorer_map_iou: float = float("nan")
     true_walls_seen: int = 0
+    true_walls_missing: int = 0
+    explorer_map_iou_within_cell: float = float("nan")
     true_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     believed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -177,7 +182,8 @@ class EpisodeResult:
     def to_json(self) -> dict:
         """JSON-ready dict: the per-step series, IoU log, goals, mean stage times, the config, and the errors of
         the explorer's map against the truth (``collisions``, ``true_walls_held_free``, ``true_walls_carved``,
-        ``map_iou``: :attr:`explorer_map_iou`)."""
+        ``map_iou``: :attr:`explorer_map_iou`, ``true_walls_seen``, ``true_walls_missing``,
+        ``map_iou_within_cell``)."""
         timings = {stage: np.round(values, 6).tolist() for stage, values in self.timings_s.items()}
         return {
             "map": self.map_name, "planner": self.planner, "predictor": self.predictor, "seed": self.seed,
@@ -198,7 +204,8 @@ class EpisodeResult:
             "config": self.config,
             "collisions": int(self.collisions), "true_walls_held_free": int(self.true_walls_held_free),
             "true_walls_carved": int(self.true_walls_carved), "map_iou": float(self.explorer_map_iou),
-            "true_walls_seen": int(self.true_walls_seen),
+            "true_walls_seen": int(self.true_walls_seen), "true_walls_missing": int(self.true_walls_missing),
+            "map_iou_within_cell": float(self.explorer_map_iou_within_cell),
         }
 
 
@@ -333,7 +340,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         simulation_s[t] += time.perf_counter() - clock
 
     final_observed = explorer.mapper.observed()
-    held_free, explorer_iou, walls_seen = explorer_map_errors(final_observed, grid, iou_area)
+    errors = explorer_map_errors(final_observed, grid, iou_area)
     return EpisodeResult(
         map_name=grid.name, planner=planner.name, predictor=getattr(predictor, "name", type(predictor).__name__),
         seed=int(seed), start_rc=start, poses=poses[:logged], coverage=coverage[:logged],
@@ -343,5 +350,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         iou=iou_values, iou_coverage=iou_coverage, goal_steps=goal_steps, goals=goals, finished=finished,
         config=cfg.to_json(), final_observed=final_observed, final_carved=explorer.mapper.carved.copy(),
         final_prediction=last_prediction, collisions=world.collisions,
-        true_walls_carved=int(np.count_nonzero(walls_carved)), true_walls_held_free=held_free,
-        explorer_map_iou=explorer_iou, true_walls_seen=walls_seen, true_poses=true_poses[:logged], believed_poses=believed_poses[:logged])
+        true_walls_carved=int(np.count_nonzero(walls_carved)), true_walls_held_free=errors.held_free,
+        explorer_map_iou=errors.map_iou, true_walls_seen=errors.seen, true_walls_missing=errors.missing,
+        explorer_map_iou_within_cell=errors.map_iou_within_cell, true_poses=true_poses[:logged],
+        believed_poses=believed_poses[:logged])

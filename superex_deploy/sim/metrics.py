@@ -8,7 +8,7 @@ wall cells of the eval maps; the rest are the inner cells of thick walls and wal
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -20,7 +20,8 @@ __all__ = ["IOU_MARGIN_CELLS", "coverage", "evaluation_area", "map_iou", "covera
            "results_markdown", "pair_by_scenario", "difference_counts", "paired_differences"]
 
 IOU_MARGIN_CELLS = 2
-MAP_ERROR_KEYS = ("collisions", "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen")
+MAP_ERROR_KEYS = ("collisions", "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen",
+                  "true_walls_missing", "map_iou_within_cell")
 """The episode-log keys of the explorer map's errors against the truth (see :func:`explorer_map_errors`)."""
 
 
@@ -199,7 +200,7 @@ def results_markdown(rows: list[dict]) -> str:
         for key in columns:
             mean, std = row[key]
             scale = 100.0 if key.startswith("coverage") else 1.0
-            counts = key in MAP_ERROR_KEYS and key != "map_iou"
+            counts = key in MAP_ERROR_KEYS and not key.startswith("map_iou")
             digits = 1 if key.startswith("coverage") or key == "path_length_m" or counts else 3
             cells.append(f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}")
         lines.append(f"| {row['planner']} | {row['episodes']} | " + " | ".join(cells) + " |")
@@ -236,27 +237,51 @@ def wall_iou_tolerant(pred: np.ndarray, truth: np.ndarray, tolerance_cells: floa
     return 1.0 if denominator == 0 else np.count_nonzero(pred & near_truth) / denominator
 
 
-def explorer_map_errors(observed: np.ndarray, grid: OccupancyGrid, area: np.ndarray | None = None
-                        ) -> tuple[int, float, int]:
+class MapErrors(NamedTuple):
+    """How the explorer's own final map errs against the truth (:func:`explorer_map_errors`).
+
+    Attributes:
+        held_free: true wall cells the map holds FREE, anywhere.
+        map_iou: wall-class IoU of the map's OCCUPIED cells against the true walls within the area.
+        seen: true wall cells the map holds known (FREE or OCCUPIED): the walls "seen", the denominator of a
+            held-free rate.
+        missing: the held-free true wall cells with no OCCUPIED map cell among their 8 neighbours: walls the map
+            lacks, not walls it holds one cell off (a pose error of half a cell or more moves a whole wall face by
+            a cell in a 0.1 m grid; both count in ``held_free``).
+        map_iou_within_cell: :func:`wall_iou_tolerant` within one cell, diagonals included (tolerance 1.5 cells:
+            a wall held one cell off counts as found; phantom walls farther than a cell from every true wall still
+            count against it).
+    """
+
+    held_free: int
+    map_iou: float
+    seen: int
+    missing: int
+    map_iou_within_cell: float
+
+
+def explorer_map_errors(observed: np.ndarray, grid: OccupancyGrid, area: np.ndarray | None = None) -> MapErrors:
     """How the explorer's own map (not a prediction) errs against the truth.
 
     Args:
         observed: int8 ``[H, W]`` the explorer's map (FREE, OCCUPIED, UNKNOWN; carved cells FREE).
         grid: the ground truth.
-        area: bool ``[H, W]`` where the IoU is scored; default :func:`evaluation_area`.
+        area: bool ``[H, W]`` where the IoUs are scored; default :func:`evaluation_area`.
 
     Returns:
-        ``(true wall cells the map holds FREE, anywhere; wall-class IoU of the map's OCCUPIED cells against the
-        true walls within the area; true wall cells the map holds known, FREE or OCCUPIED: the walls "seen", the
-        denominator of a held-free rate)``.
+        The :class:`MapErrors`.
     """
     observed = np.asarray(observed)
     if observed.shape != grid.shape:
         raise ValueError(f"observed has shape {observed.shape}, the map has {grid.shape}")
     area = evaluation_area(grid) if area is None else area
-    held_free = int(np.count_nonzero((observed == FREE) & grid.occupied))
+    held = (observed == FREE) & grid.occupied
+    walls = observed == OCCUPIED
+    near_wall = ndimage.binary_dilation(walls, structure=np.ones((3, 3), bool))
     seen = int(np.count_nonzero((observed != UNKNOWN) & grid.occupied))
-    return held_free, wall_iou((observed == OCCUPIED) & area, grid.occupied & area), seen
+    return MapErrors(held_free=int(np.count_nonzero(held)), map_iou=wall_iou(walls & area, grid.occupied & area),
+                     seen=seen, missing=int(np.count_nonzero(held & ~near_wall)),
+                     map_iou_within_cell=wall_iou_tolerant(walls & area, grid.occupied & area, 1.5))
 
 
-__all__ += ["wall_iou", "wall_iou_tolerant", "explorer_map_errors", "MAP_ERROR_KEYS"]
+__all__ += ["wall_iou", "wall_iou_tolerant", "MapErrors", "explorer_map_errors", "MAP_ERROR_KEYS"]
