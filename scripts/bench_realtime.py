@@ -325,10 +325,9 @@ def report(out: Path) -> None:
                     for n, episodes in rows.items()}
         error[split] = {"summary": {n: row_summary(e, steps) for n, e in complete.items()},
                         "paired": {n: paired_summary(complete["full"], e, steps) for n, e in complete.items()
-                                   if n != "full"}, "scenarios": len(rows["full"]), "steps": steps,
+                                   if n != "full"}, "scenarios": len(shared), "steps": steps,
                         "free_paired": {n: paired_summary(complete[CHOSEN], e, steps) for n, e in complete.items()
                                         if FREE in n and CHOSEN in complete}}
-        error[split]["scenarios"] = len(shared)
     lines = []
     full_t = timing.get("full", {})
     if timing:

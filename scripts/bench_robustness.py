@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.sim.suite import scenario_key
+
 POSE_LEVELS = ((0.0, 0.0), (0.02, 0.5), (0.05, 1.0), (0.10, 2.0))
 SPAD_PRESETS = ("off", "realistic", "low")
 LIDAR_LEVELS = (0.0, 0.02)
@@ -120,12 +122,12 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
     missing = sum(e.get("true_walls_missing", 0) for e in episodes)
     auc_rel, auc_points, iou_ratio, tolerant_ratio = [], [], [], []
     for episode in episodes:
-        reference = baseline.get((episode["map"], episode["start_index"]))
+        reference = baseline.get(scenario_key(episode))
         if reference is None:
             continue
-        ref_auc = first_half_auc(reference["coverage"], steps)
-        auc_rel.append(first_half_auc(episode["coverage"], steps) / ref_auc - 1.0 if ref_auc > 0 else np.nan)
-        auc_points.append(100.0 * (first_half_auc(episode["coverage"], steps) - ref_auc))
+        auc, ref_auc = first_half_auc(episode["coverage"], steps), first_half_auc(reference["coverage"], steps)
+        auc_rel.append(auc / ref_auc - 1.0 if ref_auc > 0 else np.nan)
+        auc_points.append(100.0 * (auc - ref_auc))
         iou_ratio.append(episode["map_iou"] / reference["map_iou"] if reference["map_iou"] > 0 else np.nan)
         tolerant = episode.get("map_iou_within_cell", np.nan), reference.get("map_iou_within_cell", np.nan)
         tolerant_ratio.append(tolerant[0] / tolerant[1] if tolerant[1] > 0 else np.nan)
@@ -158,9 +160,9 @@ def targets_met(row: dict) -> dict:
 def superex_gain(pipeline: list[dict], los: list[dict], level: float, rng) -> list[float]:
     """Mean paired IoU gain (SuperEx pipeline - LaMa-LOS) at coverage ``level`` over the shared scenarios that
     reached it, with a bootstrap 95 % interval: ``[mean, low, high]``."""
-    by_scenario = {(e["map"], e["start_index"]): e for e in los}
-    gains = [iou_at_coverage(e, level) - iou_at_coverage(by_scenario[(e["map"], e["start_index"])], level)
-             for e in pipeline if (e["map"], e["start_index"]) in by_scenario]
+    by_scenario = {scenario_key(e): e for e in los}
+    gains = [iou_at_coverage(e, level) - iou_at_coverage(by_scenario[scenario_key(e)], level)
+             for e in pipeline if scenario_key(e) in by_scenario]
     return list(bootstrap_mean(np.array(gains, float), rng))
 
 
@@ -191,7 +193,7 @@ def report(out: Path, results: dict, steps: int, superex_settings: list, before:
 
     nearest = {name: eps for (group, name), eps in results.items() if group == "nearest"}
     base_name = setting_name((0.0, 0.0), "off", 0.0)
-    baseline = {(e["map"], e["start_index"]): e for e in nearest.get(base_name, [])}
+    baseline = {scenario_key(e): e for e in nearest.get(base_name, [])}
     rows = {}
     for pose, spad, lidar in all_settings():
         name = setting_name(pose, spad, lidar)
