@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run ``superex ARGV`` and return its exit code (see the module docstring); SIGINT and SIGTERM become
     :class:`~superex_deploy.parallel.Interrupted` while it runs."""
-    from superex_deploy.parallel import stop_signals
+    from superex_deploy.parallel import interruption_in, stop_signals
 
     args = None
     with stop_signals():
@@ -65,11 +65,21 @@ def main(argv: list[str] | None = None) -> int:
                 return 0 if usage.code is None else usage.code if isinstance(usage.code, int) else 2
             return _run(args)
         except KeyboardInterrupt as stop:  # Interrupted, or a Ctrl-C that came before the handlers
-            name, code = getattr(stop, "signal_name", "SIGINT"), getattr(stop, "exit_code", 130)
-            kept = getattr(stop, "kept", "")
-            command = "superex" if args is None else f"superex {args.command}"
-            print(f"{command}: stopped by {name}{'; ' + kept if kept else ''}", file=sys.stderr)
-            return code
+            return _stopped(args, stop)
+        except Exception as error:  # a signal raised inside a C callback arrives wrapped (parallel.interruption_in)
+            stop = interruption_in(error)
+            if stop is None:
+                raise
+            return _stopped(args, stop)
+
+
+def _stopped(args, stop: BaseException) -> int:
+    """The one stderr line of a run a signal stopped; its exit code (128 + the signal's number)."""
+    name, code = getattr(stop, "signal_name", "SIGINT"), getattr(stop, "exit_code", 130)
+    kept = getattr(stop, "kept", "")
+    command = "superex" if args is None else f"superex {args.command}"
+    print(f"{command}: stopped by {name}{'; ' + kept if kept else ''}", file=sys.stderr)
+    return code
 
 
 def _run(args: argparse.Namespace) -> int:

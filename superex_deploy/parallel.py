@@ -35,8 +35,8 @@ from pathlib import Path
 from contextlib import contextmanager
 from typing import Callable, Iterator, Optional, Sequence
 
-__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "stop_signals", "signals_deferred",
-           "LocalBackend", "RayBackend", "kernel_parts"]
+__all__ = ["process_pool", "run_tasks", "read_journal", "Interrupted", "interruption_in", "stop_signals",
+           "signals_deferred", "LocalBackend", "RayBackend", "kernel_parts"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -146,6 +146,21 @@ class Interrupted(KeyboardInterrupt):
 
 def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
+
+
+def interruption_in(error: BaseException) -> Optional[Interrupted]:
+    """The :class:`Interrupted` that ``error`` is or carries in its chain of causes (None if it carries none).
+
+    The handlers of :func:`stop_signals` raise wherever the main thread is; inside a C callback (numba's unpickling
+    of a compiled function's constants, for one) the exception comes out wrapped in a ``SystemError``. A command
+    treats such an error as the signal it is."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, Interrupted):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def _in_main_thread() -> bool:

@@ -597,3 +597,51 @@ def test_replay_names_a_missing_configuration_field():
     metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
     with pytest.raises(ValueError, match="cannot be rebuilt: it lacks the field 'motion'"):
         build_explorer(metadata, MapFrame((10, 10), 0.1), None)
+
+
+def test_interruption_in_finds_a_signal_wrapped_by_a_c_callback():
+    from superex_deploy.parallel import interruption_in
+
+    stop = Interrupted(signal.SIGTERM)
+    try:
+        try:
+            raise stop
+        except Interrupted as inner:  # as numba's _numba_unpickle reports a handler's exception
+            raise SystemError("returned a result with an exception set") from inner
+    except SystemError as wrapped:
+        assert interruption_in(wrapped) is stop
+    assert interruption_in(stop) is stop
+    assert interruption_in(ValueError("bad")) is None
+    looped = ValueError("a")
+    looped.__context__ = ValueError("b")
+    looped.__context__.__context__ = looped  # a cycle ends the walk
+    assert interruption_in(looped) is None
+
+
+def test_explore_stopped_by_a_wrapped_signal_keeps_its_steps_like_the_signal(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that a C callback turned into a SystemError (seen under load in CI) ends the run as the signal
+    does: exit 143, one stop line, the recording closed on its whole steps and replayable."""
+    import superex_deploy.sim.episode as episode
+    from superex_deploy.recording import read_recording
+
+    real = episode.run_episode
+
+    def stopped_at_step_12(*args, on_observation=None, **kwargs):
+        def observe(observation, command, explorer):
+            on_observation(observation, command, explorer)
+            if explorer.steps >= 12:
+                try:
+                    raise Interrupted(signal.SIGTERM)
+                except Interrupted as stop:
+                    raise SystemError("<function _numba_unpickle> returned a result with an exception set") from stop
+        return real(*args, on_observation=observe, **kwargs)
+
+    monkeypatch.setattr(episode, "run_episode", stopped_at_step_12)
+    record, out = tmp_path / "ep.mcap", tmp_path / "run"
+    code = main(["explore", "--map", MAP, "--steps", "40", "--predictor", "observed", "--gif-every", "0",
+                 "--out", str(out), "--record", str(record)])
+    err = capsys.readouterr().err
+    assert code == 143
+    assert _one_stop_line(err, "explore", signal.SIGTERM).endswith("marked interrupted")
+    assert [s.step for s in read_recording(record).steps] == list(range(12))
+    assert json.loads((out / "metrics.json").read_text())["interrupted"] == "SIGTERM"

@@ -111,13 +111,19 @@ def run(args: argparse.Namespace) -> int:
         if record is not None:
             record.write_map(result.final_observed)
             record.close()
-    except KeyboardInterrupt as stop:  # parallel.Interrupted (SIGINT, SIGTERM): keep the steps done
+    except BaseException as error:
+        from superex_deploy.parallel import interruption_in
+
+        # parallel.Interrupted (SIGINT, SIGTERM), a Ctrl-C, or a signal wrapped by a C callback: keep the steps done.
+        stop = error if isinstance(error, KeyboardInterrupt) else interruption_in(error)
+        if stop is None:
+            if record is not None:
+                record.abort()
+            raise
         stop.kept = _keep_interrupted(args, grid, start, done, record, getattr(stop, "signal_name", "SIGINT"))
-        raise
-    except BaseException:
-        if record is not None:
-            record.abort()
-        raise
+        if stop is error:
+            raise
+        raise stop from None
     from superex_deploy.parallel import signals_deferred
 
     with signals_deferred():  # a signal now waits until every output is whole, then ends the run as usual
