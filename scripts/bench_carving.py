@@ -138,7 +138,7 @@ def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np
 
 
 def _scenario(task: tuple) -> dict:
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
     from superex_deploy.sim.spad import simulate_scan
@@ -233,7 +233,7 @@ def noisy_property(n_poses: int, names: list[str], sigma_xy_m: float = 0.05, sig
     placed by a belief drawn at the declared sigmas and carved with that covariance (generator 24, floor
     ``trial % floors``). Returns the poses carving a true wall and the carved cells per scan."""
     from superex_deploy.messages import MapFrame, Pose2D, SpadFrame
-    from superex_deploy.onboard.spad_processing import scan_from_frame
+    from superex_deploy.onboard.nlos.processing import scan_from_frame
     from superex_deploy.sim.spad import simulate_scan
 
     sigma_yaw = np.deg2rad(sigma_yaw_deg)
@@ -313,8 +313,8 @@ def back_projection_change(n_poses: int, dense: int = 256) -> tuple[dict, str]:
     (default scans otherwise): the late photons per scan (ratio to 64 rays), the non-zero late bins, and the
     raw back-projection (normalised to its maximum, as the filter gets it): Pearson correlation with the
     64-ray map and mean absolute difference over the cells either map votes on."""
-    from superex_deploy.onboard.inference.manifest import DEFAULT_MODEL_DIR
-    from superex_deploy.onboard.inference.pix2pix import Pix2PixFilter
+    from superex_deploy.onboard.prediction.inference.manifest import DEFAULT_MODEL_DIR
+    from superex_deploy.onboard.prediction.inference.pix2pix import Pix2PixFilter
     from superex_deploy.onboard.nlos import back_project
     from superex_deploy.sim.spad import simulate_scan
 

@@ -7,7 +7,7 @@ than that, paired mean >= -0.3 points). The variants (:data:`VARIANTS`):
 
 * ``superex`` / ``mapex``: the planners as they ship (thresholded gains);
 * ``*_expected``: ``gain="expected"``: the expected number of unknown cells seen (transmittance through the
-  predicted wall probabilities; :mod:`superex_deploy.onboard.expected_visibility`); MapEx's expected variance;
+  predicted wall probabilities; :mod:`superex_deploy.onboard.planning.expected_visibility`); MapEx's expected variance;
 * ``*_expected_support``: the same with ``wall_support=WallSupport(min_scale=--min-scale)``: a predicted wall that
   neither NLOS evidence nor an observed wall within 1 m supports is scaled down;
 * ``*_expected_correlated``: the expected gain with ``transmittance="correlated"`` (a ray passes with probability
@@ -92,11 +92,11 @@ walls' support relates to the truth (:func:`support_calibration`)."""
 
 def support_calibration(mean: np.ndarray, observed: np.ndarray, evidence, truth: np.ndarray, resolution_m: float,
                         min_scale: float) -> dict:
-    """Whether what :class:`~superex_deploy.onboard.expected_visibility.WallSupport` calls support tells true
+    """Whether what :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` calls support tells true
     predicted walls from false ones: over the unknown cells predicted walls (mean >= 0.5), grouped by their support
     (``none``: scaled by ``min_scale``, ``partial``, ``full``), the cell count, the sum of the predicted
     probabilities and the number of true walls (a calibrated group has the two sums equal)."""
-    from superex_deploy.onboard.expected_visibility import WallSupport, supported_prediction
+    from superex_deploy.onboard.planning.expected_visibility import WallSupport, supported_prediction
     from superex_deploy.onboard.types import Prediction
 
     cfg = WallSupport(min_scale=min_scale)
@@ -116,8 +116,8 @@ def support_calibration(mean: np.ndarray, observed: np.ndarray, evidence, truth:
 def _episode(task: tuple) -> dict:
     """One episode in a worker: ``(map, start, variant, predictor, steps, min_scale)``."""
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.inference import SessionConfig
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.prediction.inference import SessionConfig
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import RealtimeProfile, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy.sim.episode import STAGES, run_episode
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.maps import load_map, start_poses
 
 WINDOW = 100

@@ -83,7 +83,7 @@ def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
     from ceiling_study import scenarios
 
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.types import Planner
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
@@ -132,7 +132,7 @@ class _Reference:
     """Within it, the planners score with the code before the speed-ups (``tests/naive.py``)."""
 
     def __enter__(self):
-        from superex_deploy.onboard.planners import hector, mapex, superex
+        from superex_deploy.onboard.planning.planners import hector, mapex, superex
         from tests import naive
 
         self.saved = [(superex.SuperexPlanner, "gains", superex.SuperexPlanner.gains),
@@ -156,8 +156,8 @@ class _Reference:
 def _choose(planner_name: str, choice: list[dict]) -> tuple[Optional[tuple[int, int]], float, float]:
     """Replay one goal choice: the planning map, then each recorded tier. Returns the last tier's goal, the
     planning map's and the scoring's seconds."""
-    from superex_deploy.onboard.motion import planning_map
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.motion import planning_map
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.types import PlanningContext
 
     first = choice[0]
@@ -181,8 +181,8 @@ def _settled_share(call: dict) -> float:
     """The share of the planning map's reachable cells whose cost-to-go is at most the farthest reachable frontier
     cell's (of any region size: the explorer's tiers may offer any): what a Dijkstra stopped once every frontier
     cell is settled would still have to settle (NaN without a reachable frontier cell)."""
-    from superex_deploy.onboard.frontiers import frontier_cells
-    from superex_deploy.onboard.motion import planning_map
+    from superex_deploy.onboard.planning.frontiers import frontier_cells
+    from superex_deploy.onboard.planning.motion import planning_map
 
     cost = planning_map(call["observed"], call["pose_rc"], call["resolution_m"]).travel_cost
     reachable = np.isfinite(cost)

@@ -17,7 +17,7 @@ Table 1, one row per (model, input size):
 torch runs the training checkpoint (``exported/checkpoints/<stem>.pt``; LaMa rebuilt with the ``matmul``
 Fourier unit, as ``superex_train.export.export_checkpoint`` does) wrapped in the export's sigmoid, under
 ``torch.inference_mode()`` with ``torch.set_num_threads(2)``. ONNX Runtime runs the exported file through
-``superex_deploy.onboard.inference.make_session`` with ``SessionConfig(intra_op_threads=2)``. Both get the same float32
+``superex_deploy.onboard.prediction.inference.make_session`` with ``SessionConfig(intra_op_threads=2)``. Both get the same float32
 array. After ``--warmup`` untimed calls of each, ``--repeats`` timed rounds run torch and ORT alternately (the
 order flips every round, so slow drifts of the machine's load hit both alike); each call is timed on its own
 with ``time.perf_counter`` after an untimed ``--settle`` pause (0.1 s): ONNX Runtime's intra-op threads keep
@@ -67,9 +67,9 @@ if str(ROOT) not in sys.path:
 import torch  # noqa: E402
 
 from superex_deploy.sim.episode import ExplorationConfig, run_episode  # noqa: E402
-from superex_deploy.onboard.planners import make_planner  # noqa: E402
-from superex_deploy.onboard.prediction import ObservedAsPrediction  # noqa: E402
-from superex_deploy.onboard.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,  # noqa: E402
+from superex_deploy.onboard.planning.planners import make_planner  # noqa: E402
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction  # noqa: E402
+from superex_deploy.onboard.prediction.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,  # noqa: E402
                                       ModelKind, SessionConfig, crop_window, encode_bp_windows, encode_map,
                                       make_session, read_manifest)
 from superex_deploy.maps import list_maps, load_map, start_poses  # noqa: E402

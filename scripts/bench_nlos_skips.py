@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.onboard.spad_processing import NlosSkips
+from superex_deploy.onboard.nlos.processing import NlosSkips
 
 EXACT = NlosSkips(rays_without_unknown=True, filter_same_input=True)
 INEXACT = {f"evidence_every_{k}": NlosSkips(rays_without_unknown=True, filter_same_input=True, evidence_every=k)
@@ -59,7 +59,7 @@ def _scenarios(split: str, limit: int, starts: int = 0) -> list[tuple[str, int, 
 def _shadow_sensing(seed: int, bp_filter):
     """SPAD sensing whose processing runs the unskipped processor (what the explorer gets) and shadows every frame
     with the skipping ones."""
-    from superex_deploy.onboard.spad_processing import SpadProcessing
+    from superex_deploy.onboard.nlos.processing import SpadProcessing
     from superex_deploy.sim.sensing import SpadSensing
 
     class ShadowProcessing(SpadProcessing):
@@ -112,7 +112,7 @@ def _episode(task: tuple) -> dict:
     from dataclasses import replace
 
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 

@@ -39,7 +39,7 @@ def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
 
     # Decide by the files: an editable install's import hook would otherwise fill the legacy tree's gaps from this one.
     if (Path(superex_deploy.__file__).parent / "sim").is_dir():
-        from superex_deploy.onboard.planners import make_planner
+        from superex_deploy.onboard.planning.planners import make_planner
         from superex_deploy.sim.episode import ExplorationConfig, run_episode
     else:  # the legacy layout of commit 4253e2c
         legacy = "superex_deploy.explore"

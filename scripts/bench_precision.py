@@ -43,9 +43,9 @@ def _inputs() -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(name, observed int8 [H, W], encoded float32 [1, 3, H', W'] padded) of the held-out train floors."""
     from ceiling_study import scenarios
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.inference import MODEL_CHANNELS, ModelKind, encode_map
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.onboard.prediction import ObservedAsPrediction
+    from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, ModelKind, encode_map
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
 
     out = []
@@ -72,7 +72,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "realtime")
     args = parser.parse_args()
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, SessionConfig, make_session
+    from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR, SessionConfig, make_session
     from superex_deploy.onboard.types import UNKNOWN
 
     inputs = _inputs()

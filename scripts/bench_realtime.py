@@ -48,9 +48,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
-from superex_deploy.onboard.inference import SessionConfig  # noqa: E402
-from superex_deploy.onboard.prediction_reuse import PredictionReuse  # noqa: E402
-from superex_deploy.onboard.spad_processing import NlosSkips  # noqa: E402
+from superex_deploy.onboard.prediction.inference import SessionConfig  # noqa: E402
+from superex_deploy.onboard.prediction.reuse import PredictionReuse  # noqa: E402
+from superex_deploy.onboard.nlos.processing import NlosSkips  # noqa: E402
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, RealtimeProfile  # noqa: E402
 
 TIMING_MAP, TIMING_START, TIMING_STEPS, PACE_HZ = "50015847", 0, 500, 10.0
@@ -131,8 +131,8 @@ def _episode(task: tuple) -> dict:
     kept, the robot clock), ``loaded`` (``paced``, while another process holds a core: started by the caller) or
     ``wall`` (unpaced, wall time, the robot clock)."""
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.inference import available_cores
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.prediction.inference import available_cores
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 

@@ -3,7 +3,7 @@
 Every setting is a point of the grid pose noise x SPAD preset x LiDAR noise:
 
 * pose noise (``sigma_xy`` m, ``sigma_yaw`` deg; white jitter plus a bounded drift, see
-  :class:`superex_deploy.sim.localization.PoseNoise`): ``0``, ``0.02,0.5``, ``0.05,1``, ``0.10,2``;
+  :class:`superex_deploy.sim.noise.pose.PoseNoise`): ``0``, ``0.02,0.5``, ``0.05,1``, ``0.10,2``;
 * SPAD photon budget (:data:`superex_deploy.spad_types.SPAD_PRESETS`): ``off`` (the ideal noise-free sensor),
   ``realistic``, ``low``;
 * LiDAR range noise ``sigma`` (m, with 1 % dropouts and 0.1 % spurious short returns when on): ``0``, ``0.02``.

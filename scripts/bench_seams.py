@@ -4,7 +4,7 @@ edges or feathered, against a whole-map prediction of the same map and evidence.
 Every scenario is one episode of the ``lama_bp`` pipeline with the SPAD (``superex`` planner) under the chosen
 profile (``realtime``: crops with 6.4 m of context, one LaMa member). The episode's own prediction requests (every
 ``schedule.every_steps`` steps, on that step's map and evidence) are replayed, as they happen, into shadow
-:class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` s that share the profile's reuse settings and
+:class:`~superex_deploy.onboard.prediction.reuse.ReusingPredictor` s that share the profile's reuse settings and
 differ only in the feathering (``feather_m`` x ``feather_ramp``; ``hard`` is ``feather_m = 0``). They see the same
 requests and cut the same crops, so the network runs once per request (the answer is shared). At the sample steps
 the same one-member predictor also predicts the whole map, and each shadow's prediction is compared with it on
@@ -97,8 +97,8 @@ def seam_band(labels: np.ndarray, band_cells: int) -> tuple[np.ndarray, tuple[np
 def _episode(task: tuple) -> dict:
     """One scenario in a worker: ``(map, start index, start cell, profile, steps, samples, feathers, ramps, band_m)``."""
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.onboard.prediction_reuse import ReusingPredictor
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.prediction.reuse import ReusingPredictor
     from superex_deploy.onboard.types import UNKNOWN
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
@@ -295,7 +295,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "seams")
     args = parser.parse_args()
 
-    from superex_deploy.onboard.prediction_reuse import RAMPS
+    from superex_deploy.onboard.prediction.reuse import RAMPS
     from superex_deploy.parallel import run_tasks
     from superex_deploy.pipeline import PROFILES
 

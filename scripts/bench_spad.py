@@ -35,8 +35,8 @@ import numba
 import numpy as np
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
 from superex_deploy.maps import list_maps, load_map, start_poses

@@ -118,7 +118,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
 
 
 def _episode(task: dict) -> dict:
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.dead_ends import dead_end_entries
     from superex_deploy.sim.episode import ExplorationConfig, run_episode

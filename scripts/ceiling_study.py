@@ -62,7 +62,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, heldout: bool = False) ->
 def _episode(task: tuple) -> dict:
     from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
 
     name, start, idea, planner, options, predictor, steps = task
     grid = load_map(name)

@@ -37,11 +37,11 @@ sys.path.insert(0, str(ROOT))
 
 from superex_deploy.sim.episode import EpisodeState, run_episode  # noqa: E402
 from superex_deploy.sim.metrics import evaluation_area, map_iou  # noqa: E402
-from superex_deploy.onboard.planners import make_planner  # noqa: E402
-from superex_deploy.onboard.prediction import ObservedAsPrediction  # noqa: E402
+from superex_deploy.onboard.planning.planners import make_planner  # noqa: E402
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction  # noqa: E402
 from superex_deploy.sim.sensing import SpadSensing  # noqa: E402
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN  # noqa: E402
-from superex_deploy.onboard.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
+from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
                                       SessionConfig)
 from superex_deploy.maps import list_maps, load_map, map_building  # noqa: E402
 from superex_deploy.onboard.nlos import laplacian_filter  # noqa: E402

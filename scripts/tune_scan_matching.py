@@ -2,7 +2,7 @@
 
 Runs the robustness protocol's episode (nearest frontier, SPAD carving with the realistic photon budget, LiDAR 2 cm
 with dropouts and spurious returns) on train floors from random starts, at the given pose noise, with each named
-variant of :class:`~superex_deploy.onboard.scan_matching.ScanMatchingConfig`, and prints per variant: true walls held
+variant of :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, and prints per variant: true walls held
 free per 1,000 seen, collisions, carved walls, first-half coverage AUC against the same scenario's noise-free run,
 the acceptance rate and the pose error (metres, degrees) before and after matching.
 
@@ -43,8 +43,8 @@ VARIANTS = {
 def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar: float = 0.02) -> dict:
     from superex_deploy.benchmarking import with_noise, with_spad_noise
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.onboard.scan_matching import ScanMatchingConfig
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 

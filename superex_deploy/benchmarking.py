@@ -65,13 +65,13 @@ class ScenarioTask:
 def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Optional[tuple[float, float, float]],
                seed: int):
     """The :class:`~superex_deploy.sim.episode.ExplorationConfig` ``cfg`` with the simulator's noise: the
-    localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.localization.PoseNoise.from_sigmas>` of
+    localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.noise.pose.PoseNoise.from_sigmas>` of
     ``pose_noise = (sigma_m, sigma_deg)`` and the LiDAR noise ``lidar_noise = (sigma_m, dropout, spurious)``, both
     seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None). With LiDAR noise the
     explorer's map is told the sensor's range sigma (``OccupancyConfig.range_sigma_m``: the robot's calibration is
     the simulated sensor's sigma), as a robot's configuration would be."""
-    from superex_deploy.sim.lidar_noise import LidarNoise
-    from superex_deploy.sim.localization import PoseNoise
+    from superex_deploy.sim.noise.lidar import LidarNoise
+    from superex_deploy.sim.noise.pose import PoseNoise
 
     if pose_noise is None and lidar_noise is None:
         return cfg
@@ -100,7 +100,7 @@ def run_scenario(task: ScenarioTask) -> dict:
     the task's ``start_index`` and ``profile`` (and, on an altered floor, ``alteration`` and ``dead_ends``)."""
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import load_map
 
     profile = PROFILES[task.profile]

@@ -2,7 +2,7 @@
 onboard SPAD processing (used by the CLI, the benchmarks, the replay and the scripts).
 
 The onboard pieces it builds read no ground truth: :func:`make_predictor` for every predictor but ``oracle`` (those
-come from :mod:`superex_deploy.onboard.predictors`) and :func:`make_processing`; :func:`make_sensing` and the oracle
+come from :mod:`superex_deploy.onboard.prediction.registry`) and :func:`make_processing`; :func:`make_sensing` and the oracle
 belong to simulations.
 """
 
@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass, field
 from typing import Optional
 
 from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.inference import SessionConfig, ThreadBudget, check_member_options
-from superex_deploy.onboard.predictors import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
+from superex_deploy.onboard.prediction.inference import SessionConfig, ThreadBudget, check_member_options
+from superex_deploy.onboard.prediction.registry import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
                                                models_dir)
-from superex_deploy.onboard.prediction_reuse import PredictionReuse
-from superex_deploy.onboard.spad_processing import NlosSkips
+from superex_deploy.onboard.prediction.reuse import PredictionReuse
+from superex_deploy.onboard.nlos.processing import NlosSkips
 
 __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "DEFAULT_PROFILE", "resolve_profile",
            "check_profile",
@@ -36,8 +36,8 @@ class RealtimeProfile:
             benchmark``, the scripts), or None: ``schedule``. A never-waiting robot schedule (``free``) depends on
             the machine's speed; benchmarks replace it by the ``simulated`` clock, on which the worker's latency is
             a fixed number of steps, so that their rows are reproducible on any machine.
-        reuse: what is kept of the last prediction (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`).
-        nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
+        reuse: what is kept of the last prediction (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`).
+        nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.nlos.processing.NlosSkips`).
         max_members: LaMa ensemble members run (None: all; see ``LamaEnsemble.with_members``).
         agreement_stop: stop the ensemble after two members that agree within this (None: never).
         session: ONNX Runtime settings of the LaMa ensemble (an asynchronous predictor is best given one
@@ -90,7 +90,7 @@ class RealtimeProfile:
     def session_config(self, cores: Optional[int] = None) -> SessionConfig:
         """The ONNX Runtime settings of the predictor's sessions: ``session``, with ``cores`` given and a schedule
         that runs a prediction worker, its intra-op threads set to the worker's share of the
-        :class:`~superex_deploy.onboard.inference.ThreadBudget` (2 cores: 1), so that the worker never takes the
+        :class:`~superex_deploy.onboard.prediction.inference.ThreadBudget` (2 cores: 1), so that the worker never takes the
         control loop's core. Without ``cores`` (the benchmarks) the fixed ``session``."""
         if cores is None or not self.schedule.threaded:
             return self.session
@@ -160,7 +160,7 @@ def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile =
     """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only;
     ``profile`` sets the ensemble's members and sessions (:meth:`RealtimeProfile.session_config` of ``cores``: on
     the robot, give the cores the explorer gets). Every predictor but ``oracle`` is the robot's own
-    (:func:`~superex_deploy.onboard.predictors.make_onboard_predictor`).
+    (:func:`~superex_deploy.onboard.prediction.registry.make_onboard_predictor`).
 
     Raises:
         ValueError: an unknown name, ``oracle`` without a grid, models that are missing or do not match.
@@ -194,7 +194,7 @@ def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: Re
 
 
 def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, skips: Optional[NlosSkips] = None):
-    """The onboard :class:`~superex_deploy.onboard.spad_processing.SpadProcessing` for ``predictor``: with the
+    """The onboard :class:`~superex_deploy.onboard.nlos.processing.SpadProcessing` for ``predictor``: with the
     Pix2Pix filter for the evidence predictors, the Laplacian filter otherwise.
 
     Args:
@@ -205,7 +205,7 @@ def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, ski
         skips: work the processing may leave out (default: none).
     """
     from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard.spad_processing import SpadProcessing
+    from superex_deploy.onboard.nlos.processing import SpadProcessing
     from superex_deploy.spad_types import SpadConfig
 
     bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None

@@ -78,7 +78,7 @@ def _observed_image(observed: np.ndarray) -> np.ndarray:
 def save_episode_figure(path: Path, grid, result) -> Path:
     """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
     frontier regions left (orange, dots at their goal cells); the final prediction."""
-    from superex_deploy.onboard.frontiers import find_frontiers
+    from superex_deploy.onboard.planning.frontiers import find_frontiers
 
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(18, 6))

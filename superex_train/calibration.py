@@ -24,7 +24,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter, SessionConfig
+from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter, SessionConfig
 from superex_deploy.parallel import process_pool
 
 __all__ = ["LogitCalibration", "CalibrationConfig", "fit_logit_calibration", "calibration_maps",
@@ -186,8 +186,8 @@ def _episode_samples(task: tuple[str, int, str, str, CalibrationConfig]) -> tupl
     """Member probabilities and truth on unknown cells of one episode (see :func:`collect_calibration_samples`)."""
     from superex_deploy.sim.episode import EpisodeState, run_episode
     from superex_deploy.sim.metrics import evaluation_area
-    from superex_deploy.onboard.planners import make_planner
-    from superex_deploy.onboard.prediction import ObservedAsPrediction
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
     from superex_deploy.sim.sensing import SpadSensing
     from superex_deploy.onboard.types import UNKNOWN
     from superex_deploy.maps import load_map

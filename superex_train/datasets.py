@@ -4,7 +4,7 @@ Format (one directory per dataset)::
 
     index.json                    # see DatasetInfo; written last, so a directory without it is incomplete
     shard_00000.inputs.npy        # float16 [n, C, h, w]  network inputs, already encoded as the ONNX model
-                                  #                       expects (superex_deploy.onboard.inference.encode_*)
+                                  #                       expects (superex_deploy.onboard.prediction.inference.encode_*)
     shard_00000.targets.npy       # uint8   [n, h, w]     wall labels, 1 = wall
     shard_00000.mask.npy          # uint8   [n, h, w]     1 where the loss is defined
     shard_00000.groups.npy        # int32   [n]           building id of each sample (validation splits by it)
@@ -29,7 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.files import write_atomically
-from superex_deploy.onboard.inference import MODEL_CHANNELS, ModelKind, sha256_file
+from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, ModelKind, sha256_file
 
 __all__ = ["DATASET_FORMAT", "DatasetInfo", "ShardWriter", "read_index", "ShardDataset", "synthetic_walls",
            "write_synthetic_dataset", "split_by_group"]
@@ -47,7 +47,7 @@ class DatasetInfo:
 
     Attributes:
         directory: where it is.
-        kind: the :class:`~superex_deploy.onboard.inference.ModelKind` its inputs are encoded for.
+        kind: the :class:`~superex_deploy.onboard.prediction.inference.ModelKind` its inputs are encoded for.
         channels: input channel names, in order.
         tile_hw: ``(h, w)`` of every sample (cells).
         shards: ``(name, count)`` of each shard.
@@ -315,7 +315,7 @@ def _synthetic_pix2pix(rng: np.random.Generator, size: int) -> tuple[np.ndarray,
 
 def _synthetic_map(rng: np.random.Generator, size: int, kind: ModelKind) -> tuple[np.ndarray, np.ndarray]:
     """An encoded observed map (a disc of the plan seen around a random point) and the full plan."""
-    from superex_deploy.onboard.inference import encode_map
+    from superex_deploy.onboard.prediction.inference import encode_map
 
     walls = synthetic_walls(rng, (size, size), (max(size // 8, 4), max(size // 3, 8)))
     yy, xx = np.mgrid[:size, :size]
@@ -336,7 +336,7 @@ def write_synthetic_dataset(directory: PathLike, kind: ModelKind, n_samples: int
     """A synthetic dataset of random rectangular floor plans, for sanity training and tests (never for models
     that are reported). Pix2Pix samples smear the walls into a fake back-projection; LaMa samples show a disc
     of the plan and (LAMA_BP) the blurred hidden walls as evidence. Groups cycle over 8 fake buildings."""
-    from superex_deploy.onboard.inference import encode_bp_windows
+    from superex_deploy.onboard.prediction.inference import encode_bp_windows
 
     rng = np.random.default_rng(seed)
     generator = {"source": "synthetic", "n_samples": int(n_samples), "tile": int(tile), "seed": int(seed)}

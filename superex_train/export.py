@@ -3,7 +3,7 @@
 Each generator is wrapped in :class:`WallProbabilityModel` (logits -> sigmoid probabilities) and exported at
 opset 18 with one named input (``bp_window`` for Pix2Pix, ``map_channels`` for LaMa), one named output
 (``wall_probability``) and dynamic axes: the batch for Pix2Pix (its window size is fixed), batch, height and
-width for LaMa. The metadata of :data:`superex_deploy.onboard.inference.METADATA_KEYS` goes into ``metadata_props``,
+width for LaMa. The metadata of :data:`superex_deploy.onboard.prediction.inference.METADATA_KEYS` goes into ``metadata_props``,
 the model is checked with ``onnx.checker``, and one ONNX Runtime run on the export's dummy input (for LaMa also
 on a second, non-square size) must match torch to ``parity_atol``. :func:`export_models` writes a folder of
 models and its ``manifest.json`` (file, kind, member, sha256, bytes per model, and the reference ``.npz``
@@ -38,7 +38,7 @@ from torch import nn
 
 import superex_deploy
 from superex_deploy.files import write_atomically
-from superex_deploy.onboard.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANNELS, NORMALISATION, RESOLUTION_M,
+from superex_deploy.onboard.prediction.inference import (FORMAT_VERSION, MANIFEST_NAME, MODEL_CHANNELS, NORMALISATION, RESOLUTION_M,
                                       BpEncoding, ModelKind, SessionConfig, make_session, sha256_file)
 from superex_train.models import (LamaConfig, LamaGenerator, Pix2PixConfig, SpectralBackend, UNetGenerator,
                                   calibrate_batchnorm, count_parameters)

@@ -30,11 +30,11 @@ from typing import Callable, Iterator, Optional, Sequence, Union
 import numpy as np
 
 from superex_deploy.sim.episode import EpisodeState, ExplorationConfig, run_episode
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.onboard.types import UNKNOWN
-from superex_deploy.onboard.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
+from superex_deploy.onboard.prediction.inference import (ModelKind, Pix2PixFilter, crop_window, encode_bp_windows, encode_map,
                                       sha256_file)
 from superex_deploy.maps import list_maps, load_map, map_building, random_start
 from superex_deploy.onboard.nlos import NlosConfig, back_project, estimate_los
@@ -81,7 +81,7 @@ class GenerationConfig:
         maps: bundled map names (default: every ``train`` map; ``eval`` maps are refused).
         episodes_per_map: episodes per map (start cell and planner differ).
         steps: steps per episode (episodes end earlier when no frontier is left).
-        planners: planner names cycled over the episodes (``superex_deploy.onboard.planners.PLANNERS``).
+        planners: planner names cycled over the episodes (``superex_deploy.onboard.planning.planners.PLANNERS``).
         sample_every: steps between samples (the first sample is at a random step below this).
         window_cells: Pix2Pix window side (cells).
         tile_cells: LaMa tile side (cells).
@@ -190,7 +190,7 @@ _WORKER_FILTER: dict[str, Optional[Pix2PixFilter]] = {}
 def _lama_episode(episode: _Episode, cfg: GenerationConfig, pix2pix_path: Optional[str]
                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Tiles ``(bp_inputs [3, t, t], los_inputs [2, t, t], walls, mask)``."""
-    from superex_deploy.onboard.inference import SessionConfig
+    from superex_deploy.onboard.prediction.inference import SessionConfig
 
     if pix2pix_path not in _WORKER_FILTER:  # one ONNX Runtime session per worker process
         _WORKER_FILTER[pix2pix_path] = (None if pix2pix_path is None else

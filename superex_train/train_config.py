@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
-from superex_deploy.onboard.inference import MODEL_CHANNELS, BpEncoding, ModelKind
+from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, BpEncoding, ModelKind
 from superex_train.models import LamaConfig, Pix2PixConfig
 
 __all__ = ["RunSettings", "Pix2PixTrainConfig", "LamaTrainConfig", "LR_SCHEDULES", "RUN_ONLY_FIELDS", "config_dict"]
@@ -78,7 +78,7 @@ class Pix2PixTrainConfig(RunSettings):
         dice_weight: weight of a soft Dice term over each batch (0: none); Dice is ``2 IoU / (1 + IoU)``, so
             this term aims at the pooled wall IoU the filter is scored by, which the per-cell terms reach only
             through the choice of ``wall_weight``.
-        input_encoding: :class:`~superex_deploy.onboard.inference.BpEncoding` value the generator reads; datasets
+        input_encoding: :class:`~superex_deploy.onboard.prediction.inference.BpEncoding` value the generator reads; datasets
             store ``linear`` windows, re-encoded per batch, and the export declares this encoding.
     """
 
@@ -122,7 +122,7 @@ class LamaTrainConfig(RunSettings):
         init_from: a LaMa checkpoint (file or run folder) whose generator weights start the run instead of a
             random initialisation; ``{member}`` in it is replaced by the member index. Its architecture must
             equal ``model`` except for the input channels, which are matched by name
-            (:data:`~superex_deploy.onboard.inference.MODEL_CHANNELS`): a channel the source lacks gets zero stem weights,
+            (:data:`~superex_deploy.onboard.prediction.inference.MODEL_CHANNELS`): a channel the source lacks gets zero stem weights,
             so a LaMa-BP member started from a LaMa-LOS one first predicts exactly what the LOS member does and
             learns to read the evidence channel from there. Empty: random initialisation.
     """

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from superex_deploy.files import write_atomically
-from superex_deploy.onboard.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
+from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, BpEncoding, ModelKind, sha256_file
 from superex_train.datasets import ShardDataset, split_by_group
 from superex_train.losses import gan_loss, soft_dice_loss, wall_weighted_bce, wall_weighted_l1
 from superex_train.models import (LamaConfig, LamaGenerator, PatchDiscriminator, Pix2PixConfig, UNetGenerator,

@@ -707,7 +707,7 @@ def naive_descend(travel_cost, goal_rc):
 def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
     """visibility.visible_gains as first written (one cast and one fill per viewpoint, from Python), the slow
     twin of visibility._grouped_gains without union."""
-    from superex_deploy.onboard.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
+    from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
 
     cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
     observed = np.ascontiguousarray(observed)
@@ -727,7 +727,7 @@ def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
 def reference_union_visible_unknown(mean, observed, viewpoints, cfg, resolution_m):
     """visibility.union_visible_unknown as first written (a dict of casts, one fill per viewpoint and group, from
     Python), the slow twin of visibility._grouped_gains with union."""
-    from superex_deploy.onboard.visibility import _fill_visibility, _ray_visible_ranges
+    from superex_deploy.onboard.planning.visibility import _fill_visibility, _ray_visible_ranges
 
     observed = np.ascontiguousarray(observed)
     max_t = cfg.range_m / float(resolution_m)
@@ -753,7 +753,7 @@ def reference_union_visible_unknown(mean, observed, viewpoints, cfg, resolution_
 def reference_superex_gains(planner, ctx, prediction, frontiers):
     """SuperexPlanner.gains for ``gain="path"`` as first written: a Python descent per frontier, then the
     reference union."""
-    from superex_deploy.onboard.visibility import VisibilityConfig
+    from superex_deploy.onboard.planning.visibility import VisibilityConfig
 
     cfg = planner.cfg
     every = max(1, int(round(cfg.sense_every_m / ctx.resolution_m)))

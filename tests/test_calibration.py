@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, make_session
+from superex_deploy.onboard.prediction.inference import LamaEnsemble, ModelKind, make_session
 from superex_deploy.maps import list_maps, map_building
 from superex_train.calibration import (CalibrationConfig, LogitCalibration, calibration_maps,
                                        fit_logit_calibration, read_calibration)

@@ -28,9 +28,9 @@ def test_site_builds_strictly(tmp_path):
     # Packages that re-export their names (``__all__``) must still show them: one name per page is enough to
     # notice a page left with the package docstring alone.
     for page, name in [("onboard", "superex_deploy.onboard.explorer.Explorer"),
-                       ("onboard", "superex_deploy.onboard.planners.make_planner"),
+                       ("onboard", "superex_deploy.onboard.planning.planners.make_planner"),
                        ("nlos", "superex_deploy.onboard.nlos.process_scan"),
-                       ("inference", "superex_deploy.onboard.inference.LamaEnsemble"),
+                       ("inference", "superex_deploy.onboard.prediction.inference.LamaEnsemble"),
                        ("spad", "superex_deploy.sim.spad.simulate_scan"),
                        ("sim", "superex_deploy.sim.gym_env.ExplorationEnv")]:
         html = (tmp_path / "api" / page / "index.html").read_text(encoding="utf-8")

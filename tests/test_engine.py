@@ -2,14 +2,14 @@ import numpy as np
 import pytest
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.frontiers import find_frontiers, frontier_cells
-from superex_deploy.onboard.mapper import Mapper
+from superex_deploy.onboard.planning.frontiers import find_frontiers, frontier_cells
+from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.sim.metrics import coverage
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 from superex_deploy.sim.metrics import map_iou, paired_differences, summarise
-from superex_deploy.onboard.motion import MotionConfig, planning_map
-from superex_deploy.onboard.planners import MapexPlanner, NearestFrontier, make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.motion import MotionConfig, planning_map
+from superex_deploy.onboard.planning.planners import MapexPlanner, NearestFrontier, make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.oracle import OraclePredictor
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses

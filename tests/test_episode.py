@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from superex_deploy.onboard.explorer import ExplorerConfig
-from superex_deploy.onboard.goal_choice import choose_goal as _choose, goal_reached as _reached, near_visited_goal as _near_visited
+from superex_deploy.onboard.planning.goal_choice import choose_goal as _choose, goal_reached as _reached, near_visited_goal as _near_visited
 from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
-from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import SpadFrame

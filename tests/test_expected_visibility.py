@@ -4,12 +4,12 @@ tiny hand-built maps, against its slow twin, and wired into the superex and MapE
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.expected_visibility import (ExpectedVisibility, WallSupport, check_wall_support,
+from superex_deploy.onboard.planning.expected_visibility import (ExpectedVisibility, WallSupport, check_wall_support,
                                                         context_evidence, expected_visible_gains,
                                                         supported_prediction)
-from superex_deploy.onboard.planners import MapexConfig, MapexPlanner, SuperexConfig, SuperexPlanner, make_planner
-from superex_deploy.onboard.prediction_schedule import LazyPrediction
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import MapexConfig, MapexPlanner, SuperexConfig, SuperexPlanner, make_planner
+from superex_deploy.onboard.prediction.schedule import LazyPrediction
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
 from tests.naive import brute_force_expected_visible, naive_expected_gain
 

@@ -8,9 +8,9 @@ import pytest
 from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import LaserScan, MapFrame, Observation, Pose2D
 from superex_deploy.onboard import Explorer
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.planners import NearestFrontier
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.planners import NearestFrontier
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import PlanningContext
 from superex_deploy.sim.world import World
 

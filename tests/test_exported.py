@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
-from superex_deploy.onboard.inference import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, LamaEnsemble, ModelKind, Pix2PixFilter,
+from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, LamaEnsemble, ModelKind, Pix2PixFilter,
                                       SessionConfig, encode_map, make_session, read_manifest, sha256_file)
 from superex_train.training import build_generator, load_checkpoint
 
@@ -258,7 +258,7 @@ def test_inference_runs_with_torch_blocked():
                 if name == "torch" or name.startswith("torch.") or name.startswith("superex_train"):
                     raise ImportError(name + " is blocked")
         sys.meta_path.insert(0, _Block())
-        from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, Pix2PixFilter
+        from superex_deploy.onboard.prediction.inference import LamaEnsemble, ModelKind, Pix2PixFilter
         observed = np.full((30, 50), -1, np.int8); observed[10:20, 10:20] = 0
         p = LamaEnsemble.from_manifest(ModelKind.LAMA_LOS).predict(observed)
         assert p.mean.shape == (30, 50) and "torch" not in sys.modules

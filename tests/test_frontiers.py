@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.frontiers import find_frontiers, frontier_cells
+from superex_deploy.onboard.planning.frontiers import find_frontiers, frontier_cells
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from tests.naive import naive_frontier_regions
 

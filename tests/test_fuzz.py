@@ -92,7 +92,7 @@ def test_scan_and_pose_messages_take_any_numbers(angle_min, increment, range_min
     assert scan.angle_increment > 0 and np.all(np.isfinite(scan.angles()))
     assert math.isfinite(pose.x) and math.isfinite(pose.y)
     frame = MapFrame((5, 5), 0.1)
-    from superex_deploy.onboard.mapper import Mapper
+    from superex_deploy.onboard.mapping.mapper import Mapper
 
     try:
         Mapper(frame.shape).integrate_scan(frame, pose, scan)

@@ -5,7 +5,7 @@ import shutil
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind
+from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind
 from superex_deploy.maps import list_maps, load_map, map_building
 from superex_train.datasets import ShardDataset
 from superex_train.generate import (GenerationConfig, generate_lama, generate_pix2pix, heldout_buildings,

@@ -4,13 +4,13 @@ descents, the same counts and variance sums bit for bit, hence the same goals, o
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.motion import planning_map
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.planners.superex import _descend_paths, descend, descend_all, path_viewpoints
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.motion import planning_map
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.planning.planners.superex import _descend_paths, descend, descend_all, path_viewpoints
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
-from superex_deploy.onboard.viewpoint_gains import union_visible_unknown, union_visible_unknown_flat, visible_gains
-from superex_deploy.onboard.visibility import VisibilityConfig, reachable_frontiers
+from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown, union_visible_unknown_flat, visible_gains
+from superex_deploy.onboard.planning.visibility import VisibilityConfig, reachable_frontiers
 from tests import naive
 
 
@@ -142,7 +142,7 @@ def test_path_viewpoints_sample_the_descent_as_the_planner_did():
 
 @pytest.mark.parametrize("name", ["superex", "mapex", "hector"])
 def test_planners_choose_the_same_goal_as_with_the_reference_scoring(name):
-    from superex_deploy.onboard.planners import hector, mapex, superex
+    from superex_deploy.onboard.planning.planners import hector, mapex, superex
 
     chosen = 0
     for seed in range(10):

@@ -59,7 +59,7 @@ def _record(path, steps=3, frame=MapFrame((20, 20), 0.1), chunk_bytes=256 * 1024
 # Also from the previous pass: option values and the configs they reach.
 
 def test_the_literal_none_becomes_none_for_the_fields_that_take_it():
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
 
     assert planner_options(["visibility=none", "x=None", "y=NONE"]) == {"visibility": None, "x": None, "y": None}
     assert make_planner("hector", **planner_options(["visibility=none"])).cfg.visibility is None
@@ -77,7 +77,7 @@ VISIBILITY = {"n_rays": st.one_of(st.integers(-5, 10 ** 12), st.floats(allow_nan
 @given(field=st.sampled_from(sorted(VISIBILITY)), data=st.data())
 @example(field="n_rays", data=None)
 def test_a_visibility_config_holds_checked_values_or_names_the_bad_field(field, data):
-    from superex_deploy.onboard.visibility import MAX_RAYS, VisibilityConfig
+    from superex_deploy.onboard.planning.visibility import MAX_RAYS, VisibilityConfig
 
     value = math.inf if data is None else data.draw(VISIBILITY[field])
     try:
@@ -101,7 +101,7 @@ def test_a_visibility_config_holds_checked_values_or_names_the_bad_field(field, 
 @example(field="wall_cost_range_m", value=1e300)
 @example(field="wall_cost_range_m", value=10 ** 9)
 def test_a_motion_config_is_bounded_or_refused_naming_the_field(field, value):
-    from superex_deploy.onboard.motion import MAX_WALL_REACH_M, MotionConfig, planning_map
+    from superex_deploy.onboard.planning.motion import MAX_WALL_REACH_M, MotionConfig, planning_map
 
     try:
         cfg = MotionConfig(**{field: value})
@@ -118,7 +118,7 @@ def test_a_motion_config_is_bounded_or_refused_naming_the_field(field, value):
 
 
 def test_a_wall_reach_too_wide_for_the_resolution_is_refused_before_any_allocation():
-    from superex_deploy.onboard.motion import MAX_WALL_REACH_CELLS, MotionConfig, planning_map, wall_distance
+    from superex_deploy.onboard.planning.motion import MAX_WALL_REACH_CELLS, MotionConfig, planning_map, wall_distance
 
     with pytest.raises(ValueError, match="MAX_WALL_REACH_CELLS"):
         planning_map(np.zeros((30, 30), np.int8), (15, 15), 0.001, MotionConfig(wall_cost_range_m=5.0))

@@ -16,9 +16,9 @@ from superex_deploy.maps import OccupancyGrid, load_map
 from superex_deploy.messages import (MAX_ABS_YAW, MAX_MAP_CELLS, MAX_STAMP_S, Command, LaserScan, MapFrame,
                                      Observation, Pose2D, max_map_cells)
 from superex_deploy.onboard import Explorer
-from superex_deploy.onboard.mapper import Mapper
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import Planner
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -182,7 +182,7 @@ def test_command_line_option_strings_give_one_clear_error(planner, field, text):
 
 
 def test_a_planner_refuses_a_config_of_another_planner():
-    from superex_deploy.onboard.planners import MapexConfig, UpenPlanner
+    from superex_deploy.onboard.planning.planners import MapexConfig, UpenPlanner
 
     with pytest.raises(ValueError, match="cfg must be a UpenConfig"):
         UpenPlanner(MapexConfig())

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from superex_deploy.onboard.inference import MODEL_CHANNELS, ModelKind, encode_map, sha256_file
+from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, ModelKind, encode_map, sha256_file
 from superex_train.datasets import (ShardDataset, ShardWriter, read_index, split_by_group, synthetic_walls,
                                     write_synthetic_dataset)
 from superex_train.losses import soft_dice_loss, wall_weighted_bce, wall_weighted_l1, wall_weights
@@ -402,7 +402,7 @@ def test_encodings_match_the_channel_lists():
 # --- Pix2Pix input encodings ----------------------------------------------------------------------------------
 
 def test_bp_encodings_agree_between_numpy_and_the_training_reencoder():
-    from superex_deploy.onboard.inference import BpEncoding
+    from superex_deploy.onboard.prediction.inference import BpEncoding
     from superex_train.training import _bp_reencoder
 
     windows = np.random.default_rng(0).random((3, 16, 16)).astype(np.float32) ** 4
@@ -424,7 +424,7 @@ def test_bp_encodings_agree_between_numpy_and_the_training_reencoder():
 
 
 def test_log_encoded_pix2pix_trains_exports_and_is_fed_its_encoding(synthetic_data, tmp_path):
-    from superex_deploy.onboard.inference import BpEncoding, Pix2PixFilter
+    from superex_deploy.onboard.prediction.inference import BpEncoding, Pix2PixFilter
     from superex_train.export import export_checkpoint
 
     cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path / "run"),
@@ -448,7 +448,7 @@ def test_log_encoded_pix2pix_trains_exports_and_is_fed_its_encoding(synthetic_da
 
 
 def test_export_models_writes_the_generator_checkpoints_the_parity_tests_read(synthetic_data, tmp_path):
-    from superex_deploy.onboard.inference import BpEncoding, Pix2PixFilter, read_manifest
+    from superex_deploy.onboard.prediction.inference import BpEncoding, Pix2PixFilter, read_manifest
     from superex_train.export import export_models
 
     cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path / "run"),

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from superex_deploy.onboard.motion import MotionConfig, dijkstra, path_is_clear, planning_map, wall_distance
+from superex_deploy.onboard.planning.motion import MotionConfig, dijkstra, path_is_clear, planning_map, wall_distance
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.sim.world import advance
 from tests.naive import naive_planning_costs, naive_travel_cost

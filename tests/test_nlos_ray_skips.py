@@ -11,7 +11,7 @@ from superex_deploy.onboard.nlos import NlosConfig, estimate_los
 from superex_deploy.onboard.nlos.back_projection import (READ_BLOCK, _back_projection_patch, _n_radii,
                                                           _readable_ring_bounds, _window, rays_reaching_unknown)
 from superex_deploy.onboard.nlos.los import _late_threshold
-from superex_deploy.onboard.spad_processing import COUNTS, NlosSkips, SpadProcessing
+from superex_deploy.onboard.nlos.processing import COUNTS, NlosSkips, SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig, SpadNoise
 

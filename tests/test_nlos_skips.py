@@ -8,7 +8,7 @@ import pytest
 
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start
 from superex_deploy.onboard.nlos import NlosConfig, carve_radius_cap_m
-from superex_deploy.onboard.spad_processing import NlosSkips, SpadProcessing
+from superex_deploy.onboard.nlos.processing import NlosSkips, SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig
 

@@ -8,7 +8,7 @@ from superex_deploy.maps import OccupancyGrid, list_maps, load_map
 from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame
 from superex_deploy.onboard import SpadProcessing
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
-from superex_deploy.onboard.spad_processing import scan_from_frame
+from superex_deploy.onboard.nlos.processing import scan_from_frame
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig
 

@@ -12,9 +12,9 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import MapFrame
 from superex_deploy.onboard import Explorer
 from superex_deploy.onboard.explorer import ExplorerConfig
-from superex_deploy.onboard.mapper import Mapper, OccupancyConfig, integrate_log_odds
-from superex_deploy.onboard.planners import NearestFrontier
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.planning.planners import NearestFrontier
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.sim.world import World
 from tests.naive import naive_integrate_log_odds

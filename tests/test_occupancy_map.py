@@ -8,7 +8,7 @@ import pytest
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D
-from superex_deploy.onboard.mapper import Mapper, OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig, integrate_log_odds
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 from tests.naive import naive_integrate_log_odds

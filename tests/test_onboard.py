@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from superex_deploy.pipeline import make_predictor, make_sensing
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start, start_poses
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
@@ -237,7 +237,7 @@ def test_onboard_never_imports_the_simulator():
     import superex_deploy.onboard
 
     names = sorted(m.name for m in pkgutil.walk_packages(superex_deploy.onboard.__path__, "superex_deploy.onboard."))
-    assert {"superex_deploy.onboard.explorer", "superex_deploy.onboard.planners.superex"} <= set(names)
+    assert {"superex_deploy.onboard.explorer", "superex_deploy.onboard.planning.planners.superex"} <= set(names)
     code = ("import importlib, json, sys\n"
             f"names = {names!r}\n"
             "offenders = {}\n"

@@ -47,7 +47,7 @@ def test_the_wheel_carries_the_models_and_runs_the_pipeline_outside_the_checkout
     outside.mkdir()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "SUPEREX_MODELS")}
     env["NUMBA_NUM_THREADS"] = "1"
-    where = subprocess.run([str(python), "-c", "import superex_deploy.onboard.inference as i; print(i.DEFAULT_MODEL_DIR)"],
+    where = subprocess.run([str(python), "-c", "import superex_deploy.onboard.prediction.inference as i; print(i.DEFAULT_MODEL_DIR)"],
                            capture_output=True, text=True, check=True, cwd=outside, env=env).stdout.strip()
     assert Path(where).is_relative_to(Path(site)), where
     run = subprocess.run([str(venv / "bin" / "superex"), "explore", "--map", "50052750", "--planner", "superex",

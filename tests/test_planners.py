@@ -2,14 +2,14 @@ import numpy as np
 import pytest
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.planners import (
+from superex_deploy.onboard.planning.planners import (
     PLANNERS, HectorConfig, HectorPlanner, MapexConfig, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
     VisibilityConfig, connected_unknown_gains, grow_rrt, make_planner, predicted_visibility,
     visible_gains, visible_ranges)
-from superex_deploy.onboard.planners.upen import _grow_rrt
+from superex_deploy.onboard.planning.planners.upen import _grow_rrt
 from superex_deploy.sim.oracle import OraclePredictor
-from superex_deploy.onboard.viewpoint_gains import union_visible_unknown
-from superex_deploy.onboard.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
+from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown
+from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_fill_visibility, naive_grow_rrt, naive_visible_ranges

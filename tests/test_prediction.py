@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.oracle import OraclePredictor
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid

@@ -6,9 +6,9 @@ import pytest
 
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
-from superex_deploy.onboard.prediction_reuse import (RAMPS, PredictionReuse, ReusingPredictor, _grow, changed_box,
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.prediction.reuse import (RAMPS, PredictionReuse, ReusingPredictor, _grow, changed_box,
                                                      feather_weights, merge_with_map)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Prediction
 from superex_deploy.sim.episode import ExplorationConfig, run_episode

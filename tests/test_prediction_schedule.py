@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from superex_deploy.onboard.explorer import Explorer, ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.inference import ThreadBudget, available_cores
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction_reuse import PredictionReuse
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.prediction.inference import ThreadBudget, available_cores
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.reuse import PredictionReuse
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN, Prediction
 from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
 from tests.test_prediction_reuse import _rooms

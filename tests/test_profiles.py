@@ -6,7 +6,7 @@ import json
 import pytest
 
 from superex_deploy.cli import main
-from superex_deploy.onboard.planners import make_planner
+from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.pipeline import (DEFAULT_PROFILE, PROFILES, RealtimeProfile, check_profile, make_predictor,
                                      resolve_profile)
 

@@ -11,10 +11,10 @@ import pytest
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import Observation, OccupancyGridMessage, Pose2D, PoseCovariance
 from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
-from superex_deploy.onboard.motion import MotionConfig
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
-from superex_deploy.onboard.scan_matching import ScanMatchingConfig
+from superex_deploy.onboard.planning.motion import MotionConfig
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.pipeline import PROFILES, make_sensing
 from superex_deploy.recording import EpisodeRecorder, read_recording

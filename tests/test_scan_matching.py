@@ -12,10 +12,10 @@ from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start
 from superex_deploy.messages import MapFrame, Observation, Pose2D, PoseCovariance, grid_angles
 from superex_deploy.onboard.explorer import Explorer, ExplorerConfig
-from superex_deploy.onboard.mapper import Mapper
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.predictors import make_onboard_predictor
-from superex_deploy.onboard.scan_matching import (ScanMatcher, ScanMatchingConfig, likelihood_field,
+from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.registry import make_onboard_predictor
+from superex_deploy.onboard.mapping.scan_matching import (ScanMatcher, ScanMatchingConfig, likelihood_field,
                                                   score_poses)
 from superex_deploy.sim.world import laser_scan_from_distances
 from tests.naive import naive_score_poses

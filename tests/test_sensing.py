@@ -1,8 +1,8 @@
 import numpy as np
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.planners import NearestFrontier
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.planners import NearestFrontier
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.maps import load_map, start_poses
 

@@ -13,13 +13,13 @@ from superex_deploy.commands._options import noise_options, parse_lidar_noise, p
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import Command, Pose2D
 from superex_deploy.onboard.nlos.los import estimate_los
-from superex_deploy.onboard.planners import make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
-from superex_deploy.onboard.spad_processing import scan_from_frame
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.nlos.processing import scan_from_frame
 from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.kinematics import first_blocked
-from superex_deploy.sim.lidar_noise import LidarNoise, noisy_ranges
-from superex_deploy.sim.localization import PoseErrorModel, PoseNoise
+from superex_deploy.sim.noise.lidar import LidarNoise, noisy_ranges
+from superex_deploy.sim.noise.pose import PoseErrorModel, PoseNoise
 from superex_deploy.sim.metrics import results_markdown, summarise
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.sim.world import World, WorldConfig

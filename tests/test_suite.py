@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.cli import main
-from superex_deploy.onboard.prediction import EvidenceAsPrediction
+from superex_deploy.onboard.prediction.baselines import EvidenceAsPrediction
 from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
 
 

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 
 from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.motion import planning_map
-from superex_deploy.onboard.planners import MapexPlanner, make_planner
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.motion import planning_map
+from superex_deploy.onboard.planning.planners import MapexPlanner, make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.oracle import OraclePredictor
-from superex_deploy.onboard.planners.superex import (SuperexConfig, SuperexPlanner, descend, rollout_value,
+from superex_deploy.onboard.planning.planners.superex import (SuperexConfig, SuperexPlanner, descend, rollout_value,
                                                     rollout_world, tour_first)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
-from superex_deploy.onboard.visibility import VisibilityConfig, predicted_visibility
+from superex_deploy.onboard.planning.visibility import VisibilityConfig, predicted_visibility
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_open_tour_first, naive_path_gain
 

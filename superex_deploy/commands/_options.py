@@ -256,12 +256,12 @@ def add_noise_options(parser: argparse.ArgumentParser) -> None:
     """``--pose-noise``, ``--lidar-noise`` and ``--spad-noise`` (:func:`noise_options` parses and checks them)."""
     parser.add_argument("--pose-noise", default=None, metavar="SIGMA_M,SIGMA_DEG",
                         help="localisation error: white jitter of SIGMA_M metres (per axis) and SIGMA_DEG degrees, "
-                             "plus a bounded drift with the distance driven (superex_deploy.sim.localization); the "
+                             "plus a bounded drift with the distance driven (superex_deploy.sim.noise.pose); the "
                              "robot then moves continuously and follows each path from where it believes it is. "
                              "0,0: off (the default)")
     parser.add_argument("--lidar-noise", default=None, metavar="SIGMA_M[,DROPOUT,SPURIOUS]",
                         help="LiDAR range noise of SIGMA_M metres, with dropouts and spurious short returns at "
-                             "DROPOUT and SPURIOUS per ray (default 0.01 and 0.001; superex_deploy.sim.lidar_noise). "
+                             "DROPOUT and SPURIOUS per ray (default 0.01 and 0.001; superex_deploy.sim.noise.lidar). "
                              "The explorer's map is calibrated to SIGMA_M (OccupancyConfig.range_sigma_m), as a "
                              "robot's would be to its LiDAR. 0: off (the default)")
     parser.add_argument("--spad-noise", default="off", choices=SPAD_NOISE_CHOICES,
@@ -301,13 +301,13 @@ def parse_pose_noise(text: Optional[str]) -> Optional[tuple[float, float]]:
 def parse_lidar_noise(text: Optional[str]) -> Optional[tuple[float, float, float]]:
     """``"SIGMA_M"`` or ``"SIGMA_M,DROPOUT,SPURIOUS"`` -> ``(sigma_m, dropout, spurious)``; None for None, ``"0"``
     or all zeros (off). SIGMA_M alone takes the default rates (:meth:`LidarNoise.from_sigma
-    <superex_deploy.sim.lidar_noise.LidarNoise.from_sigma>`).
+    <superex_deploy.sim.noise.lidar.LidarNoise.from_sigma>`).
 
     Raises:
         ValueError: not one or three numbers, a sigma outside ``[0, MAX_LIDAR_SIGMA_M]``, a probability outside
             ``[0, 1)``.
     """
-    from superex_deploy.sim.lidar_noise import DEFAULT_DROPOUT_PROB, DEFAULT_SPURIOUS_PROB
+    from superex_deploy.sim.noise.lidar import DEFAULT_DROPOUT_PROB, DEFAULT_SPURIOUS_PROB
 
     if text is None:
         return None

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
         return run_paper(args)
     from superex_deploy.sim.metrics import results_markdown, summarise
-    from superex_deploy.onboard.planners import PLANNERS, make_planner
+    from superex_deploy.onboard.planning.planners import PLANNERS, make_planner
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import Interrupted, read_journal, run_tasks
     from superex_deploy.render import save_benchmark_plots

@@ -62,7 +62,7 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
                               noise["spad_noise"])
     # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
     # replay follows it); the sessions get the worker's share of this machine's cores.
-    from superex_deploy.onboard.inference import available_cores
+    from superex_deploy.onboard.prediction.inference import available_cores
 
     predictor = make_predictor(args.predictor, grid, args.models, profile, cores=available_cores())
     cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)

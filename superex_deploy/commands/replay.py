@@ -35,8 +35,8 @@ def build_explorer(metadata: dict, frame, models=None):
     from dataclasses import fields
 
     from superex_deploy.pipeline import PROFILES, make_predictor, make_processing
-    from superex_deploy.onboard.motion import MotionConfig
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.motion import MotionConfig
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise

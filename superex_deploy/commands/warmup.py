@@ -35,7 +35,7 @@ def warm_up(models=None) -> float:
     """Run a few steps of every planner with SPAD sensing on a small synthetic floor (compiling every kernel on the
     way) and load the learned models; returns the seconds it took."""
     from superex_deploy.maps import OccupancyGrid
-    from superex_deploy.onboard.planners import make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
 

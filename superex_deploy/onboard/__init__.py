@@ -4,8 +4,8 @@
 """
 
 from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
-from superex_deploy.onboard.prediction_reuse import PredictionReuse
-from superex_deploy.onboard.spad_processing import SpadProcessing, scan_from_frame
+from superex_deploy.onboard.prediction.reuse import PredictionReuse
+from superex_deploy.onboard.nlos.processing import SpadProcessing, scan_from_frame
 
 __all__ = ["STAGES", "Explorer", "ExplorerConfig", "PredictionSchedule", "PredictionReuse", "SpadProcessing",
            "scan_from_frame"]

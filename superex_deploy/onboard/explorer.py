@@ -3,30 +3,30 @@
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
 1. **scan**: the line-of-sight ranges are integrated into the explorer's own log-odds map (misses along each ray,
-   a hit at its return: :mod:`superex_deploy.onboard.mapper`; invalid readings, REP 117's NaN and too-close ranges,
+   a hit at its return: :mod:`superex_deploy.onboard.mapping.mapper`; invalid readings, REP 117's NaN and too-close ranges,
    are skipped: see :class:`~superex_deploy.messages.LaserScan`); or, when the observation carries a SLAM map
    (``nav_msgs/OccupancyGrid``), the line-of-sight layer is taken from it and the scan is not read;
-2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.spad_processing.SpadProcessing`,
+2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
    its carving margins widened by the pose covariance when the observation carries one): carved cells join the
    map as evidence towards free, the back-projection evidence is kept for the predictor;
 3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
    larger ones give no goal);
 4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and* in
-   line of sight on the map, see :func:`~superex_deploy.onboard.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
+   line of sight on the map, see :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
    blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
-   chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.goal_choice.choose_goal`), calling
+   chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.planning.goal_choice.choose_goal`), calling
    the predictor lazily (once per step at most). Paths cross only cells the map holds free with confidence
    (log-odds at or below the free threshold). Cells known free only by carving count for coverage and for the
    prediction; for frontiers, paths and goal checks only as ``MotionConfig.drive_carved`` allows (by default:
    while the pose is exact, i.e. without a pose covariance). Otherwise the planning runs on the line-of-sight map
-   (:meth:`~superex_deploy.onboard.mapper.Mapper.observed` without carving): a planner then sees carved cells as
+   (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.observed` without carving): a planner then sees carved cells as
    unknown, and the prediction it reads as free.
 
 How the predictor runs is configured, not fixed (issue #16): inside the asking step, in a worker thread that a step
 never waits for, or on a simulated clock (:class:`PredictionSchedule`), on the whole map or on a crop around what
 changed since the last prediction, and only when enough changed
-(:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`). The explorer sets its own numba threads, and
-those of its prediction worker, from the cores it is given (:class:`~superex_deploy.onboard.inference.ThreadBudget`),
+(:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`). The explorer sets its own numba threads, and
+those of its prediction worker, from the cores it is given (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`),
 so that the two never oversubscribe them; it restores the caller's numba threads when a step returns.
 
 The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell; the robot
@@ -46,19 +46,19 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.mapper import Mapper, OccupancyConfig
-from superex_deploy.onboard.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
-from superex_deploy.onboard.goal_choice import choose_goal, goal_reached, near_visited_goal
-from superex_deploy.onboard.prediction_reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.inference.sessions import ThreadBudget
-from superex_deploy.onboard.prediction_schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig
+from superex_deploy.onboard.planning.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
+from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_visited_goal
+from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
+from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
+from superex_deploy.onboard.prediction.schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
                                                         StalePrediction, set_numba_threads)
-from superex_deploy.onboard.scan_matching import ScanMatch, ScanMatcher, ScanMatchingConfig
+from superex_deploy.onboard.mapping.scan_matching import ScanMatch, ScanMatcher, ScanMatchingConfig
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
 from superex_deploy.messages import Command, MapFrame, Observation
-from superex_deploy.onboard.spad_processing import SpadProcessing
+from superex_deploy.onboard.nlos.processing import SpadProcessing
 
 __all__ = ["STAGES", "ExplorerConfig", "Explorer", "PredictionSchedule", "PredictionReuse", "merge_with_map"]
 
@@ -78,13 +78,13 @@ class ExplorerConfig:
             episodes at their first step, in rooms whose open door, seen edge-on, showed fewer frontier cells.
         prediction: when the predictor runs (:class:`PredictionSchedule`).
         reuse: what the explorer keeps of its last prediction
-            (:class:`~superex_deploy.onboard.prediction_reuse.PredictionReuse`: re-predict only when the map
+            (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map
             changed enough, and only a crop around the change).
         occupancy: the map's log-odds parameters and the SLAM map's thresholds
-            (:class:`~superex_deploy.onboard.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
+            (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
             recording's metadata holds it).
         scan_matching: the correlative scan-to-map matcher
-            (:class:`~superex_deploy.onboard.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
+            (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
             observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
             start from the corrected pose when the match passes its acceptance rule).
     """
@@ -131,13 +131,13 @@ class Explorer:
         cfg: onboard parameters.
         seed: seed of the generator handed to the planner.
         cores: the cores the explorer may use (None: the process's CPU affinity,
-            :func:`~superex_deploy.onboard.inference.available_cores`): its steps run on
+            :func:`~superex_deploy.onboard.prediction.inference.available_cores`): its steps run on
             ``budget.control_threads`` numba threads, its prediction worker on ``budget.worker_threads`` (give the
             predictor's ONNX Runtime sessions the same: ``pipeline.make_predictor(..., cores=...)``).
 
     Attributes:
         frame, planner, predictor, spad_processing, cfg: as given.
-        mapper: the explorer's map (:class:`~superex_deploy.onboard.mapper.Mapper`; read it, do not modify it).
+        mapper: the explorer's map (:class:`~superex_deploy.onboard.mapping.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
         frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
             when those may not be driven on, see the module docstring).
@@ -145,14 +145,14 @@ class Explorer:
         path: cells from the robot to the goal.
         pose_estimate: the pose the latest step integrated and planned from (the observation's, or the scan
             matcher's correction of it; None before the first step).
-        scan_match: the latest step's :class:`~superex_deploy.onboard.scan_matching.ScanMatch`, or None (no
+        scan_match: the latest step's :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatch`, or None (no
             covariance, or a SLAM map).
         steps: observations processed so far.
         finished: whether the latest step found the exploration finished (see above).
-        reusing: the :class:`~superex_deploy.onboard.prediction_reuse.ReusingPredictor` that wraps the predictor
+        reusing: the :class:`~superex_deploy.onboard.prediction.reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
-        budget: the :class:`~superex_deploy.onboard.inference.ThreadBudget` of ``cores``.
-        scheduled: the :class:`~superex_deploy.onboard.prediction_schedule.ScheduledPredictions` that runs the
+        budget: the :class:`~superex_deploy.onboard.prediction.inference.ThreadBudget` of ``cores``.
+        scheduled: the :class:`~superex_deploy.onboard.prediction.schedule.ScheduledPredictions` that runs the
             predictor when the schedule is not ``inline`` (its ``blocking_waits`` count the steps that waited for an
             unfinished prediction), else None.
     """
@@ -216,8 +216,8 @@ class Explorer:
 
     def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
         """The latest map's frontier regions, of every size, that :meth:`step` would offer a planner with the robot
-        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`~superex_deploy.onboard.goal_choice.goal_reached`) and whose goal cell
-        is no goal reached before nor next to one (:func:`~superex_deploy.onboard.goal_choice.near_visited_goal`), in ``find_frontiers`` order; ``()``
+        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`) and whose goal cell
+        is no goal reached before nor next to one (:func:`~superex_deploy.onboard.planning.goal_choice.near_visited_goal`), in ``find_frontiers`` order; ``()``
         before the first observation. :meth:`step` offers the regions of ``cfg.frontier_min_cells`` cells or more
         first, the smaller ones only when those give no goal. For a goal chosen outside the explorer (a learning
         agent): a goal among these is one the explorer does not let go of at once.
@@ -300,7 +300,7 @@ class Explorer:
 
     def _clear_footprint(self, obs: Observation) -> None:
         """The robot's body is free space: a spurious short return under it (a phantom wall that would make every
-        neighbour untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapper.Mapper.clear_footprint`),
+        neighbour untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.clear_footprint`),
         on a disc of the robot radius shrunk by ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
         occupancy = self.cfg.occupancy
         if not occupancy.footprint_clearing:

@@ -97,8 +97,8 @@ class PlanningContext:
         rng: the episode's random generator (for sampling planners such as UPEN's RRT).
         evidence: float32 ``[H, W]`` the NLOS evidence the prediction was asked with (the filtered
             back-projection), or None when the caller does not pass it (then
-            :func:`~superex_deploy.onboard.expected_visibility.context_evidence` asks ``predict`` for it). Only
-            :class:`~superex_deploy.onboard.expected_visibility.WallSupport` reads it.
+            :func:`~superex_deploy.onboard.planning.expected_visibility.context_evidence` asks ``predict`` for it). Only
+            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` reads it.
     """
 
     observed: np.ndarray

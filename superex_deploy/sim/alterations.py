@@ -7,7 +7,7 @@ map that knows) can tell earlier. The rules, all drawn from the floor's geometry
 from where a planner drives:
 
 1. **Robot cells.** The robot's centre may occupy the free cells farther than ``robot_radius_m`` from every wall
-   (the planner's traversability, :mod:`superex_deploy.onboard.motion`), 8-connected to the start
+   (the planner's traversability, :mod:`superex_deploy.onboard.planning.motion`), 8-connected to the start
    (:func:`superex_deploy.sim.dead_ends.robot_cells`), inside the valid area or not: the eval floors' valid areas
    leave the doorways out, and the robot drives through them.
 2. **Passages.** Candidate cuts sit on the medial axis of the free space, read from the nearest-wall feature
@@ -56,7 +56,7 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.motion import dijkstra
+from superex_deploy.onboard.planning.motion import dijkstra
 from superex_deploy.sim.dead_ends import DeadEnd, face_hidden_from, measure_dead_end, robot_cells
 
 __all__ = ["AlterationConfig", "Alteration", "AlteredFloor", "alter_floor", "alter_floor_with_record"]
@@ -68,7 +68,7 @@ class AlterationConfig:
 
     Attributes:
         alterations: the most obstructions made (fewer where fewer passages qualify).
-        robot_radius_m: the planner's robot radius (:class:`superex_deploy.onboard.motion.MotionConfig`).
+        robot_radius_m: the planner's robot radius (:class:`superex_deploy.onboard.planning.motion.MotionConfig`).
         protect_radius_m: no cut cell this close to the start (straight line).
         door_max_half_width_m, corridor_max_half_width_m, room_max_half_width_m: the passage kinds, by half width.
         facing_ratio: how squarely a passage's two walls must face each other (``|a - b| / clearance``, in (1, 2]).

@@ -4,7 +4,7 @@ A *dead end* (:class:`DeadEnd`) is measured from one side of an obstruction (a c
 :mod:`superex_deploy.sim.alterations`) over the robot's reachable cells ``reach`` (8-connected cells the robot's
 centre may occupy, see :func:`robot_cells`):
 
-* ``h``: the geodesic distance (metres, 8-connected, :func:`superex_deploy.onboard.motion.dijkstra`) from the
+* ``h``: the geodesic distance (metres, 8-connected, :func:`superex_deploy.onboard.planning.motion.dijkstra`) from the
   reachable cell right in front of the obstruction's face (the *front*);
 * the level band ``L``: the reachable cells with ``L <= h < L + w`` (``w`` at least 1.5 cells, so that no
   8-connected path skips it). The band has a *mouth* when one 8-connected piece of it, at most
@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from superex_deploy.geometry import cell_centre, line_of_sight, mark_rays, ray_angles
-from superex_deploy.onboard.motion import dijkstra
+from superex_deploy.onboard.planning.motion import dijkstra
 
 __all__ = ["DeadEnd", "DeadEndEntries", "robot_cells", "measure_dead_end", "face_hidden_from", "dead_end_entries"]
 
@@ -60,7 +60,7 @@ def _check_grids(cells: dict, **grids: np.ndarray) -> None:
 def robot_cells(occupied: np.ndarray, start_rc, robot_radius_cells: float) -> np.ndarray:
     """bool ``[H, W]``: the cells the robot's centre can reach from ``start_rc``, 8-connected, each free and farther
     than ``robot_radius_cells`` (centre to centre) from every occupied cell: the planner's traversability
-    (:mod:`superex_deploy.onboard.motion`) on the true map. The valid area plays no part: the robot drives through
+    (:mod:`superex_deploy.onboard.planning.motion`) on the true map. The valid area plays no part: the robot drives through
     every free cell, and the eval floors' valid areas leave the doorways out (on the train floors they hold them). The
     start cell itself always counts, as the planner counts the robot's own cell.
 

@@ -21,9 +21,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.onboard.mapper import Mapper
-from superex_deploy.sim.lidar_noise import LidarNoise
-from superex_deploy.sim.localization import PoseNoise
+from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.sim.noise.lidar import LidarNoise
+from superex_deploy.sim.noise.pose import PoseNoise
 from superex_deploy.sim.metrics import evaluation_area, explorer_map_errors, map_iou
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
@@ -47,8 +47,8 @@ class ExplorationConfig:
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
-        pose_noise: the world's localisation error (:class:`~superex_deploy.sim.localization.PoseNoise`), or None.
-        lidar_noise: the world's LiDAR noise (:class:`~superex_deploy.sim.lidar_noise.LidarNoise`), or None.
+        pose_noise: the world's localisation error (:class:`~superex_deploy.sim.noise.pose.PoseNoise`), or None.
+        lidar_noise: the world's LiDAR noise (:class:`~superex_deploy.sim.noise.lidar.LidarNoise`), or None.
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)

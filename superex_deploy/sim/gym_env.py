@@ -18,9 +18,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from superex_deploy.onboard.motion import planning_map
-from superex_deploy.onboard.planners import NearestFrontier
-from superex_deploy.onboard.prediction import ObservedAsPrediction
+from superex_deploy.onboard.planning.motion import planning_map
+from superex_deploy.onboard.planning.planners import NearestFrontier
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext
 from superex_deploy.maps import load_map, random_start
 from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
@@ -59,7 +59,7 @@ class ExplorationEnv(gym.Env):
 
     Args:
         map: bundled map name (or an image / ROS YAML path).
-        predictor: None, or a predictor name of :func:`superex_deploy.onboard.predictors.make_onboard_predictor`
+        predictor: None, or a predictor name of :func:`superex_deploy.onboard.prediction.registry.make_onboard_predictor`
             (adds a channel with its wall probability; ``oracle`` is refused: the agent must not see the truth).
         crop_cells: side of the square observation around the robot (cells).
         max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
@@ -81,7 +81,7 @@ class ExplorationEnv(gym.Env):
 
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
-        from superex_deploy.onboard.predictors import EVIDENCE_PREDICTORS, make_onboard_predictor
+        from superex_deploy.onboard.prediction.registry import EVIDENCE_PREDICTORS, make_onboard_predictor
 
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")

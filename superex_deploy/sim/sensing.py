@@ -12,7 +12,7 @@ import numpy as np
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.nlos import NlosConfig
-from superex_deploy.onboard.spad_processing import NlosSkips, SpadProcessing
+from superex_deploy.onboard.nlos.processing import NlosSkips, SpadProcessing
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.sim.spad import simulate_scan
 
@@ -30,8 +30,8 @@ class SpadSensing:
         seed: seed of the noise generator (used only when ``spad.noise.enabled``).
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
-            :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
-        skips: work the processing may leave out (:class:`~superex_deploy.onboard.spad_processing.NlosSkips`).
+            :meth:`superex_deploy.onboard.prediction.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+        skips: work the processing may leave out (:class:`~superex_deploy.onboard.nlos.processing.NlosSkips`).
     """
 
     spad: SpadConfig = field(default_factory=SpadConfig)

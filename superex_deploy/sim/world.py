@@ -7,11 +7,11 @@ scanners are aligned with the map frame), and the observations carry it exactly.
 
 Imperfection, all off by default (:class:`WorldConfig`):
 
-* ``pose_noise`` (:class:`~superex_deploy.sim.localization.PoseNoise`): the observation's pose is the truth plus a
+* ``pose_noise`` (:class:`~superex_deploy.sim.noise.pose.PoseNoise`): the observation's pose is the truth plus a
   localisation error and carries its covariance; the robot then moves continuously (:mod:`.kinematics`: position
   off the cell centres, heading along the direction of travel) and follows each command from where it believes it
   is. The scans are cast from the true pose.
-* ``lidar_noise`` (:class:`~superex_deploy.sim.lidar_noise.LidarNoise`): range noise, dropouts, spurious returns.
+* ``lidar_noise`` (:class:`~superex_deploy.sim.noise.lidar.LidarNoise`): range noise, dropouts, spurious returns.
 * The SPAD's photon noise is the sensor's own (:class:`~superex_deploy.spad_types.SpadNoise`, presets in
   :data:`~superex_deploy.spad_types.SPAD_PRESETS`).
 """
@@ -29,8 +29,8 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.kinematics import drive_belief_relative
-from superex_deploy.sim.lidar_noise import LidarNoise, noisy_ranges
-from superex_deploy.sim.localization import PoseErrorModel, PoseNoise
+from superex_deploy.sim.noise.lidar import LidarNoise, noisy_ranges
+from superex_deploy.sim.noise.pose import PoseErrorModel, PoseNoise
 from superex_deploy.sim.spad import simulate_scan
 
 __all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "advance"]
@@ -152,7 +152,7 @@ class World:
         steps: observations produced so far.
         collisions: commanded moves stopped by a wall (or the map's edge).
         belief: the pose the last observation carried (None before the first).
-        pose_error: the running localisation error (:class:`~superex_deploy.sim.localization.PoseErrorModel`), or
+        pose_error: the running localisation error (:class:`~superex_deploy.sim.noise.pose.PoseErrorModel`), or
             None without pose noise.
     """
 

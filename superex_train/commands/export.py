@@ -19,7 +19,7 @@ def _checkpoints(path: Path) -> list[Path]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR
+    from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR
 
     parser.add_argument("--pix2pix", type=Path, help="Pix2Pix run folder or checkpoint")
     parser.add_argument("--lama-bp", type=Path, nargs="*", default=[],

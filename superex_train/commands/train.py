@@ -111,7 +111,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR, ModelKind
+    from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR, ModelKind
 
     if args.model == "data":
         from superex_train.generate import GenerationConfig, generate_lama, generate_pix2pix

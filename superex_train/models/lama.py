@@ -1,9 +1,9 @@
 """LaMa-style map predictor (Suvorov et al., WACV 2022): a generator built from fast Fourier convolutions.
 
 The network maps the encoded observed map ``[B, C_in, H, W]`` (float32, see
-:class:`superex_deploy.onboard.inference.ModelKind` for the channels and their order) to wall logits ``[B, 1, H, W]``.
+:class:`superex_deploy.onboard.prediction.inference.ModelKind` for the channels and their order) to wall logits ``[B, 1, H, W]``.
 ``H`` and ``W`` must be multiples of :attr:`LamaConfig.size_multiple` (``2 ** n_downsample``) and at least
-``2 * size_multiple``; :class:`superex_deploy.onboard.inference.LamaEnsemble` pads and crops.
+``2 * size_multiple``; :class:`superex_deploy.onboard.prediction.inference.LamaEnsemble` pads and crops.
 
 Layout (as in LaMa, without its skip-free generator's 27 M parameters):
 

@@ -9,10 +9,10 @@ from typing import Optional
 import numba
 import numpy as np
 
-from superex_deploy.onboard.planners.config_checks import check_instance, check_int, check_real
+from superex_deploy.onboard.checks import check_instance, check_int, check_real
 from superex_deploy.onboard.types import OCCUPIED, Planner, PlanningContext
-from superex_deploy.onboard.planners.nearest import NearestFrontier
-from superex_deploy.onboard.visibility import check_cells, check_map
+from superex_deploy.onboard.planning.planners.nearest import NearestFrontier
+from superex_deploy.onboard.planning.visibility import check_cells, check_map
 
 __all__ = ["RandomTree", "grow_rrt", "UpenConfig", "UpenPlanner", "MAX_RRT_SAMPLES"]
 
@@ -188,7 +188,7 @@ class UpenConfig:
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.planners.config_checks`).
+            :mod:`~superex_deploy.onboard.checks`).
     """
 
     rrt_samples: int = 2500

@@ -16,21 +16,21 @@ Differences common to all planners, and why:
   cannot reach).
 * Ties are broken by travel cost, then by cell, so a choice never depends on the order of the frontiers.
 
-The predicted visibility that MapEx and IG-Hector score lives in :mod:`superex_deploy.onboard.visibility`.
+The predicted visibility that MapEx and IG-Hector score lives in :mod:`superex_deploy.onboard.planning.visibility`.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-from superex_deploy.onboard.planners.hector import HectorConfig, HectorPlanner
-from superex_deploy.onboard.planners.mapex import MapexConfig, MapexPlanner
-from superex_deploy.onboard.planners.nearest import NearestFrontier
-from superex_deploy.onboard.planners.superex import SuperexConfig, SuperexPlanner
-from superex_deploy.onboard.planners.upen import RandomTree, UpenConfig, UpenPlanner, grow_rrt
+from superex_deploy.onboard.planning.planners.hector import HectorConfig, HectorPlanner
+from superex_deploy.onboard.planning.planners.mapex import MapexConfig, MapexPlanner
+from superex_deploy.onboard.planning.planners.nearest import NearestFrontier
+from superex_deploy.onboard.planning.planners.superex import SuperexConfig, SuperexPlanner
+from superex_deploy.onboard.planning.planners.upen import RandomTree, UpenConfig, UpenPlanner, grow_rrt
 from superex_deploy.onboard.types import Planner
-from superex_deploy.onboard.viewpoint_gains import visible_gains
-from superex_deploy.onboard.visibility import (VisibilityConfig, connected_unknown_gains, predicted_visibility,
+from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
+from superex_deploy.onboard.planning.visibility import (VisibilityConfig, connected_unknown_gains, predicted_visibility,
                                                reachable_frontiers, visible_ranges)
 
 __all__ = [
@@ -58,7 +58,7 @@ def make_planner(name: str, **config_overrides) -> Planner:
     fields.
 
     Every override is checked here, by the config's own checks (type, finiteness, range:
-    :mod:`~superex_deploy.onboard.planners.config_checks`), so that a bad option stops a run before its episode
+    :mod:`~superex_deploy.onboard.checks`), so that a bad option stops a run before its episode
     starts.
 
     Raises:

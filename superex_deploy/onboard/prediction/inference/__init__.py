@@ -10,31 +10,31 @@ the mismatch for a missing, corrupt or mismatched model. Input and output tensor
 not assumed.
 
 One module per concept (this package re-exports their public names, so
-``from superex_deploy.onboard.inference import LamaEnsemble`` works):
+``from superex_deploy.onboard.prediction.inference import LamaEnsemble`` works):
 
-* :mod:`~superex_deploy.onboard.inference.manifest`: model kinds and their channels, the metadata format, the
+* :mod:`~superex_deploy.onboard.prediction.inference.manifest`: model kinds and their channels, the metadata format, the
   default model folder (``$SUPEREX_MODELS`` or the installed ``superex_deploy.models``), the manifest and sha256.
-* :mod:`~superex_deploy.onboard.inference.encoding`: how inputs are encoded (back-projection windows, observed
+* :mod:`~superex_deploy.onboard.prediction.inference.encoding`: how inputs are encoded (back-projection windows, observed
   maps; shared with :mod:`superex_train`, which imports them from here) and the resolution models are trained at.
-* :mod:`~superex_deploy.onboard.inference.sessions`: the one ONNX Runtime session factory and the loading of one
+* :mod:`~superex_deploy.onboard.prediction.inference.sessions`: the one ONNX Runtime session factory and the loading of one
   model file with its checks.
-* :mod:`~superex_deploy.onboard.inference.pix2pix`: :class:`Pix2PixFilter`, the learned back-projection filter.
-* :mod:`~superex_deploy.onboard.inference.lama`: :class:`LamaEnsemble`, the LaMa map predictors.
+* :mod:`~superex_deploy.onboard.prediction.inference.pix2pix`: :class:`Pix2PixFilter`, the learned back-projection filter.
+* :mod:`~superex_deploy.onboard.prediction.inference.lama`: :class:`LamaEnsemble`, the LaMa map predictors.
 
 This package never imports torch; ``onnxruntime`` is imported when the first session is made.
 """
 
 from __future__ import annotations
 
-from superex_deploy.onboard.inference.manifest import (DEFAULT_MODEL_DIR, FORMAT_VERSION, MANIFEST_NAME, METADATA_KEYS,
+from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, FORMAT_VERSION, MANIFEST_NAME, METADATA_KEYS,
                                                        MODEL_CHANNELS, ManifestEntry, ModelKind, PathLike,
                                                        read_manifest, sha256_file)
-from superex_deploy.onboard.inference.encoding import (NORMALISATION, RESOLUTION_M, BpEncoding, crop_window,
+from superex_deploy.onboard.prediction.inference.encoding import (NORMALISATION, RESOLUTION_M, BpEncoding, crop_window,
                                                        encode_bp_windows, encode_map)
-from superex_deploy.onboard.inference.sessions import (GraphOptimization, SessionConfig, ThreadBudget, available_cores,
+from superex_deploy.onboard.prediction.inference.sessions import (GraphOptimization, SessionConfig, ThreadBudget, available_cores,
                                                       make_session)
-from superex_deploy.onboard.inference.pix2pix import Pix2PixFilter
-from superex_deploy.onboard.inference.lama import LamaEnsemble, check_member_options
+from superex_deploy.onboard.prediction.inference.pix2pix import Pix2PixFilter
+from superex_deploy.onboard.prediction.inference.lama import LamaEnsemble, check_member_options
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "ThreadBudget", "available_cores", "make_session",

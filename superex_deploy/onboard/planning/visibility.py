@@ -11,7 +11,7 @@ since it resets its "accumulated" probability at every cell. The accumulated rul
 ``1 - prod(1 - p_i) >= threshold``, is available as ``VisibilityConfig(accumulate=True)``.
 
 The gains of many viewpoints (:func:`visible_gains`, :func:`union_visible_unknown`) live in
-:mod:`~superex_deploy.onboard.viewpoint_gains`.
+:mod:`~superex_deploy.onboard.planning.viewpoint_gains`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class VisibilityConfig:
     Raises:
         ValueError: a field of another type or out of its range, named: ``n_rays`` an integer in ``[3,``
             :data:`MAX_RAYS` ``]``, ``range_m`` positive and finite, ``hit_threshold`` in ``(0, 1]``,
-            ``accumulate`` a bool (the checks of :mod:`~superex_deploy.onboard.planners.config_checks`).
+            ``accumulate`` a bool (the checks of :mod:`~superex_deploy.onboard.checks`).
     """
 
     n_rays: int = 250
@@ -60,7 +60,7 @@ class VisibilityConfig:
 
     def __post_init__(self) -> None:
         # Imported here: the planners package imports this module.
-        from superex_deploy.onboard.planners.config_checks import check_instance, check_int, check_real
+        from superex_deploy.onboard.checks import check_instance, check_int, check_real
 
         object.__setattr__(self, "n_rays", check_int("n_rays", self.n_rays, 3, MAX_RAYS))
         object.__setattr__(self, "range_m", check_real("range_m", self.range_m, 0.0, low_open=True))

@@ -1,8 +1,8 @@
 """The learned back-projection filter: a Pix2Pix generator run by ONNX Runtime on a window around the robot.
 
-Its input encoding is :mod:`superex_deploy.onboard.inference.encoding`'s (:func:`crop_window`,
+Its input encoding is :mod:`superex_deploy.onboard.prediction.inference.encoding`'s (:func:`crop_window`,
 :func:`encode_bp_windows`); its file is opened and checked by
-:func:`superex_deploy.onboard.inference.sessions.load_model`.
+:func:`superex_deploy.onboard.prediction.inference.sessions.load_model`.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.inference.encoding import BpEncoding, crop_window, encode_bp_windows, paste_window
-from superex_deploy.onboard.inference.manifest import DEFAULT_MODEL_DIR, ModelKind, PathLike, manifest_entries
-from superex_deploy.onboard.inference.sessions import SessionConfig, load_model
+from superex_deploy.onboard.prediction.inference.encoding import BpEncoding, crop_window, encode_bp_windows, paste_window
+from superex_deploy.onboard.prediction.inference.manifest import DEFAULT_MODEL_DIR, ModelKind, PathLike, manifest_entries
+from superex_deploy.onboard.prediction.inference.sessions import SessionConfig, load_model
 
 __all__ = ["Pix2PixFilter"]
 

@@ -107,7 +107,7 @@ class SpadProcessing:
         nlos_cfg: processing parameters.
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
-            :meth:`superex_deploy.onboard.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+            :meth:`superex_deploy.onboard.prediction.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
         skips: work left out (:class:`NlosSkips`).
         counts: since :meth:`reset`: ``frames`` seen; frames skipped whole (``no_unknown``, ``still``); frames
             whose evidence was skipped (``evidence_skipped``: ``evidence_every``); filter runs skipped

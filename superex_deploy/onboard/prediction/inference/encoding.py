@@ -1,6 +1,6 @@
 """How the learned models' inputs are encoded (shared with :mod:`superex_train`, which imports them from here).
 
-* **Pix2Pix** (:attr:`~superex_deploy.onboard.inference.manifest.ModelKind.PIX2PIX`): one square window of
+* **Pix2Pix** (:attr:`~superex_deploy.onboard.prediction.inference.manifest.ModelKind.PIX2PIX`): one square window of
   ``window_cells`` cells of the raw back-projection (``superex_deploy.onboard.nlos.back_project``, in [0, 1])
   centred on the robot, whose cell is the window's ``(S // 2, S // 2)`` (:func:`crop_window`, undone by
   :func:`paste_window`); fed through a :class:`BpEncoding` (by default ``2 x - 1``); the output is the probability,
@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.inference.manifest import ModelKind
+from superex_deploy.onboard.prediction.inference.manifest import ModelKind
 from superex_deploy.onboard.types import check_observed
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN
 

@@ -18,7 +18,7 @@ class ObservedAsPrediction:
     """The observed map taken as the prediction: unknown cells are assumed free, walls are certain.
 
     Variance is zero everywhere (no uncertainty model), so variance-driven planners fall back to counting
-    unknown cells (see :class:`~superex_deploy.onboard.planners.MapexPlanner`).
+    unknown cells (see :class:`~superex_deploy.onboard.planning.planners.MapexPlanner`).
     """
 
     name = "observed"

@@ -1,8 +1,8 @@
 """The LaMa map predictors: an ensemble of ONNX Runtime sessions whose mean and variance over the members is the
 prediction (:class:`LamaEnsemble`), and the validation of its member options (:func:`check_member_options`).
 
-Its input encoding is :func:`superex_deploy.onboard.inference.encoding.encode_map`; its files are opened and
-checked by :func:`superex_deploy.onboard.inference.sessions.load_model`.
+Its input encoding is :func:`superex_deploy.onboard.prediction.inference.encoding.encode_map`; its files are opened and
+checked by :func:`superex_deploy.onboard.prediction.inference.sessions.load_model`.
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from superex_deploy.onboard.inference.encoding import encode_map
-from superex_deploy.onboard.inference.manifest import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind, PathLike,
+from superex_deploy.onboard.prediction.inference.encoding import encode_map
+from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind, PathLike,
                                                        manifest_entries)
-from superex_deploy.onboard.inference.sessions import SessionConfig, load_model
+from superex_deploy.onboard.prediction.inference.sessions import SessionConfig, load_model
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["LamaEnsemble", "check_member_options"]

@@ -11,7 +11,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
-from superex_deploy.onboard.inference import SessionConfig
+from superex_deploy.onboard.prediction.inference import SessionConfig
 
 __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "load_model", "models_dir", "make_onboard_predictor"]
 
@@ -27,7 +27,7 @@ def load_model(kind: str, directory: str, session: SessionConfig = SessionConfig
     """A learned model (``"pix2pix"``, ``"lama_los"`` or ``"lama_bp"``) from the exported folder ``directory``,
     loaded once per process (its ONNX Runtime sessions hold no state between calls): the benchmark and
     data-generation workers run many episodes each."""
-    from superex_deploy.onboard.inference import LamaEnsemble, ModelKind, Pix2PixFilter
+    from superex_deploy.onboard.prediction.inference import LamaEnsemble, ModelKind, Pix2PixFilter
 
     if kind == "pix2pix":
         return Pix2PixFilter.from_manifest(directory, session)
@@ -36,8 +36,8 @@ def load_model(kind: str, directory: str, session: SessionConfig = SessionConfig
 
 def models_dir(models) -> str:
     """The absolute folder of exported models: ``models``, or when None the default one
-    (:data:`~superex_deploy.onboard.inference.DEFAULT_MODEL_DIR`: ``$SUPEREX_MODELS``, else the installed models)."""
-    from superex_deploy.onboard.inference import DEFAULT_MODEL_DIR
+    (:data:`~superex_deploy.onboard.prediction.inference.DEFAULT_MODEL_DIR`: ``$SUPEREX_MODELS``, else the installed models)."""
+    from superex_deploy.onboard.prediction.inference import DEFAULT_MODEL_DIR
 
     return str(Path(models or DEFAULT_MODEL_DIR).resolve())
 
@@ -56,7 +56,7 @@ def make_onboard_predictor(name: str, models=None, session: SessionConfig = Sess
         ValueError: an unknown name, ``oracle`` (it reads the ground truth), models that are missing or do not
             match.
     """
-    from superex_deploy.onboard.prediction import EvidenceAsPrediction, ObservedAsPrediction
+    from superex_deploy.onboard.prediction.baselines import EvidenceAsPrediction, ObservedAsPrediction
 
     if name == "observed":
         return ObservedAsPrediction()

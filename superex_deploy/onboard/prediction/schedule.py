@@ -11,7 +11,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from superex_deploy.onboard.prediction_reuse import ReusingPredictor, merge_with_map
+from superex_deploy.onboard.prediction.reuse import ReusingPredictor, merge_with_map
 from superex_deploy.onboard.types import OCCUPIED, Prediction
 
 __all__ = ["MODES", "PredictionSchedule", "LazyPrediction", "StalePrediction", "ScheduledPredictions",

@@ -4,7 +4,7 @@ the ``manifest.json`` that lists the files.
 :mod:`superex_train.export` writes a folder (``exported/`` in the repository) with a ``manifest.json`` listing
 every file with its kind, ensemble member index and sha256; every ``.onnx`` file carries its own description in
 ``metadata_props`` (keys in :data:`METADATA_KEYS`). This module reads the manifest; checking a file against it
-and its metadata is :func:`superex_deploy.onboard.inference.sessions.load_model`'s job.
+and its metadata is :func:`superex_deploy.onboard.prediction.inference.sessions.load_model`'s job.
 """
 
 from __future__ import annotations
@@ -63,8 +63,8 @@ def _default_model_dir() -> Path:
     try:
         return Path(str(importlib.resources.files("superex_deploy.models"))).resolve()
     except ModuleNotFoundError:  # a checkout on sys.path that was never installed
-        # this file is <root>/superex_deploy/onboard/inference/manifest.py
-        return Path(__file__).resolve().parents[3] / "exported"
+        # this file is <root>/superex_deploy/onboard/prediction/inference/manifest.py
+        return Path(__file__).resolve().parents[4] / "exported"
 
 
 DEFAULT_MODEL_DIR = _default_model_dir()

@@ -9,7 +9,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.geometry import line_of_sight
-from superex_deploy.onboard.frontiers import find_frontiers
+from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.types import Frontier
 
 __all__ = ["goal_reached", "near_visited_goal", "choose_goal"]

@@ -7,13 +7,13 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_real
+from superex_deploy.onboard.checks import check_choice, check_instance, check_real
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
-from superex_deploy.onboard.viewpoint_gains import visible_gains
-from superex_deploy.onboard.visibility import VisibilityConfig, best_frontier, reachable_frontiers
+from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
+from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_frontier, reachable_frontiers
 
 __all__ = ["MapexConfig", "MapexPlanner"]
 
@@ -31,20 +31,20 @@ class MapexConfig:
             are never offered, so it only guards against a zero distance.
         gain: ``"visible"`` (MapEx): the cells of the thresholded raycast's filled polygon; ``"expected"``: every
             unknown cell weighted by the probability that a ray reaches it through the predicted walls
-            (:func:`~superex_deploy.onboard.expected_visibility.expected_visible_gains`, with ``visibility``'s
+            (:func:`~superex_deploy.onboard.planning.expected_visibility.expected_visible_gains`, with ``visibility``'s
             rays and range; its threshold and ``accumulate`` are then unused): the expected variance, or the
             expected count without variance.
         wall_support: None reads the prediction as it is; a
-            :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
+            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
             first.
         transmittance: how ``gain="expected"`` combines the wall probabilities along a ray: ``"independent"``
             (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
-            :mod:`~superex_deploy.onboard.expected_visibility`).
+            :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.planners.config_checks`).
+            :mod:`~superex_deploy.onboard.checks`).
     """
 
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
@@ -72,7 +72,7 @@ class MapexPlanner(Planner):
     ensemble. Differences: the divisor is the travel cost rather than the straight-line distance (see the
     module docstring; ``MapexConfig(distance="euclidean")`` divides as MapEx's code does); and when the
     prediction carries no variance at all (a deterministic predictor such as
-    :class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` or the oracle), where MapEx would tie every
+    :class:`~superex_deploy.onboard.prediction.baselines.ObservedAsPrediction` or the oracle), where MapEx would tie every
     frontier at zero and take the first, the visible unknown cells are counted instead (MapEx's ``visunk``).
 
     Reuse: the predictor and its evidence reach the planner only through ``ctx.predict``, so a SuperEx variant

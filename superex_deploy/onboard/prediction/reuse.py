@@ -26,7 +26,7 @@ last prediction and the map it was made for, and on the next request
    chose the default width on the held-out train floors (``benchmarks/seams/``).
 
 Cells that no prediction ever covered (outside every crop so far) are taken as the map says, unknown = free, as
-:class:`~superex_deploy.onboard.prediction.ObservedAsPrediction` does; they lie more than half a margin from every
+:class:`~superex_deploy.onboard.prediction.baselines.ObservedAsPrediction` does; they lie more than half a margin from every
 cell known when the last prediction was made (cells seen since, while fewer than ``min_changed_cells`` changed,
 are not predicted until the threshold is reached).
 

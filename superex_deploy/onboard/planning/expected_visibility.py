@@ -1,6 +1,6 @@
 """Expected visibility: a viewpoint scored by the expected number of unknown cells it reveals (issue #26, item 1).
 
-The thresholded gain of :mod:`~superex_deploy.onboard.visibility` turns the prediction into a map (a cell blocks a
+The thresholded gain of :mod:`~superex_deploy.onboard.planning.visibility` turns the prediction into a map (a cell blocks a
 ray when its wall probability reaches a threshold) and counts what that map shows. Here the prediction is read as
 what it is, a probability per cell (the ensembles are calibrated: the mean is the expected wall indicator):
 
@@ -52,7 +52,7 @@ from scipy import ndimage
 
 from superex_deploy.geometry import dda_start, dda_step
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, PlanningContext, Prediction, check_observed
-from superex_deploy.onboard.visibility import MAX_RAYS, check_cells, check_map
+from superex_deploy.onboard.planning.visibility import MAX_RAYS, check_cells, check_map
 
 __all__ = ["TRANSMITTANCES", "ExpectedVisibility", "WallSupport", "check_wall_support", "expected_visible_gains",
            "supported_prediction", "context_evidence"]
@@ -84,7 +84,7 @@ class ExpectedVisibility:
     transmittance: str = "independent"
 
     def __post_init__(self) -> None:
-        from superex_deploy.onboard.planners.config_checks import check_choice, check_int, check_real
+        from superex_deploy.onboard.checks import check_choice, check_int, check_real
 
         check_choice("transmittance", self.transmittance, TRANSMITTANCES)
 
@@ -124,7 +124,7 @@ class WallSupport:
     radius_m: float = 1.0
 
     def __post_init__(self) -> None:
-        from superex_deploy.onboard.planners.config_checks import check_real
+        from superex_deploy.onboard.checks import check_real
 
         object.__setattr__(self, "min_scale", check_real("min_scale", self.min_scale, 0.0, 1.0))
         object.__setattr__(self, "evidence_full", check_real("evidence_full", self.evidence_full, 0.0,
@@ -338,7 +338,7 @@ def supported_prediction(prediction: Prediction, observed: np.ndarray, evidence:
 
 def context_evidence(ctx: PlanningContext) -> Optional[np.ndarray]:
     """The NLOS evidence behind a planning step: ``ctx.evidence`` when the caller filled it, else the evidence the
-    step's prediction was asked with (the explorer's synchronous :class:`~superex_deploy.onboard.prediction_schedule
+    step's prediction was asked with (the explorer's synchronous :class:`~superex_deploy.onboard.prediction.schedule
     .LazyPrediction` keeps it), else None (no SPAD, or an asynchronous prediction)."""
     if ctx.evidence is not None:
         return ctx.evidence

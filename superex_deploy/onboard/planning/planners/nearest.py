@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Optional
 
 from superex_deploy.onboard.types import Planner, PlanningContext
-from superex_deploy.onboard.visibility import best_frontier, reachable_frontiers
+from superex_deploy.onboard.planning.visibility import best_frontier, reachable_frontiers
 
 __all__ = ["NearestFrontier"]
 

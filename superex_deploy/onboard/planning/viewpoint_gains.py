@@ -11,7 +11,7 @@ in ``tests/naive.py``, the reference of the tests (same counts, sums and goals) 
 one thread: split into parts over two numba threads (as the NLOS kernels are) the scoring was 8x slower at the
 median on a 2-core machine shared with other work, and a robot's second core runs the predictor.
 
-The visibility of one viewpoint (the raycast and its polygon) is :mod:`~superex_deploy.onboard.visibility`'s.
+The visibility of one viewpoint (the raycast and its polygon) is :mod:`~superex_deploy.onboard.planning.visibility`'s.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from superex_deploy.onboard.types import Prediction, check_observed
-from superex_deploy.onboard.visibility import (VisibilityConfig, _max_range_cells, _polygon_runs, _ray_visible_ranges,
+from superex_deploy.onboard.planning.visibility import (VisibilityConfig, _max_range_cells, _polygon_runs, _ray_visible_ranges,
                                                check_cells, check_map)
 
 __all__ = ["visible_gains", "union_visible_unknown", "union_visible_unknown_flat"]

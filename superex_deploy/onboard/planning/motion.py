@@ -88,7 +88,7 @@ class MotionConfig:
         if self.drive_carved is not None and not isinstance(self.drive_carved, bool):
             raise ValueError(f"MotionConfig: drive_carved must be True, False or None, got {self.drive_carved!r}")
         # Imported here: the planners package imports this module.
-        from superex_deploy.onboard.planners.config_checks import check_int, check_real
+        from superex_deploy.onboard.checks import check_int, check_real
 
         try:
             checked = {"robot_radius_m": check_real("robot_radius_m", self.robot_radius_m, 0.0, MAX_WALL_REACH_M),

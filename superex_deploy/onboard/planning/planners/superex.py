@@ -24,9 +24,9 @@ Reading the prediction as probabilities (issue #26, "do no harm"; ``scripts/benc
 
 * ``gain="expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path / from the
   goal, each ray's transmittance the product of ``1 - p`` over the cells it crosses
-  (:mod:`~superex_deploy.onboard.expected_visibility`), instead of the count on the map thresholded at
+  (:mod:`~superex_deploy.onboard.planning.expected_visibility`), instead of the count on the map thresholded at
   ``wall_threshold``;
-* ``wall_support``: a :class:`~superex_deploy.onboard.expected_visibility.WallSupport` shrinks each predicted wall
+* ``wall_support``: a :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` shrinks each predicted wall
   that neither NLOS evidence nor an observed wall nearby supports, before any gain reads the prediction.
 """
 
@@ -38,14 +38,14 @@ from typing import Optional
 import numba
 import numpy as np
 
-from superex_deploy.onboard.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
+from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.frontiers import find_frontiers
-from superex_deploy.onboard.motion import dijkstra
-from superex_deploy.onboard.planners.config_checks import check_choice, check_instance, check_int, check_real
-from superex_deploy.onboard.viewpoint_gains import union_visible_unknown_flat, visible_gains
-from superex_deploy.onboard.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map, predicted_visibility,
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.motion import dijkstra
+from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real
+from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown_flat, visible_gains
+from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map, predicted_visibility,
                                                reachable_frontiers)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
 
@@ -84,19 +84,19 @@ class SuperexConfig:
         rollout_frontier_cells: smallest frontier region (rollout cells) and gain a rollout goes for.
         tour_frontiers: frontiers in a tour (``choice="tour"``; at most 18 keeps the solver exact).
         wall_support: None reads the prediction as it is; a
-            :class:`~superex_deploy.onboard.expected_visibility.WallSupport` (or a number: its ``min_scale``)
+            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
             first, for every gain and rollout.
         transmittance: how the expected gains combine the wall probabilities along a ray: ``"independent"``
             (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
-            :mod:`~superex_deploy.onboard.expected_visibility`).
+            :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
     ``[3, MAX_RAYS]``, ``rollout_cell_m`` at most :data:`MAX_ROLLOUT_CELL_M`.
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.planners.config_checks`).
+            :mod:`~superex_deploy.onboard.checks`).
     """
 
     gain: str = "path"

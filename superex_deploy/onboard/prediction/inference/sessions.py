@@ -2,7 +2,7 @@
 exported model file with its checks (:func:`load_model`).
 
 Loading checks the file's sha256 against the manifest (or a hash the caller gives), then its ``metadata_props``
-(:data:`~superex_deploy.onboard.inference.manifest.METADATA_KEYS`) against what the caller asked for, and raises
+(:data:`~superex_deploy.onboard.prediction.inference.manifest.METADATA_KEYS`) against what the caller asked for, and raises
 ``ValueError`` naming the file and the mismatch for a missing, corrupt or mismatched model. Input and output tensor
 names are read from the model, not assumed. ``onnxruntime`` is imported only when a session is made.
 """
@@ -18,8 +18,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from superex_deploy.onboard.inference.encoding import NORMALISATION, RESOLUTION_M, BpEncoding
-from superex_deploy.onboard.inference.manifest import FORMAT_VERSION, MODEL_CHANNELS, ModelKind, PathLike, sha256_file
+from superex_deploy.onboard.prediction.inference.encoding import NORMALISATION, RESOLUTION_M, BpEncoding
+from superex_deploy.onboard.prediction.inference.manifest import FORMAT_VERSION, MODEL_CHANNELS, ModelKind, PathLike, sha256_file
 
 __all__ = ["GraphOptimization", "SessionConfig", "make_session", "LoadedModel", "load_model", "available_cores",
            "ThreadBudget"]
@@ -158,7 +158,7 @@ class LoadedModel:
     Attributes:
         session: its ``onnxruntime.InferenceSession``.
         path: the file.
-        kind: its :class:`~superex_deploy.onboard.inference.manifest.ModelKind` (from the metadata).
+        kind: its :class:`~superex_deploy.onboard.prediction.inference.manifest.ModelKind` (from the metadata).
         metadata: its ``metadata_props``.
         input_name, output_name: its one input and one output tensor.
         input_shape: the input's declared shape ``[N, C, H, W]`` (symbolic dimensions as ONNX Runtime gives them).

@@ -7,10 +7,10 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.planners.config_checks import check_instance, check_real
+from superex_deploy.onboard.checks import check_instance, check_real
 from superex_deploy.onboard.types import Planner, PlanningContext, Prediction
-from superex_deploy.onboard.viewpoint_gains import visible_gains
-from superex_deploy.onboard.visibility import (VisibilityConfig, best_frontier, connected_unknown_gains,
+from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
+from superex_deploy.onboard.planning.visibility import (VisibilityConfig, best_frontier, connected_unknown_gains,
                                                reachable_frontiers)
 
 __all__ = ["HectorConfig", "HectorPlanner"]
@@ -30,7 +30,7 @@ class HectorConfig:
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.planners.config_checks`).
+            :mod:`~superex_deploy.onboard.checks`).
     """
 
     visibility: Optional[VisibilityConfig] = field(default_factory=VisibilityConfig)
