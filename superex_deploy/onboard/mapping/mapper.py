@@ -64,7 +64,7 @@ class OccupancyConfig:
 
     Attributes:
         hit: added at a return's cell (2.5, p = 0.92) [0.85]. A hit from the free clamp reaches the occupied
-            threshold: a wall wins over a free history, as in the binary map this replaced.
+            threshold: a wall wins over a free history.
         miss: added to a cell a ray crossed (-0.4, p = 0.40) [-0.4].
         lowest, highest: clamps (-2.0 and 3.5: p = 0.12 and 0.97) [the same].
         occupied_threshold: occupied at or above (0.25, p = 0.56). Every reachable value is a multiple of 0.1:

@@ -1,7 +1,7 @@
 """Predict only what changed: keep the last prediction, re-predict a crop around the cells that changed since.
 
-The LaMa ensemble over the whole largest eval map (442 x 1327 cells) takes ~0.9 s on 2 cores; a 128 x 128 crop
-~27 ms. Between two goal choices the map changes only around the robot, so :class:`ReusingPredictor` keeps the
+The LaMa ensemble over a whole large map costs tens of times what it costs on a small crop (measured in
+docs/benchmarks/exploration.md). Between two goal choices the map changes only around the robot, so :class:`ReusingPredictor` keeps the
 last prediction and the map it was made for, and on the next request
 
 1. counts the cells whose map state changed (and those whose evidence rose by more than
