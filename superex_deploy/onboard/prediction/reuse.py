@@ -56,10 +56,9 @@ outside the written part has weight ``1 - d / (L + 1)`` (linear, steepest step `
 
 FEATHER_M = 3.2
 """The default :attr:`PredictionReuse.feather_m`, linear ramp: the whole context band of the ``realtime`` profile's
-6.4 m margin. Chosen on the 12 held-out train scenarios by ``scripts/bench_seams.py`` (``benchmarks/seams/``): the
-lowest mean absolute error against whole-map predictions within 3.2 m of a seam (-11.5 % against hard edges,
-averaged over the episodes; the cosine ramp and the widths 0.4-2.4 m did less), and the step across a seam down
-to the whole-map prediction's own (0.010 against 0.024 with hard edges)."""
+6.4 m margin. Chosen on the held-out train scenarios by ``scripts/bench_seams.py``: the lowest error against
+whole-map predictions near a seam, and a step across a seam no larger than the whole-map prediction's own
+(measured in docs/benchmarks/realtime.md, "Seams")."""
 
 
 @dataclass(frozen=True)
