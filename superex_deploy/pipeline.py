@@ -26,8 +26,8 @@ __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "
 @dataclass(frozen=True)
 class RealtimeProfile:
     """How the onboard pipeline trades accuracy for run time (``scripts/bench_realtime.py`` measures each knob:
-    docs/benchmarks/realtime.md). The default instance is the unskipped pipeline: the whole ensemble on the whole map, inside the
-    step whose planner asks, every SPAD frame processed in full.
+    docs/benchmarks/realtime.md). The default instance is the unskipped pipeline: the whole ensemble on the whole
+    map, inside the step whose planner asks, every SPAD frame processed in full.
 
     Attributes:
         schedule: when the predictor runs on the robot (:class:`~superex_deploy.onboard.explorer.PredictionSchedule`;

@@ -1,8 +1,8 @@
 """Predict only what changed: keep the last prediction, re-predict a crop around the cells that changed since.
 
 The LaMa ensemble over a whole large map costs tens of times what it costs on a small crop (measured in
-docs/benchmarks/exploration.md). Between two goal choices the map changes only around the robot, so :class:`ReusingPredictor` keeps the
-last prediction and the map it was made for, and on the next request
+docs/benchmarks/exploration.md). Between two goal choices the map changes only around the robot, so
+:class:`ReusingPredictor` keeps the last prediction and the map it was made for, and on the next request
 
 1. counts the cells whose map state changed (and those whose evidence rose by more than
    :attr:`PredictionReuse.evidence_change`); below :attr:`PredictionReuse.min_changed_cells` the last prediction,
