@@ -25,9 +25,9 @@ __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "
 
 @dataclass(frozen=True)
 class RealtimeProfile:
-    """How the onboard pipeline trades accuracy for run time (issue #16; ``scripts/bench_realtime.py`` measures
-    each knob). The default instance is the unskipped pipeline: the whole ensemble on the whole map, inside the
-    step whose planner asks, every SPAD frame processed in full.
+    """How the onboard pipeline trades accuracy for run time (``scripts/bench_realtime.py`` measures each knob:
+    docs/benchmarks/realtime.md). The default instance is the unskipped pipeline: the whole ensemble on the whole
+    map, inside the step whose planner asks, every SPAD frame processed in full.
 
     Attributes:
         schedule: when the predictor runs on the robot (:class:`~superex_deploy.onboard.explorer.PredictionSchedule`;
@@ -113,8 +113,8 @@ PROFILES: dict[str, RealtimeProfile] = {
 """Named profiles: ``full`` (the unskipped pipeline, what the paper table measured) and ``realtime`` (chosen on the
 held-out train floors with ``scripts/bench_realtime.py``: the lowest p99 step time of the settings measured; the
 predictor runs on a crop around what changed with 6.4 m of context, one ensemble member, one ONNX Runtime thread;
-the SPAD back-projection and its filter run on every 2nd frame, carving on every frame (``benchmarks/nlos_skips``,
-decided on 10 train scenarios x 200 steps: 0.67x the SPAD processing time, first-half AUC +0.00 [-0.21, +0.19]).
+the SPAD back-projection and its filter run on every 2nd frame, carving on every frame (decided on train floors;
+measured in docs/benchmarks/realtime.md, "SPAD skips").
 On the robot it runs in the explorer's worker thread and no step waits for it (``free``: a step takes the newest
 finished prediction; only the first step waits for its own, while the robot stands at its start); in simulated
 benchmarks on the simulated clock: the map of every 2nd step is predicted and applied 2 steps later (the worker's

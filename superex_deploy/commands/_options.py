@@ -247,7 +247,7 @@ def make_backend(args: argparse.Namespace):
     return LocalBackend(args.jobs)
 
 
-# Noise of the simulated robot (issue #24): off unless asked for, so the paper's protocol stays as it is.
+# Noise of the simulated robot: off unless asked for, so the paper's protocol stays as it is.
 MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_DEG, MAX_LIDAR_SIGMA_M = 1.0, 45.0, 1.0
 SPAD_NOISE_CHOICES = ("off", "realistic", "low")
 

@@ -38,7 +38,7 @@ def _rows(names: list[str]) -> list[str]:
 
 
 CEILING_REFERENCE = "mapex_observed"
-"""The altered suite also pairs every row against this one: the oracle ceiling's baseline (issue #26)."""
+"""The altered suite also pairs every row against this one: the oracle ceiling's baseline."""
 
 
 def _same_protocol(recorded: dict, setting: dict) -> bool:

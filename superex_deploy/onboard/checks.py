@@ -1,4 +1,5 @@
-"""The checks every planner config runs on its fields when it is built (issue #23: one clear error per bad option).
+"""The checks every planner config runs on its fields when it is built, so that a bad option stops a run
+with one clear error naming it.
 
 A planner's options reach its config from Python (``make_planner("upen", rrt_samples=100)``) or from the command
 line, where ``--planner-option FIELD=VALUE`` turns numbers and true / false into Python values and leaves any other

@@ -22,7 +22,8 @@
    (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.observed` without carving): a planner then sees carved cells as
    unknown, and the prediction it reads as free.
 
-How the predictor runs is configured, not fixed (issue #16): inside the asking step, in a worker thread that a step
+How the predictor runs is configured, not fixed, so that a step fits the sensor's frame on a small CPU (measured
+in docs/benchmarks/realtime.md): inside the asking step, in a worker thread that a step
 never waits for, or on a simulated clock (:class:`PredictionSchedule`), on the whole map or on a crop around what
 changed since the last prediction, and only when enough changed
 (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`). The explorer sets its own numba threads, and
@@ -74,8 +75,9 @@ class ExplorerConfig:
         motion: robot radius, proximity cost, goal tolerance (``step_cells`` is how far the robot is expected to
             drive per step; the explorer follows wherever it actually stops).
         frontier_min_cells: frontier regions with fewer cells are offered to the planner only when no larger
-            region gives a goal (MapEx drops them: 10). Dropping them outright stopped 2 of the 40 benchmark
-            episodes at their first step, in rooms whose open door, seen edge-on, showed fewer frontier cells.
+            region gives a goal (MapEx drops them: 10). They are kept as a last tier because a room whose open
+            door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at its
+            first step (docs/benchmarks/exploration.md).
         prediction: when the predictor runs (:class:`PredictionSchedule`).
         reuse: what the explorer keeps of its last prediction
             (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map

@@ -10,14 +10,14 @@ hit if at least as many rays returned in it as crossed it (a hit wins a tie), el
 history weighs, so no cell is decided for good by one reading: a wall hit once is cleared by a few scans that see
 through it, and a cell seen free becomes a wall with one hit.
 
-The defaults (:class:`OccupancyConfig`) reproduce the binary map this replaced on noise-free data: one miss makes
-an unknown cell free, one hit makes any cell occupied (a wall wins over a free history, as ``seen_wall`` did), and
-a wall hit once stays occupied through 5 scans that cross it (through 8 once confirmed). Measured on noise-free
-episodes, no cell is ever both hit and crossed, so the thresholded map is exactly the old one.
+The defaults (:class:`OccupancyConfig`) make the map binary on noise-free data: one miss makes an unknown cell
+free, one hit makes any cell occupied (a wall wins over a free history), and a wall hit once stays occupied through
+5 scans that cross it (through 8 once confirmed). On noise-free episodes no cell is ever both hit and crossed, so
+the thresholded map is the plain "hit: wall, crossed: free" map.
 
-**A noisy LiDAR** (issue #24). The per-scan vote is an inverse sensor model: a spurious short return in free
-space is one return against the many rays of the same scan that cross its cell, so it never becomes a wall (the
-binary rule, "a hit wins", put one there that took 7 scans to clear); and a few rays that return in a cell they
+**A noisy LiDAR.** The per-scan vote is an inverse sensor model: a spurious short return in free
+space is one return against the many rays of the same scan that cross its cell, so it never becomes a wall (under the
+rule "a hit wins" it would, and take 7 scans to clear); and a few rays that return in a cell they
 only grazed do not outvote those that crossed it. Range noise needs one more thing: a wall's face is where the
 exact ranges end, and ``N(0, sigma)`` puts half of the returns in the free cell in front of it, which then holds
 as many returns as crossings and becomes a wall (walls thicken towards the robot, doorways close). With
@@ -64,7 +64,7 @@ class OccupancyConfig:
 
     Attributes:
         hit: added at a return's cell (2.5, p = 0.92) [0.85]. A hit from the free clamp reaches the occupied
-            threshold: a wall wins over a free history, as in the binary map this replaced.
+            threshold: a wall wins over a free history.
         miss: added to a cell a ray crossed (-0.4, p = 0.40) [-0.4].
         lowest, highest: clamps (-2.0 and 3.5: p = 0.12 and 0.97) [the same].
         occupied_threshold: occupied at or above (0.25, p = 0.56). Every reachable value is a multiple of 0.1:

@@ -67,23 +67,18 @@ class ScanMatchingConfig:
         min_gain: ... and beat the believed pose's fit by this much.
         prior_weight: weight of the Mahalanobis prior (fit units per unit of ``m^2 / 2``). It trades a single
             match's accuracy for the map's anchoring: a weaker prior follows the map, a stronger one the belief.
-            Fixed on train floors (nearest frontier, LiDAR 2 cm with dropouts and spurious returns, 300 steps from
-            random starts; true walls held free per 1,000 seen): at 5 cm / 1 deg, 0.05 -> 0.01 lowered it from 327
-            to 175 on 6 floors and from 364 to 235 on 8 others (0.02: 294, 0: 205, 0.003: 211 on the first 6), the
-            coverage after 300 steps 0.58 -> 0.62 and 0.57 -> 0.58; at 2 cm / 0.5 deg from 235 to 153 (8 floors).
-            (The earlier 0.05 was chosen on 80-step runs without LiDAR noise, where the map's frame wandered with
-            0.01.)
+            Fixed on train floors by the true walls the map holds free (measured in docs/on-a-robot.md, "What was
+            tried").
         refine_levels: fine search levels after the lattice (each halves the steps).
         match_sigma_cells, match_sigma_deg: the match's own standard deviation (cells, degrees) relative to the
             map. An accepted match is fused with the believed pose as two independent estimates (per axis, weights
             inverse to the variances), so the map, anchored where the first scans were believed to be, keeps being
             pulled towards the unbiased belief instead of keeping the first scan's error for good; 0 (the
-            default) takes the match alone. On 2 train floors x 80 steps at 5 cm / 1 deg, LiDAR 2 cm (prior
-            0.01), 0.3 cells / 0.1 deg lowered the mean pose error (4.4 cm against 7.6 cm) but held more true
-            walls free (104 against 45 per 1,000 seen) and lowered the first-half coverage (-18 % against -4 %).
+            default) takes the match alone: fusing lowers the pose error but holds more true walls free
+            (docs/on-a-robot.md, "What was tried").
         start_after_scans: scans integrated at the believed pose before matching starts (the map's anchor is
-            their average rather than the first scan's error); 0 by default (10 on the same train runs: 42 per
-            1,000 held free but -28 % coverage).
+            their average rather than the first scan's error); 0 by default, since waiting costs coverage
+            (docs/on-a-robot.md, "What was tried").
     """
 
     enabled: bool = True

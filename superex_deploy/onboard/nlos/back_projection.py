@@ -12,8 +12,8 @@ visit per (wall cell, unknown window cell in its half-disc), independent of the 
 A ray whose late bins span no ring that an unknown window cell in front of its wall lies on adds nothing:
 :func:`rays_reaching_unknown` finds the rays that may add something, and leaving the others out gives the same
 back-projection to the last bit (every cell still adds the same votes in the same order; the votes left out are
-ones no cell reads). On real episodes it leaves out about 1 % of the rays (``benchmarks/nlos_skips``): the window
-is mostly unknown while exploring, and the rings of late light are wide.
+ones no cell reads). While exploring it leaves out few rays, since the window is mostly
+unknown and the rings of late light are wide (measured in docs/benchmarks/realtime.md, "SPAD skips").
 """
 
 from __future__ import annotations

@@ -23,12 +23,11 @@ class NlosConfig:
     Attributes:
         window_m: back-projection is computed within this distance of the robot (square window, metres).
         apex_margin_cells: carve-radius reduction for the wall point's estimate (cells).
-        sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal.
-            Measured (benchmarks/carving/): 20 carved no true wall over 2,000 random train poses (64, 256 and
-            512 secondary rays), on 6 train and 20 eval MapEx trajectories, nor over 1,000 poses with a belief
-            5 cm / 1 degree off (256 rays); 15 passed the 2,000 poses but carved true walls on 2 eval floors, 10 on
-            train trajectories. With ``SpadConfig(n_secondary=256)`` (radius cap 8.1 m) 20 adds +2.5 % first-half
-            coverage over line of sight on fixed eval trajectories, against +0.7 % for the defaults.
+        sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal: near
+            grazing, a small error in the estimated normal would carve past the wall's end. 20 carves more and no
+            true wall on the benchmark trajectories, 15 carves true walls (measured in
+            docs/benchmarks/spad.md, "Carving nearer its bound"); the default stays at 35 until the learned filter
+            is retrained for 256 secondary rays.
         wall_strip_cells: cells within this distance of the wall's own line are never carved.
         false_alarm_rate: noisy mode: probability that a ray's late part holds a false detection.
         normal_radius_cells: observed wall hits within this radius of a wall cell estimate its normal.
@@ -49,11 +48,9 @@ class NlosConfig:
         pose_sigma_margin: with an uncertain pose, each wall point's carve radius shrinks, and its wall strip
             and the interior distance its normal needs (``normal_interior_cells``) widen, by this many times
             ``sigma_xy + rho sigma_yaw`` (the pose covariance's position and yaw standard deviations; ``rho`` the
-            distance from the robot; see :mod:`.carving`, point 4). Measured on train floors, beliefs drawn at
-            the declared sigmas: 2 carved no true wall over 6,000 poses at 5 cm / 1 degree (544 cells per scan,
-            against ~1,900 with an exact pose) nor over 2,000 at 10 cm / 2 degrees (26 per scan: carving fades
-            out as the pose degrades); 1 kept 1,217 cells per scan at 5 cm / 1 degree but carved a true wall at
-            10 cm / 2 degrees.
+            distance from the robot; see :mod:`.carving`, point 4). 2 carves no true wall at 5 cm / 1 degree
+            nor at 10 cm / 2 degrees, where 1 does (measured in docs/on-a-robot.md, "Carving under
+            uncertainty").
         threads: the parallel kernels (wall normals, votes, carving, the back-projection's rings) split their
             work into this many parts (0: numba's thread count, ``NUMBA_NUM_THREADS`` or
             ``numba.set_num_threads``; 1: sequential). Every part owns its outputs (wall cells, rows), so the

@@ -1,4 +1,4 @@
-"""Expected visibility: a viewpoint scored by the expected number of unknown cells it reveals (issue #26, item 1).
+"""Expected visibility: a viewpoint scored by the expected number of unknown cells it reveals.
 
 The thresholded gain of :mod:`~superex_deploy.onboard.planning.visibility` turns the prediction into a map (a cell blocks a
 ray when its wall probability reaches a threshold) and counts what that map shows. Here the prediction is read as
@@ -33,11 +33,10 @@ leaves the grid.
 ``transmittance="correlated"`` replaces the independence of the cells along a ray by the opposite extreme: the
 cells are walls together (comonotone: one uniform draw ``u`` per ray, a cell is a wall when ``u < p``), so a ray
 reaches a cell with probability ``1 - max p`` over the cells before it, the largest probability any dependence
-allows (Frechet). A learned prediction spreads a little wall probability over every unknown cell (LaMa-LOS on four
-held-out train floors: the median over unknown cells is 0.044-0.080, quartiles over 14 goal choices) and the
-independent product of ``1 - p`` over 60 cells of 0.05 is 0.05: from the frontier, half a ray's transmittance is
-gone after 2.5 m at the median, against 4.1 m for ``1 - max p`` and 4.1 m to the first cell at the 0.5 threshold.
-``benchmarks/expected_gain`` measures both on exploration. The brute-force test checks the independent model only,
+allows (Frechet). A learned prediction spreads a little wall probability over every unknown cell, and the
+independent product of ``1 - p`` over many such cells soon vanishes (over 60 cells of 0.05 it is 0.05), so the
+independent model cuts rays much shorter than the thresholded cast; measured in docs/benchmarks/better-map.md,
+"Reading predictions as probabilities". The brute-force test checks the independent model only,
 the slow twin both.
 """
 
@@ -96,8 +95,7 @@ class ExpectedVisibility:
 
 @dataclass(frozen=True)
 class WallSupport:
-    """How much a predicted wall is believed, from what supports it (issue #26: "weigh a predicted wall by what
-    supports it").
+    """How much a predicted wall is believed, from what supports it.
 
     An unknown cell's wall probability ``p`` becomes ``p * s`` with
 

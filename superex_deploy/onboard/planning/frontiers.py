@@ -7,9 +7,9 @@ wedged between walls that no scan will ever resolve (the episode falls back on t
 region gives a goal). Each region is represented by its own cell nearest to the
 region's centroid, so the goal is always a frontier cell (a centroid can lie in a wall or in the unknown).
 
-Whole-map cost per call, measured on the largest eval map (442 x 1327) late in an episode: about 2.5 ms (one
-compiled pass finds and labels the frontier cells, vectorised reductions pick each region's goal cell; only
-kept regions become Python objects). The numpy :func:`frontier_cells` is an independent second implementation
+One compiled pass finds and labels the frontier cells, vectorised reductions pick each region's goal cell, and only
+kept regions become Python objects, so a whole-map call stays a few milliseconds on the largest eval map (measured
+in docs/benchmarks/exploration.md). The numpy :func:`frontier_cells` is an independent second implementation
 of the cell rule.
 """
 

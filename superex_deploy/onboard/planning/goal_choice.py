@@ -19,10 +19,10 @@ def goal_reached(not_free: np.ndarray, pose: tuple[int, int], cell: tuple[int, i
     """Whether the robot at ``pose`` has reached the goal ``cell``: within the goal tolerance *and* in line of
     sight on the map (``not_free``: bool ``[H, W]``, every cell not known free).
 
-    Distance alone (MapEx's rule) counted a frontier as reached from behind the corner of the wall that hides
-    it: on eval map 50010539 the robot stopped 1 m short of a frontier in the next room, never saw it, and
-    shuttled between two such frontiers for 900 steps (28.9 % coverage for every planner). Seeing the goal cell
-    means the sensor has looked at the frontier from that side."""
+    Distance alone (MapEx's rule) counts a frontier as reached from behind the corner of the wall that hides it,
+    and the robot can then shuttle between two such frontiers without ever seeing either (measured in
+    docs/benchmarks/better-map.md, "A defect first"). Seeing the goal cell means the sensor has looked at the
+    frontier from that side."""
     if np.hypot(cell[0] - pose[0], cell[1] - pose[1]) > reach_cells:
         return False
     return line_of_sight(not_free, pose, cell)

@@ -25,9 +25,9 @@ The search runs over the bounding box of the known free cells plus a one-cell ma
 wall (each is hit from a free cell). Two compiled kernels do the work: the distance to the nearest wall, stamped
 from each wall over a disc just wider than the cost range and the robot radius (exact there, ``inf`` beyond,
 where neither rule depends on it), and an indexed-binary-heap Dijkstra over a grid padded with an impassable
-border. On the largest eval map late in an episode (437 x 915 window, 200 k reachable cells) a whole
-:func:`planning_map` takes about 50 ms, against about 200 ms with ``scipy.ndimage.distance_transform_edt`` and
-``MCP_Geometric``; it runs only when a new goal is chosen or the locked path is blocked.
+border; together they are several times faster than ``scipy.ndimage.distance_transform_edt`` and
+``MCP_Geometric`` (measured in docs/benchmarks/exploration.md). It runs only when a new goal is chosen or the
+locked path is blocked.
 """
 
 from __future__ import annotations

@@ -1,15 +1,14 @@
 """Visible-unknown gains of many viewpoints at once: what a goal choice scores (MapEx, IG-Hector, SuperEx).
 
-The gains of a goal choice (issue #25 item 3: they made the tail of the step time) are computed in compiled passes
-over all the viewpoints at once: each distinct viewpoint is cast once; the polygons are filled in the order of
-``visibility._fill_visibility``, so counts and variance sums are the same additions; and the unions of
+The gains of a goal choice are computed in compiled passes over all the viewpoints at once, since scoring them
+one by one made the tail of the step time: each distinct viewpoint is cast once; the polygons are filled in the
+order of ``visibility._fill_visibility``, so counts and variance sums are the same additions; and the unions of
 :func:`union_visible_unknown` fill each node of the trie of the groups once (groups that start alike, as the SuperEx
 paths from the robot, share their first nodes; ``_trie_union_counts``). The per-viewpoint code they replace is kept
 in ``tests/naive.py``, the reference of the tests (same counts, sums and goals) and of
-``scripts/bench_goal_choice.py`` (``benchmarks/goal_choice``: the SuperEx scoring 3.7x faster at the median,
-4.4x at the maximum, on 87 recorded goal choices of the held-out train floors, the same goals). The kernels run on
-one thread: split into parts over two numba threads (as the NLOS kernels are) the scoring was 8x slower at the
-median on a 2-core machine shared with other work, and a robot's second core runs the predictor.
+``scripts/bench_goal_choice.py`` (measured in docs/benchmarks/realtime.md, "Goal choices"). The kernels run on one
+thread: split over two numba threads (as the NLOS kernels are) they were slower on a 2-core machine, whose second
+core a robot gives to the predictor.
 
 The visibility of one viewpoint (the raycast and its polygon) is :mod:`~superex_deploy.onboard.planning.visibility`'s.
 """

@@ -1,8 +1,8 @@
 """Predict only what changed: keep the last prediction, re-predict a crop around the cells that changed since.
 
-The LaMa ensemble over the whole largest eval map (442 x 1327 cells) takes ~0.9 s on 2 cores; a 128 x 128 crop
-~27 ms. Between two goal choices the map changes only around the robot, so :class:`ReusingPredictor` keeps the
-last prediction and the map it was made for, and on the next request
+The LaMa ensemble over a whole large map costs tens of times what it costs on a small crop (measured in
+docs/benchmarks/exploration.md). Between two goal choices the map changes only around the robot, so
+:class:`ReusingPredictor` keeps the last prediction and the map it was made for, and on the next request
 
 1. counts the cells whose map state changed (and those whose evidence rose by more than
    :attr:`PredictionReuse.evidence_change`); below :attr:`PredictionReuse.min_changed_cells` the last prediction,
@@ -56,10 +56,9 @@ outside the written part has weight ``1 - d / (L + 1)`` (linear, steepest step `
 
 FEATHER_M = 3.2
 """The default :attr:`PredictionReuse.feather_m`, linear ramp: the whole context band of the ``realtime`` profile's
-6.4 m margin. Chosen on the 12 held-out train scenarios by ``scripts/bench_seams.py`` (``benchmarks/seams/``): the
-lowest mean absolute error against whole-map predictions within 3.2 m of a seam (-11.5 % against hard edges,
-averaged over the episodes; the cosine ramp and the widths 0.4-2.4 m did less), and the step across a seam down
-to the whole-map prediction's own (0.010 against 0.024 with hard edges)."""
+6.4 m margin. Chosen on the held-out train scenarios by ``scripts/bench_seams.py``: the lowest error against
+whole-map predictions near a seam, and a step across a seam no larger than the whole-map prediction's own
+(measured in docs/benchmarks/realtime.md, "Seams")."""
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,7 @@ class PredictionSchedule:
         wait_first: in every mode but ``inline``: the first step applies the prediction of its own map (in
             ``free`` and ``thread`` mode it waits for it: the one wait a never-waiting schedule allows, taken while
             the robot stands at its start). Without it the planners and the first evaluations see no prediction at
-            all until one lands: -29 % IoU at 10 % coverage on the train floors with ``every_steps=5``.
+            all until one lands, which costs map IoU early in the episode (docs/benchmarks/realtime.md).
 
     :meth:`from_json` also reads the fields this class had before the modes (``asynchronous``: False is
     ``inline``; True with ``every_steps`` 0 is ``free``, with ``every_steps >= 1`` ``thread``), as older

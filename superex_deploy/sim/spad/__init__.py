@@ -31,7 +31,7 @@ Two discretisation choices, both at the grid's 0.1 m scale:
 Distances ``d1, d2`` are floored at half a cell so eq. (2) stays finite for a robot touching a wall.
 
 Cost. :func:`prepare_scene` computes, once per grid, the wall normals and a 4x4-block occupancy map (cached on
-the grid; 10-95 ms on the KTH eval floors). Every scan then traces the primaries and one
+the grid: it costs several scans; measured in docs/benchmarks/spad.md). Every scan then traces the primaries and one
 fan per distinct hit cell with a two-level DDA that crosses wall-free 4x4 blocks in one step and returns the
 exact DDA's hits, groups the rays by hit cell and writes the histograms. A fan depends on its wall cell and
 the normal it leaves along, not on the robot's pose, so each grid keeps the fans traced so far

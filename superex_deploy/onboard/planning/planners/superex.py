@@ -20,7 +20,8 @@ docs/benchmarks/better-map.md) and kept as options because each answers a questi
 * ``gain="goal"``: MapEx's gain (the view from the goal cell only);
 * ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
 
-Reading the prediction as probabilities (issue #26, "do no harm"; ``scripts/bench_expected_gain.py``):
+Reading the prediction as probabilities (``scripts/bench_expected_gain.py``; measured in
+docs/benchmarks/better-map.md, "Reading predictions as probabilities"):
 
 * ``gain="expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path / from the
   goal, each ray's transmittance the product of ``1 - p`` over the cells it crosses
@@ -67,11 +68,10 @@ class SuperexConfig:
             no threshold; ``n_rays`` and ``range_m`` as for the others).
         choice: ``"greedy"``: the best gain per unit of travel; ``"rollout"``: the best of ``candidates``
             rollouts; ``"tour"``: the first goal of the shortest tour through the nearest frontiers.
-        wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.5 was chosen on
-            the held-out train buildings with LaMa-LOS (first-half AUC over MapEx on LaMa-LOS, 6 scenarios: 0.2
-            +1.8 %, 0.5 +3.1 %, 0.8 +0.6 %). 0.2, which maximises the ensembles' held-out wall IoU, lets their
-            faint predicted walls stop most rays, and the choice drifts towards the nearest frontier. Binary
-            maps (observed, oracle) do not depend on it.
+        wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.5, chosen on the
+            held-out train buildings with LaMa-LOS (docs/benchmarks/better-map.md, "Ceilings first"): a lower
+            threshold lets the ensembles' faint predicted walls stop most rays, and the choice drifts towards the
+            nearest frontier. Binary maps (observed, oracle) do not depend on it.
         sense_every_m: the path is sampled every this many metres for the pathwise gain and in rollouts.
         range_m: the sensor's range (metres; the LiDAR's 20 m).
         n_rays: rays of each visibility cast (over a full turn).

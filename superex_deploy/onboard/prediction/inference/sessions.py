@@ -44,11 +44,11 @@ class SessionConfig:
         providers: execution providers in order of preference.
         graph_optimization: :class:`GraphOptimization` level.
         allow_spinning: let the intra-op threads busy-wait for work between operators (ONNX Runtime's
-            default): each operator then starts without waking its threads (LaMa members 2-6 % faster on 2 cores).
+            default): each operator then starts without waking its threads (a LaMa member runs a little faster;
+            measured in docs/benchmarks/models.md).
         stop_spinning_after_run: make the spinning threads stop at the end of every run
             (``session.force_spinning_stop``). Without it they keep spinning after a run and take the cores
-            from the numba and numpy work the exploration loop does next (measured on 2 cores: three 600 x 600
-            matmuls right after a LaMa run took 26-50 ms with spinning left on, 13 ms with it stopped or off).
+            from the numba and numpy work the exploration loop does next (measured in docs/benchmarks/models.md).
     """
 
     intra_op_threads: int = 2
@@ -80,7 +80,7 @@ def available_cores() -> int:
 @dataclass(frozen=True)
 class ThreadBudget:
     """How the cores given to the explorer are split between its control loop and its prediction worker, so that
-    the two never ask for more threads than there are cores (issue #25, item 4).
+    the two never ask for more threads than there are cores (oversubscribed cores stretch the step time's tail).
 
     With a worker thread, the worker gets ``max(1, cores // 2)`` threads (ONNX Runtime's intra-op threads of the
     predictor's sessions, numba's in the worker thread) and the control loop the rest, at least one (numba's
