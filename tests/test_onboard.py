@@ -147,8 +147,8 @@ def test_explorer_refuses_bad_observations():
         explorer.step(Observation(0.0, Pose2D(5.0, 0.5), scan))
     with pytest.raises(ValueError, match="pose.x must be finite"):
         Pose2D(float("nan"), 0.5)
-    with pytest.raises(ValueError, match="angles must increase"):
-        LaserScan(0.0, -0.1, 0.0, 2.0, ranges)
+    with pytest.raises(ValueError, match="angle_increment must not be 0"):
+        LaserScan(0.0, 0.0, 0.0, 2.0, ranges)
     with pytest.raises(ValueError, match="scan has 8 ranges, but its angles"):
         LaserScan(0.0, np.pi / 4, 0.0, 2.0, ranges, angle_max=np.pi)
     with pytest.raises(ValueError, match="range_min < range_max"):

@@ -40,9 +40,10 @@ from superex_deploy.messages.frame import MapFrame, Pose2D, grid_angles
 from superex_deploy.messages.limits import (MAX_ABS_YAW, MAX_MAP_CELLS, MAX_MAP_CELLS_ENV, MAX_STAMP_S, MIN_RESOLUTION_M,
                                            check_map_size, check_stamp, max_map_cells)
 from superex_deploy.messages.observation import Command, Observation
-from superex_deploy.messages.occupancy import OCCUPANCY_UNKNOWN, OccupancyGridMessage, PoseCovariance
+from superex_deploy.messages.occupancy import OCCUPANCY_UNKNOWN, OccupancyGridMessage, PoseCovariance, same_resolution
 from superex_deploy.messages.sensors import LaserScan, SpadFrame
 
 __all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command", "grid_angles",
            "MAX_MAP_CELLS", "MAX_MAP_CELLS_ENV", "MIN_RESOLUTION_M", "MAX_STAMP_S", "MAX_ABS_YAW", "max_map_cells",
-           "check_map_size", "check_stamp", "OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN"]
+           "check_map_size", "check_stamp", "OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN",
+           "same_resolution"]

@@ -18,10 +18,27 @@ import numpy as np
 from superex_deploy.messages.frame import MapFrame
 from superex_deploy.messages.limits import _finite, _point_xy, check_map_size
 
-__all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN"]
+__all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN", "SYMMETRY_RTOL", "same_resolution"]
 
 OCCUPANCY_UNKNOWN = -1
 """The value of an unknown cell in a ``nav_msgs/OccupancyGrid``."""
+
+SYMMETRY_RTOL = 1e-6
+"""How far a :class:`PoseCovariance` may stray from symmetry and from positive semi-definiteness, relative to its
+largest entry: a few float32 roundings (float32's epsilon is 1.2e-7)."""
+
+_LATTICE_TOLERANCE_CELLS = 1e-6
+"""How far (cells) an occupancy grid's origin may lie from the frame's lattice, plus the float32 rounding of the
+resolution over the distance between the origins (see :meth:`OccupancyGridMessage.in_frame`)."""
+
+
+_FLOAT32_EPS = float(np.finfo(np.float32).eps)
+
+
+def same_resolution(a_m: float, b_m: float) -> bool:
+    """Whether two resolutions (metres per cell) are the same grid's: equal once rounded to float32, as ROS sends
+    ``info.resolution`` (0.05 arrives as 0.05000000074505806)."""
+    return bool(np.float32(a_m) == np.float32(b_m))
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,19 +96,22 @@ class OccupancyGridMessage:
     def in_frame(self, frame: MapFrame) -> np.ndarray:
         """int8 ``[H, W]`` occupancy (``-1`` unknown, ``0..100``) of ``frame``'s cells, row 0 at the top.
 
-        The message must share the frame's resolution and its origin must lie on the frame's cell lattice (a
-        whole number of cells away, within 1e-6 cells); the grids may cover different areas: frame cells outside
-        the message are unknown, message cells outside the frame are dropped.
+        The message must share the frame's resolution (equal once both are rounded to float32, the type of
+        ``nav_msgs/MapMetaData.resolution``: :func:`same_resolution`) and its origin must lie on the frame's cell
+        lattice (a whole number of cells away, within 1e-6 cells plus the float32 rounding of the resolution over
+        that distance); the grids may cover different areas: frame cells outside the message are unknown, message
+        cells outside the frame are dropped.
 
         Raises:
             ValueError: another resolution, or an origin off the frame's lattice.
         """
-        if not math.isclose(self.resolution_m, frame.resolution_m, rel_tol=1e-9, abs_tol=0.0):
+        if not same_resolution(self.resolution_m, frame.resolution_m):
             raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the explorer's map "
                              f"frame's {frame.resolution_m} m")
         shift = [(m - f) / frame.resolution_m for m, f in zip(self.origin_xy, frame.origin_xy)]
         cells = [round(s) for s in shift]
-        if any(abs(s - c) > 1e-6 for s, c in zip(shift, cells)):
+        # A resolution sent as float32 is off by up to half a float32 ulp: over |s| cells that is |s| ulps of s.
+        if any(abs(s - c) > _LATTICE_TOLERANCE_CELLS + 4 * _FLOAT32_EPS * abs(s) for s, c in zip(shift, cells)):
             raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
                              f"map frame's {frame.origin_xy} m")
         dx, dy = cells  # the message's cell (0, 0) is frame column dx, frame row counted from the bottom dy
@@ -114,20 +134,42 @@ class PoseCovariance:
     """The uncertainty of a planar pose: the covariance of ``(x, y, yaw)``.
 
     Attributes:
-        matrix: float64 ``[3, 3]``, symmetric, with non-negative variances; units m^2, m rad and rad^2 (the
+        matrix: float64 ``[3, 3]``, symmetric and positive semi-definite; units m^2, m rad and rad^2 (the
             ``x, y, yaw`` rows and columns of ``geometry_msgs/PoseWithCovariance.covariance``: indices 0, 1, 5 of
-            its 6x6).
+            its 6x6). A matrix symmetric to float32's precision (up to :data:`SYMMETRY_RTOL` of its largest entry)
+            is accepted and stored as the mean of it and its transpose; eigenvalues down to minus that much count
+            as zero.
+
+    Raises:
+        ValueError: another shape, a NaN or infinite entry, an asymmetric matrix, a negative variance, a matrix
+            that is not positive semi-definite.
     """
 
     matrix: np.ndarray
 
     def __post_init__(self) -> None:
-        matrix = np.array(self.matrix, dtype=np.float64)
-        if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
-            raise ValueError(f"pose covariance must be a finite [3, 3] matrix over (x, y, yaw), got shape "
-                             f"{matrix.shape}")
-        if np.any(np.diag(matrix) < 0.0) or not np.allclose(matrix, matrix.T, rtol=1e-9, atol=1e-12):
-            raise ValueError("pose covariance must be symmetric with non-negative variances")
+        try:
+            matrix = np.array(self.matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"pose covariance must be a [3, 3] matrix of numbers over (x, y, yaw), got "
+                             f"{type(self.matrix).__name__}") from None
+        if matrix.shape != (3, 3):
+            raise ValueError(f"pose covariance must be a [3, 3] matrix over (x, y, yaw), got shape {matrix.shape}")
+        if not np.all(np.isfinite(matrix)):
+            raise ValueError(f"pose covariance must be finite, got {matrix.tolist()}")
+        scale = float(np.max(np.abs(matrix)))
+        # A covariance computed in float32 (or sent as float32 by a ROS stack) is symmetric to float32's precision
+        # only: asymmetry up to SYMMETRY_RTOL of its largest entry is rounding, and the mean of the two is kept.
+        asymmetry = float(np.max(np.abs(matrix - matrix.T)))
+        if asymmetry > SYMMETRY_RTOL * scale:
+            raise ValueError(f"pose covariance must be symmetric: entries differ from their transposes by up to "
+                             f"{asymmetry:.3g} (largest entry {scale:.3g})")
+        matrix = 0.5 * (matrix + matrix.T)
+        if np.any(np.diag(matrix) < 0.0):
+            raise ValueError(f"pose covariance must have non-negative variances, got {np.diag(matrix).tolist()}")
+        lowest = float(np.linalg.eigvalsh(matrix)[0])
+        if lowest < -SYMMETRY_RTOL * scale:
+            raise ValueError(f"pose covariance must be positive semi-definite, got an eigenvalue of {lowest:.3g}")
         matrix.flags.writeable = False
         object.__setattr__(self, "matrix", matrix)
 

@@ -20,8 +20,10 @@ class LaserScan:
     Ray ``i`` points at ``angle_min + i * angle_increment`` (radians, counter-clockwise from the robot's heading).
     Ranges follow REP 117:
 
-    * in ``[range_min, range_max]``: a return, the sensor saw a surface at that distance;
-    * ``+inf`` or above ``range_max``: no return, the ray saw nothing up to ``range_max`` (free up to there);
+    * in ``[range_min, range_max)``: a return, the sensor saw a surface at that distance;
+    * ``+inf``, or ``range_max`` and above: no return, the ray saw nothing up to ``range_max`` (free up to there).
+      Gazebo and several drivers report "no return" as exactly ``range_max``, and costmap_2d's ``laser_geometry``
+      keeps only ``range < range_max`` as a return: a reading at ``range_max`` is never a wall;
     * NaN (no measurement), ``-inf`` or below ``range_min`` (too close): an invalid reading, the ray says nothing
       and is skipped.
 
@@ -30,7 +32,9 @@ class LaserScan:
 
     Attributes:
         angle_min: angle of the first ray (radians).
-        angle_increment: angle between rays (radians, > 0: angles increase).
+        angle_increment: angle between rays (radians, non-zero). A clockwise scanner's negative increment is
+            accepted and the scan stored counter-clockwise: ``angle_min`` becomes its last ray's angle, the
+            increment positive, the ranges reversed (the same rays; what :meth:`angles` gives matches ``ranges``).
         range_min, range_max: valid range limits (metres, ``0 <= range_min < range_max``).
         ranges: float32 ``[n_rays]`` metres.
         angle_max: angle of the last ray; None: derived from the others. When given (as ROS messages carry it), the
@@ -47,15 +51,15 @@ class LaserScan:
     def __post_init__(self) -> None:
         for name in ("angle_min", "angle_increment", "range_min", "range_max"):
             object.__setattr__(self, name, _float32(f"scan.{name}", getattr(self, name)))
-        if not self.angle_increment > 0.0:
-            raise ValueError(f"scan angles must increase: angle_increment must be > 0, got {self.angle_increment}")
+        if self.angle_increment == 0.0:
+            raise ValueError("scan.angle_increment must not be 0")
         if not 0.0 <= self.range_min < self.range_max:
             raise ValueError(f"scan range limits must satisfy 0 <= range_min < range_max, got range_min="
                              f"{self.range_min}, range_max={self.range_max}")
         ranges = np.asarray(self.ranges)
         if ranges.ndim != 1 or ranges.size < 1 or not np.issubdtype(ranges.dtype, np.floating):
             raise ValueError(f"scan.ranges must be a non-empty 1-D float array, got {ranges.dtype} {ranges.shape}")
-        if self.angle_increment * (ranges.size - 1) >= 2.0 * math.pi + 1e-6:
+        if abs(self.angle_increment) * (ranges.size - 1) >= 2.0 * math.pi + 1e-6:
             raise ValueError(f"{ranges.size} rays at an increment of {self.angle_increment} rad cover more than a "
                              f"full turn")
         derived = float(np.float32(self.angle_min + (ranges.size - 1) * self.angle_increment))
@@ -65,9 +69,14 @@ class LaserScan:
             if expected != ranges.size:
                 raise ValueError(f"scan has {ranges.size} ranges, but its angles from {self.angle_min} to {angle_max} "
                                  f"rad at {self.angle_increment} rad need {expected}")
-        object.__setattr__(self, "angle_max", derived)
         with np.errstate(over="ignore"):  # beyond float32: +-inf, read as above (no return / invalid)
             ranges = ranges.astype(np.float32)
+        if self.angle_increment < 0.0:  # a clockwise scanner: the same rays, stored counter-clockwise
+            object.__setattr__(self, "angle_min", derived)
+            object.__setattr__(self, "angle_increment", -self.angle_increment)
+            derived = float(np.float32(self.angle_min + (ranges.size - 1) * self.angle_increment))
+            ranges = ranges[::-1].copy()
+        object.__setattr__(self, "angle_max", derived)
         ranges.flags.writeable = False
         object.__setattr__(self, "ranges", ranges)
 

@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -49,7 +50,8 @@ import numpy as np
 
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig
-from superex_deploy.onboard.planning.motion import MotionConfig, PlanningMap, path_is_clear, planning_map
+from superex_deploy.onboard.planning.motion import (MotionConfig, PlanningMap, check_wall_reach, path_is_clear,
+                                                    planning_map)
 from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
@@ -173,6 +175,7 @@ class Explorer:
             raise ValueError(f"spad_processing must be a SpadProcessing or None, got {type(spad_processing).__name__}")
         if not isinstance(cfg, ExplorerConfig):
             raise ValueError(f"cfg must be an ExplorerConfig, got {type(cfg).__name__}")
+        check_wall_reach(cfg.motion, frame.resolution_m)  # a grid too fine for the motion settings: refused now
         self.frame, self.planner, self.predictor, self.cfg = frame, planner, predictor, cfg
         self.spad_processing = spad_processing
         # What the steps call: the predictor itself, or the wrapper that keeps its last prediction.
@@ -205,8 +208,15 @@ class Explorer:
         self._no_evidence: Optional[np.ndarray] = None
         self.budget = ThreadBudget.for_cores(cores, worker=cfg.prediction.threaded)
         self.scheduled: Optional[ScheduledPredictions] = None
+        self._closed = False
+        self._stop_worker = None
         if cfg.prediction.asynchronous:
-            self.scheduled = ScheduledPredictions(cfg.prediction, self._run_prediction, self.budget.worker_threads)
+            # The worker holds the explorer weakly, so that an explorer dropped without close() is collected at
+            # once and its worker thread stopped (a bound method would make a cycle only the garbage collector
+            # breaks, keeping the thread alive until it runs).
+            self.scheduled = ScheduledPredictions(cfg.prediction, _weak_prediction_runner(self),
+                                                  self.budget.worker_threads)
+            self._stop_worker = weakref.finalize(self, self.scheduled.close)
         planner.reset()
         if spad_processing is not None:
             spad_processing.reset()
@@ -265,10 +275,14 @@ class Explorer:
         return self._prediction.look()
 
     def close(self) -> None:
-        """Stop the prediction worker (``free`` and ``thread`` schedules); the explorer cannot step afterwards."""
-        if self.scheduled is not None:
-            self.scheduled.close()
-        self._closed = True
+        """Stop the prediction worker (``free`` and ``thread`` schedules); the explorer cannot step afterwards (a
+        later :meth:`step` raises ``RuntimeError("this explorer was closed")``). Safe from another thread while a
+        step runs (a ROS shutdown callback against a timer): it waits for that step to return, then stops the
+        worker. Closing twice is harmless."""
+        self._closed = True  # a step that has not started yet refuses
+        with self._stepping:  # a step that has started finishes first
+            if self._stop_worker is not None:
+                self._stop_worker()
 
     def follow_recorded_predictions(self, prediction_steps) -> None:
         """For a replay: apply at step ``t`` the prediction of the map of step ``prediction_steps[t]`` (a recording's
@@ -292,26 +306,23 @@ class Explorer:
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close()
 
-    def _run_prediction(self, observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
-        return self._predictor.predict(observed, evidence)
-
     @property
     def step_prediction(self) -> Optional[Prediction]:
         """The latest step's prediction if anything has computed it, else None (never computes)."""
         return None if self._prediction is None else self._prediction.value
 
-    def _clear_footprint(self, obs: Observation) -> None:
-        """The robot's body is free space: a spurious short return under it (a phantom wall that would make every
-        neighbour untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.clear_footprint`),
+    def _footprint_cells(self, obs: Observation) -> Optional[float]:
+        """The radius (cells) of the footprint cleared at the robot (None: clearing off): the robot's body is free
+        space, so a spurious short return under it (a phantom wall that would make every neighbour
+        untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.clear_footprint`),
         on a disc of the robot radius shrunk by ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
         occupancy = self.cfg.occupancy
         if not occupancy.footprint_clearing:
-            return
+            return None
         radius_m = self.cfg.motion.robot_radius_m
         if obs.pose_covariance is not None:
             radius_m -= occupancy.footprint_margin_sigmas * obs.pose_covariance.sigma_xy_m
-        origin, _ = self.frame.locate(obs.pose.x, obs.pose.y)
-        self.mapper.clear_footprint(origin, max(radius_m, 0.0) / self.frame.resolution_m)
+        return max(radius_m, 0.0) / self.frame.resolution_m
 
     def _pose_cell(self, obs: Observation) -> tuple[int, int]:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
@@ -327,7 +338,11 @@ class Explorer:
         """
         if not isinstance(obs, Observation):
             raise ValueError(f"step() takes an Observation, got {type(obs).__name__}")
+        if self._closed:
+            raise RuntimeError("this explorer was closed")
         if not self._stepping.acquire(blocking=False):
+            if self._closed:  # close() holds the lock while it waits for a running step and stops the worker
+                raise RuntimeError("this explorer was closed")
             raise RuntimeError("Explorer.step() is already running (called from another thread): an explorer takes "
                                "one caller at a time; serialise the calls or use one explorer per thread")
         import numba
@@ -341,17 +356,27 @@ class Explorer:
             self._stepping.release()
 
     def _step(self, obs: Observation) -> Command:
-        if getattr(self, "_closed", False):
+        if self._closed:
             raise RuntimeError("this explorer was closed")
+        # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
         pose = self._pose_cell(obs)
+        if self._stamps and obs.stamp_s < self._stamps[-1]:
+            raise ValueError(f"observation stamps must not go backwards: {obs.stamp_s} s after {self._stamps[-1]} s "
+                             f"(a reset simulation clock or a looping bag starts a new exploration: build a new "
+                             f"Explorer)")
+        if self.spad_processing is not None and obs.spad is not None:
+            self.spad_processing.check_frame(obs.spad)
         self._pose_exact = obs.pose_covariance is None
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
 
         clock = time.perf_counter()
         self.scan_match = None
+        footprint = self._footprint_cells(obs)
         if obs.occupancy_grid is not None:
             self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
+            if footprint is not None:  # the robot stands on free space, whatever a stale map says there
+                self.mapper.clear_footprint(self.frame.locate(obs.pose.x, obs.pose.y)[0], footprint, everything=True)
         else:
             if obs.pose_covariance is not None:
                 self.scan_match = self.scan_matcher.match(self.frame, self.mapper.seen_wall, obs.pose,
@@ -359,8 +384,7 @@ class Explorer:
                 if self.scan_match.accepted:  # the scan, the SPAD frame and the plan start from the correction
                     obs = dataclasses.replace(obs, pose=self.scan_match.pose)
                     pose = self._pose_cell(obs)
-            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan)
-            self._clear_footprint(obs)
+            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan, footprint_radius_cells=footprint)
         self.pose_estimate = obs.pose
         timings["scan"] = time.perf_counter() - clock
 
@@ -462,3 +486,19 @@ class Explorer:
         self.goal, self.path, self._goal_step = goal, path, t
         return True
 
+
+def _weak_prediction_runner(explorer: Explorer):
+    """``explorer``'s prediction function, holding the explorer weakly (see :meth:`Explorer.__init__`)."""
+    ref = weakref.ref(explorer)
+
+    def run(observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
+        target = ref()
+        if target is None:
+            raise RuntimeError("the explorer this prediction was for no longer exists")
+        # Not the explorer itself while the prediction runs: dropped meanwhile, it is freed (and its worker
+        # stopped) by the thread that dropped it, never by this worker thread (which cannot join itself).
+        predictor = target._predictor
+        del target
+        return predictor.predict(observed, evidence)
+
+    return run

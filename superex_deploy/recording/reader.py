@@ -13,7 +13,7 @@ from typing import Optional, Union
 import numpy as np
 
 from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance,
-                                     SpadFrame)
+                                     SpadFrame, same_resolution)
 from superex_deploy.recording.schemas import _REPLAYED_TOPICS, FORMAT_VERSION, METADATA_NAME, _seconds, check_metadata
 
 __all__ = ["RecordedStep", "Recording", "read_recording"]
@@ -71,7 +71,7 @@ def _slam_map(message, frame: MapFrame) -> OccupancyGridMessage:
     ``info.resolution`` as float32, the explorer's frame as float64)."""
     info = message.info
     resolution = float(info.resolution)
-    if np.float32(resolution) == np.float32(frame.resolution_m):
+    if same_resolution(resolution, frame.resolution_m):
         resolution = frame.resolution_m
     return OccupancyGridMessage(resolution_m=resolution, width=int(info.width), height=int(info.height),
                                 origin_xy=(info.origin.position.x, info.origin.position.y),

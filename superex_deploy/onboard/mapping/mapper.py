@@ -47,6 +47,7 @@ the line of sight holds a wall (``l >= occupied_threshold``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numba
 import numpy as np
@@ -260,28 +261,40 @@ class Mapper:
         carved = self.carve_log_odds < 0.0
         return carved & ~self.seen_wall & (self.log_odds + self.carve_log_odds <= self.cfg.free_threshold)
 
-    def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan) -> None:
-        """Update the map with a measured scan taken at ``pose``.
+    def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan,
+                       footprint_radius_cells: Optional[float] = None) -> int:
+        """Update the map with a measured scan taken at ``pose``; with ``footprint_radius_cells``, then clear the
+        robot's footprint there (:meth:`clear_footprint`), judging which cells are confirmed walls by their values
+        *before* this scan: the scan's own misses start in the robot's cells, and a scan given at a wrong pose
+        (inside a wall) must not first lower a confirmed wall below the clamp and then let the clearing free it.
+        Returns how many occupied cells the clearing freed (0 without a footprint).
 
-        A range in ``[range_min, range_max]`` is a return; ``+inf`` or a range above ``range_max`` is no return
-        (free up to ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
+        A range in ``[range_min, range_max)`` is a return; ``+inf`` or a range at or above ``range_max`` is no
+        return (free up to ``range_max``: drivers and Gazebo report no return as exactly ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
         close, or a dropout) and the ray is skipped, so a scan without a valid reading leaves the map as it was.
         Angles are turned from the robot's frame (counter-clockwise from its heading) into grid angles.
 
         Raises:
-            ValueError: a frame of another shape, a pose outside the map.
+            ValueError: a frame of another shape, a pose outside the map, a negative or non-finite radius.
         """
         if tuple(frame.shape) != self.shape:
             raise ValueError(f"the map frame has shape {frame.shape}, the map {self.shape}")
         origin, _ = frame.locate(pose.x, pose.y)
+        confirmed = None
+        if footprint_radius_cells is not None:
+            area, _ = self._footprint(origin, footprint_radius_cells)
+            confirmed = self.log_odds[area] >= np.float32(self.cfg.highest)
         resolution = frame.resolution_m
         ranges = scan.ranges.astype(np.float64)
         valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
-        returned = valid & (ranges <= scan.range_max)
+        returned = valid & (ranges < scan.range_max)
         angles = grid_angles(pose.yaw, scan.angles())
         self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
                               scan.range_max / resolution,
                               hit_shift_cells=self.cfg.range_hit_sigmas * self.cfg.range_sigma_m / resolution)
+        if footprint_radius_cells is None:
+            return 0
+        return self.clear_footprint(origin, footprint_radius_cells, keep=confirmed)
 
     def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float,
                          hit_shift_cells: float = 0.0) -> None:
@@ -298,19 +311,9 @@ class Mapper:
         integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
                            hit_shift_cells)
 
-    def clear_footprint(self, origin_yx, radius_cells: float) -> int:
-        """The robot's body is free space (costmap_2d's footprint clearing): the known cells whose centre lies
-        within ``radius_cells`` of ``origin_yx``, and the cell holding it, become free (``lowest``); a cell held
-        occupied at the ``highest`` clamp (hit by several scans) is kept, since a pose error can put a true wall
-        under the believed footprint. Unknown cells stay unknown.
-
-        Args:
-            origin_yx: the robot's position ``(y, x)`` in cells, inside the map.
-            radius_cells: the footprint's radius (cells, >= 0).
-
-        Returns:
-            How many occupied cells became free (known free cells are pushed to ``lowest`` without changing class).
-        """
+    def _footprint(self, origin_yx, radius_cells: float) -> tuple[tuple[slice, slice], np.ndarray]:
+        """The window around a footprint and the bool disc in it: cells whose centre lies within
+        ``radius_cells`` of ``origin_yx``, and the cell holding it."""
         y0, x0 = (float(v) for v in origin_yx)
         rows, cols = self.shape
         if not (np.isfinite(y0) and np.isfinite(x0) and 0.0 <= y0 < rows and 0.0 <= x0 < cols):
@@ -325,11 +328,41 @@ class Mapper:
         centre_c = np.arange(c0, c1)[None, :] + 0.5
         disc = (centre_r - y0) ** 2 + (centre_c - x0) ** 2 <= radius * radius
         disc[int(y0) - r0, int(x0) - c0] = True
-        window = self.log_odds[r0:r1, c0:c1]
+        return (slice(r0, r1), slice(c0, c1)), disc
+
+    def clear_footprint(self, origin_yx, radius_cells: float, keep: Optional[np.ndarray] = None,
+                        everything: bool = False) -> int:
+        """The robot's body is free space (costmap_2d's footprint clearing): the known cells whose centre lies
+        within ``radius_cells`` of ``origin_yx``, and the cell holding it, become free (``lowest``); a cell held
+        occupied at the ``highest`` clamp (hit by several scans) is kept, since a pose error can put a true wall
+        under the believed footprint. Unknown cells stay unknown.
+
+        Args:
+            origin_yx: the robot's position ``(y, x)`` in cells, inside the map.
+            radius_cells: the footprint's radius (cells, >= 0).
+            keep: bool, the shape of the footprint's window: the cells to keep instead of those at the clamp now
+                (:meth:`integrate_scan` passes the cells that were at the clamp before its scan).
+            everything: free every cell of the footprint, unknown and confirmed walls too: for a map taken from
+                SLAM (:meth:`set_line_of_sight`), where the robot's own cells must be free for it to plan at all
+                (a stale map may hold a wall or nothing where the robot stands), and the pose comes from the
+                same SLAM as the map.
+
+        Returns:
+            How many occupied cells became free (known free cells are pushed to ``lowest`` without changing class).
+        """
+        area, disc = self._footprint(origin_yx, radius_cells)
+        window = self.log_odds[area]
         cfg = self.cfg
-        known = (window <= cfg.free_threshold) | (window >= cfg.occupied_threshold)
-        clear = disc & known & (window < np.float32(cfg.highest))
-        changed = int(np.count_nonzero(clear & (window > cfg.free_threshold)))
+        if everything:
+            clear = disc
+        else:
+            if keep is None:
+                keep = window >= np.float32(cfg.highest)
+            elif keep.shape != window.shape:
+                raise ValueError(f"keep must have the footprint window's shape {window.shape}, got {keep.shape}")
+            known = (window <= cfg.free_threshold) | (window >= cfg.occupied_threshold)
+            clear = disc & known & ~keep
+        changed = int(np.count_nonzero(clear & (window >= cfg.occupied_threshold)))
         window[clear] = cfg.lowest
         return changed
 

@@ -252,8 +252,8 @@ class ScanMatcher:
         """The usable returns of ``scan``: float64 ``[N]`` ranges (cells) and robot-frame angles (radians), at most
         ``max_points`` evenly spaced over the scan's valid returns within ``max_point_range_m``."""
         ranges = scan.ranges.astype(np.float64)
-        ok = ~np.isnan(ranges) & (ranges >= scan.range_min) & (ranges <= min(scan.range_max,
-                                                                                self.cfg.max_point_range_m))
+        ok = ~np.isnan(ranges) & (ranges >= scan.range_min) & (ranges < scan.range_max) \
+            & (ranges <= self.cfg.max_point_range_m)
         index = np.flatnonzero(ok)
         if index.size > self.cfg.max_points:
             index = index[np.linspace(0, index.size - 1, self.cfg.max_points).round().astype(np.int64)]

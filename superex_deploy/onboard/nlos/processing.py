@@ -19,15 +19,15 @@ from superex_deploy.onboard.nlos.back_projection import _back_projection_patch, 
 from superex_deploy.onboard.nlos.filters import _filtered_patch
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
-__all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame"]
+__all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame", "check_frame_matches"]
 
 
-def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor: SpadConfig) -> SpadScan:
-    """The :class:`~superex_deploy.spad_types.SpadScan` (no ground truth) of a measured frame taken at ``pose``.
+def check_frame_matches(frame: SpadFrame, sensor: SpadConfig) -> None:
+    """Refuse a SPAD frame the sensor model cannot read.
 
     Raises:
-        ValueError: a frame whose bin count or bin width differs from the sensor model's, or a pose outside the
-            map.
+        ValueError: not a :class:`~superex_deploy.messages.SpadFrame`, or a bin count or bin width that differs
+            from the sensor model's.
     """
     if not isinstance(frame, SpadFrame):
         raise ValueError(f"frame must be a SpadFrame, got {type(frame).__name__}")
@@ -38,6 +38,16 @@ def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor:
     if not np.isclose(frame.bin_width_s, sensor.bin_width_s, rtol=1e-9, atol=0.0):
         raise ValueError(f"the SPAD frame's bins are {frame.bin_width_s:.9g} s wide, the sensor model's "
                          f"{sensor.bin_width_s:.9g} s")
+
+
+def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor: SpadConfig) -> SpadScan:
+    """The :class:`~superex_deploy.spad_types.SpadScan` (no ground truth) of a measured frame taken at ``pose``.
+
+    Raises:
+        ValueError: a frame whose bin count or bin width differs from the sensor model's, or a pose outside the
+            map.
+    """
+    check_frame_matches(frame, sensor)
     origin, cell = map_frame.locate(pose.x, pose.y)
     angles = grid_angles(pose.yaw, frame.angles)
     stored = SparseHistograms(np.asarray(frame.row_start), np.asarray(frame.bins), np.asarray(frame.counts),
@@ -132,6 +142,15 @@ class SpadProcessing:
     def evidence(self) -> Optional[np.ndarray]:
         """float32 ``[H, W]`` running maximum of the filtered back-projection so far (None before the first frame)."""
         return self._evidence
+
+    def check_frame(self, frame: SpadFrame) -> None:
+        """Refuse a frame this processing cannot read (:func:`check_frame_matches`), before anything else of its
+        step is integrated.
+
+        Raises:
+            ValueError: see :func:`check_frame_matches`.
+        """
+        check_frame_matches(frame, self.sensor)
 
     def reset(self) -> None:
         """Forget the evidence and the last frame of an earlier episode."""

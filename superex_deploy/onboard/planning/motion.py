@@ -40,8 +40,8 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
-__all__ = ["MAX_WALL_REACH_M", "MAX_WALL_REACH_CELLS", "MotionConfig", "PlanningMap", "planning_map", "wall_distance",
-           "dijkstra", "path_is_clear"]
+__all__ = ["MAX_WALL_REACH_M", "MAX_WALL_REACH_CELLS", "check_wall_reach", "MotionConfig", "PlanningMap",
+           "planning_map", "wall_distance", "dijkstra", "path_is_clear"]
 
 MAX_WALL_REACH_M = 5.0
 """The largest robot radius and wall-cost range (metres). The wall distance is stamped from every wall cell over a
@@ -315,6 +315,23 @@ def _check_observed_and_pose(observed: np.ndarray, pose_rc) -> tuple[np.ndarray,
     return observed, (r, c)
 
 
+def check_wall_reach(cfg: MotionConfig, resolution_m: float) -> float:
+    """How far (cells) the wall distances of a planning map are computed at ``resolution_m`` metres per cell:
+    exact up to a reach beyond both the robot radius and the wall cost range (farther cells are traversable and
+    pay no proximity cost whatever their true distance). An explorer checks it once, at construction, so that a
+    grid too fine for its motion settings is refused before the first step.
+
+    Raises:
+        ValueError: a reach of more than :data:`MAX_WALL_REACH_CELLS` cells.
+    """
+    reach_cells = float(np.floor(max(cfg.robot_radius_m, cfg.wall_cost_range_m) / float(resolution_m)) + 1.0)
+    if reach_cells > MAX_WALL_REACH_CELLS:
+        raise ValueError(f"MotionConfig: robot_radius_m {cfg.robot_radius_m} / wall_cost_range_m "
+                         f"{cfg.wall_cost_range_m} reach {reach_cells:.0f} cells at {resolution_m} m per cell, more "
+                         f"than MAX_WALL_REACH_CELLS ({MAX_WALL_REACH_CELLS})")
+    return reach_cells
+
+
 def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
                  cfg: MotionConfig = MotionConfig()) -> PlanningMap:
     """Build the planning map and run Dijkstra from the robot's cell.
@@ -345,13 +362,7 @@ def planning_map(observed: np.ndarray, pose_rc, resolution_m: float,
     local_walls = observed[r0:r1, c0:c1] == OCCUPIED
     radius_cells = cfg.robot_radius_m / float(resolution_m)
     range_cells = cfg.wall_cost_range_m / float(resolution_m)
-    # Exact up to a reach beyond both the radius and the cost range; farther cells are traversable and pay no
-    # proximity cost whatever their true distance, so inf is as good as the true value there.
-    reach_cells = np.floor(max(radius_cells, range_cells)) + 1.0
-    if reach_cells > MAX_WALL_REACH_CELLS:
-        raise ValueError(f"MotionConfig: robot_radius_m {cfg.robot_radius_m} / wall_cost_range_m "
-                         f"{cfg.wall_cost_range_m} reach {reach_cells:.0f} cells at {resolution_m} m per cell, more "
-                         f"than MAX_WALL_REACH_CELLS ({MAX_WALL_REACH_CELLS})")
+    reach_cells = check_wall_reach(cfg, resolution_m)
     wall_distance_cells = wall_distance(local_walls, reach_cells)
     local_traversable = local_free & (wall_distance_cells > radius_cells)
     local_traversable[pr - r0, pc - c0] = True
