@@ -22,7 +22,8 @@ import numpy as np
 
 from superex_deploy.messages import check_map_size, max_map_cells
 
-__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start", "DATA_DIR"]
+__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start", "DATA_DIR",
+           "MAP_SERVER_MODES", "MAP_SERVER_FREE_THRESH"]
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "kth"
 _SPLITS = ("eval", "train")
@@ -38,6 +39,8 @@ class OccupancyGrid:
         valid: bool ``[H, W]``, True inside the area an exploration can cover (coverage is measured on it).
         resolution_m: metres per cell (> 0).
         name: a human-readable name (the bundled map's name or the file stem).
+        origin_xy: map-frame position (metres) of the grid's lower-left corner, as a map_server YAML's ``origin``
+            gives it (``(0, 0)`` for images and bundled maps). The simulator runs with the corner at ``(0, 0)``.
 
     Raises:
         ValueError: arrays of another type or shape, a bad resolution, a map beyond the size limits
@@ -48,6 +51,7 @@ class OccupancyGrid:
     valid: np.ndarray
     resolution_m: float
     name: str
+    origin_xy: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         occupied = np.asarray(self.occupied)
@@ -68,6 +72,13 @@ class OccupancyGrid:
             array.flags.writeable = False
             object.__setattr__(self, field_name, array)
         object.__setattr__(self, "resolution_m", resolution)
+        try:
+            origin = tuple(float(v) for v in self.origin_xy)
+        except (TypeError, ValueError):
+            raise ValueError(f"origin_xy must be an (x, y) pair of numbers, got {self.origin_xy!r}") from None
+        if len(origin) != 2 or not all(np.isfinite(origin)):
+            raise ValueError(f"origin_xy must be a finite (x, y) pair, got {self.origin_xy!r}")
+        object.__setattr__(self, "origin_xy", origin)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -177,7 +188,33 @@ def _grid_from_image(path: Path, resolution_m: float, occupied_thresh: float = 0
     return OccupancyGrid(occupied=occupied, valid=valid, resolution_m=resolution_m, name=name or path.stem)
 
 
+MAP_SERVER_MODES = ("trinary", "scale", "raw")
+"""The ``mode`` values of a ROS map_server YAML (``trinary`` when absent)."""
+
+MAP_SERVER_FREE_THRESH = 0.196
+"""map_server's usual ``free_thresh``, used when a YAML leaves it out (a pixel of map_saver's unknown grey 205 lies
+just above it: p = 0.196078)."""
+
+
+def _number(spec: dict, key: str, path: Path, default=None) -> float:
+    value = spec.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ValueError(f"map YAML {path}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
 def _load_ros_yaml(path: Path) -> OccupancyGrid:
+    """A ROS map_server map (``image``, ``resolution``, ``origin``, ``mode``, ``negate``, ``occupied_thresh``,
+    ``free_thresh``) as map_server reads it: each pixel's occupancy probability ``p`` (``trinary`` / ``scale``:
+    ``(255 - v) / 255``, or ``v / 255`` with ``negate``; ``raw``: ``v / 100`` for ``v <= 100``, unknown above, and
+    ``negate`` ignored, as map_server does) is occupied above ``occupied_thresh``, free below ``free_thresh`` and
+    unknown in between. Unknown cells lie **outside the world**: walls to the simulator (not traversable, opaque
+    to the LiDAR and the SPAD) and outside the valid area, so that coverage counts known free space only.
+
+    ``origin`` ``[x, y, yaw]`` is the map-frame position of the image's lower-left corner: it is checked (a yaw
+    other than 0 is refused: rotate the image instead) and kept as :attr:`OccupancyGrid.origin_xy`; the simulator
+    itself runs with the corner at ``(0, 0)`` (``--pose`` is given in cells).
+    """
     import yaml
 
     try:
@@ -186,26 +223,46 @@ def _load_ros_yaml(path: Path) -> OccupancyGrid:
         raise ValueError(f"cannot parse map YAML {path}: {error}") from None
     if not isinstance(spec, dict) or "image" not in spec or "resolution" not in spec:
         raise ValueError(f"map YAML {path} must define at least 'image' and 'resolution'")
-    image_path = Path(spec["image"])
+    image_path = Path(str(spec["image"]))
     if not image_path.is_absolute():
         image_path = path.parent / image_path
     if not image_path.exists():
         raise ValueError(f"map YAML {path} names image {image_path}, which does not exist")
-    try:
-        resolution = float(spec["resolution"])
-        occupied_thresh = float(spec.get("occupied_thresh", 0.65))
-    except (TypeError, ValueError):
-        raise ValueError(f"map YAML {path}: resolution and occupied_thresh must be numbers") from None
-    if not (resolution > 0.0 and np.isfinite(resolution)):
+    resolution = _number(spec, "resolution", path)
+    if resolution <= 0.0:
         raise ValueError(f"map YAML {path}: resolution must be positive, got {spec['resolution']}")
-    if not 0.0 <= occupied_thresh <= 1.0:
-        raise ValueError(f"map YAML {path}: occupied_thresh must lie in [0, 1], got {occupied_thresh}")
+    occupied_thresh = _number(spec, "occupied_thresh", path, 0.65)
+    free_thresh = _number(spec, "free_thresh", path, MAP_SERVER_FREE_THRESH)
+    if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
+        raise ValueError(f"map YAML {path}: need 0 <= free_thresh <= occupied_thresh <= 1, got free_thresh "
+                         f"{free_thresh} and occupied_thresh {occupied_thresh}")
+    mode = spec.get("mode", "trinary")
+    if mode not in MAP_SERVER_MODES:
+        raise ValueError(f"map YAML {path}: mode must be one of {', '.join(MAP_SERVER_MODES)}, got {mode!r}")
     negate = spec.get("negate", 0)
     if not (isinstance(negate, bool) or (isinstance(negate, (int, float)) and negate in (0, 1))):
         raise ValueError(f"map YAML {path}: negate must be 0 or 1, got {negate!r}")
-    negate = bool(negate)
-    return _grid_from_image(image_path, resolution, occupied_thresh, negate, name=path.stem,
-                            source=f"map YAML {path} (image {image_path})")
+    origin = spec.get("origin", [0.0, 0.0, 0.0])
+    if not isinstance(origin, (list, tuple)) or len(origin) != 3 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in origin):
+        raise ValueError(f"map YAML {path}: origin must be three finite numbers [x, y, yaw], got {origin!r}")
+    if origin[2] != 0:
+        raise ValueError(f"map YAML {path}: a rotated origin (yaw {origin[2]}) is not supported; rotate the image "
+                         f"and give yaw 0")
+    source = f"map YAML {path} (image {image_path})"
+    pixels = _read_image(image_path, resolution, source)
+    if mode == "raw":
+        values = pixels.astype(np.float64)
+        known = values <= 100.0
+        occupancy = np.where(known, values / 100.0, np.nan)
+    else:
+        brightness = _normalised(pixels)
+        occupancy = brightness if negate else 1.0 - brightness
+    with np.errstate(invalid="ignore"):
+        occupied = occupancy > occupied_thresh
+        free = occupancy < free_thresh
+    return OccupancyGrid(occupied=~free, valid=free & ~occupied, resolution_m=resolution, name=path.stem,
+                         origin_xy=(float(origin[0]), float(origin[1])))
 
 
 def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> OccupancyGrid:
@@ -214,7 +271,8 @@ def load_map(name_or_path: Union[str, Path], resolution_m: float = 0.1) -> Occup
     Args:
         name_or_path: a bundled map name (see :func:`list_maps`), or a path to an image or ``.yaml`` file.
             For an image ``X.png``, a sibling ``X_valid.png`` (255 = inside) is used as the valid mask if present;
-            otherwise every free cell is valid.
+            otherwise every free cell is valid. A ``.yaml`` is read with map_server's semantics (thresholds,
+            ``mode``, ``negate``, ``origin``), its unknown cells outside the world (see :func:`_load_ros_yaml`).
         resolution_m: metres per cell for plain image files (ignored for bundled maps and YAML, which carry
             their own).
 

@@ -40,7 +40,51 @@ def test_png_pgm_and_ros_yaml_round_trip(tmp_path):
     assert grid.resolution_m == 0.2 and grid.occupied[3, 4] and grid.occupied.sum() == 10
     (tmp_path / "n.yaml").write_text("image: m.png\nresolution: 0.2\nnegate: 1\n")
     negated = load_map(tmp_path / "n.yaml")
-    assert not negated.occupied[0].any() and negated.occupied[1:, :].sum() == 5 * 9 - 1
+    # negated, p = v / 255: row 0 free, 255 walls, the 100-pixel (p = 0.39) between the thresholds: unknown,
+    # which lies outside the world (an obstacle to the simulator, outside the valid area)
+    assert not negated.occupied[0].any() and negated.occupied[1:, :].all()
+    assert negated.valid[0].all() and negated.valid.sum() == 9
+
+
+def _map_server(tmp_path, pixels, **fields) -> "OccupancyGrid":
+    Image.fromarray(pixels).save(tmp_path / "f.pgm")
+    lines = ["image: f.pgm", "resolution: 0.05"] + [f"{key}: {value}" for key, value in fields.items()]
+    (tmp_path / "f.yaml").write_text("\n".join(lines) + "\n")
+    return load_map(tmp_path / "f.yaml")
+
+
+def test_a_map_servers_unknown_cells_lie_outside_the_world(tmp_path):
+    # map_saver's trinary output: 254 free, 0 wall, 205 unknown; a building whose door opens onto unknown space
+    pixels = np.full((20, 30), 205, np.uint8)
+    pixels[5:15, 5:20] = 254
+    pixels[5, 5:20] = pixels[14, 5:20] = pixels[5:15, 5] = 0
+    pixels[5:15, 19] = 0
+    pixels[9:11, 19] = 254  # the door, and the unknown beyond it
+    grid = _map_server(tmp_path, pixels, occupied_thresh=0.65, free_thresh=0.196, origin="[-3.0, 1.5, 0.0]")
+    unknown = pixels == 205
+    assert grid.occupied[unknown].all() and not grid.valid[unknown].any()  # opaque, not traversable, not covered
+    assert grid.valid.sum() == np.count_nonzero(pixels == 254)
+    assert grid.origin_xy == (-3.0, 1.5)
+
+
+def test_map_server_modes_and_thresholds(tmp_path):
+    pixels = np.array([[0, 60, 100, 101, 255]], np.uint8)
+    raw = _map_server(tmp_path, pixels, mode="raw", occupied_thresh=0.65, free_thresh=0.25)
+    # raw: p = v / 100 for v <= 100 (0 free, 0.6 unknown, 1.0 wall), unknown above 100
+    assert raw.valid.tolist() == [[True, False, False, False, False]]
+    assert raw.occupied.tolist() == [[False, True, True, True, True]]
+    scale = _map_server(tmp_path, np.array([[0, 100, 200, 255]], np.uint8), mode="scale", free_thresh=0.1)
+    # p = (255 - v) / 255 = 1, 0.61, 0.22, 0: wall, unknown, unknown (above free_thresh 0.1), free
+    assert scale.valid.tolist() == [[False, False, False, True]]
+    for mode in ("banana", 3):
+        with pytest.raises(ValueError, match="mode must be one of trinary, scale, raw"):
+            _map_server(tmp_path, pixels, mode=mode)
+    with pytest.raises(ValueError, match=r"a rotated origin \(yaw 3.14\) is not supported"):
+        _map_server(tmp_path, pixels, origin="[0.0, 0.0, 3.14]")
+    with pytest.raises(ValueError, match="origin must be three finite numbers"):
+        _map_server(tmp_path, pixels, origin="[0.0, 0.0]")
+    with pytest.raises(ValueError, match="need 0 <= free_thresh <= occupied_thresh <= 1"):
+        _map_server(tmp_path, pixels, free_thresh=0.8, occupied_thresh=0.65)
 
 
 def test_valid_mask_sibling_is_used(tmp_path):
