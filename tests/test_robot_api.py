@@ -282,3 +282,30 @@ def test_a_clockwise_scan_is_the_same_rays_as_its_counter_clockwise_twin():
     assert np.array_equal(*maps)
     with pytest.raises(ValueError, match="angle_increment must not be 0"):
         LaserScan(0.0, 0.0, 0.05, 4.0, ranges)
+
+
+# finished on the observations' clock
+
+
+def _closed_room() -> np.ndarray:
+    room = np.full(FRAME.shape, -1, np.int8)
+    room[30:50, 5:35] = 0
+    room[30, 5:35] = room[49, 5:35] = room[30:50, 5] = room[30:50, 34] = 100
+    return room
+
+
+def test_finished_waits_for_finish_after_s_without_a_frontier_and_restarts_when_one_returns():
+    explorer = _new(cfg=ExplorerConfig(finish_after_s=2.0))
+    closed, open_ = _closed_room(), _slam()
+    sequence = [(0.0, closed, False), (1.0, closed, False), (1.5, open_, False), (2.5, closed, False),
+                (4.0, closed, False), (4.5, closed, True), (5.0, closed, True)]
+    for stamp, grid, finished in sequence:
+        command = _map_step(explorer, grid, stamp=stamp)
+        assert command.finished is finished, stamp
+        assert command.goal_rc is None or grid is open_
+
+
+def test_by_default_finished_comes_at_the_first_step_without_a_frontier():
+    assert _map_step(_new(), _closed_room()).finished
+    with pytest.raises(ValueError, match="finish_after_s must be a finite number of seconds >= 0"):
+        ExplorerConfig(finish_after_s=-1.0)

@@ -67,7 +67,8 @@ class Command:
         path_xy: float64 ``[N, 2]`` map-frame waypoints (metres) from the robot's cell to the goal (cell centres;
             empty without a goal).
         path_rc: int64 ``[N, 2]`` the same waypoints as cells.
-        finished: True when the explorer's map holds known cells and no reachable frontier is left: the
+        finished: True when the explorer's map holds known cells and no reachable frontier has been left for
+            the explorer's ``finish_after_s`` seconds of the observations' clock (0 by default: at once): the
             exploration is over. False while a goal is set, and also without a goal while the map is still empty
             (no observation so far had a valid reading): the next observation may see something.
         new_goal: True when the goal was chosen at this step.

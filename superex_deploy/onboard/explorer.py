@@ -87,6 +87,11 @@ class ExplorerConfig:
         occupancy: the map's log-odds parameters and the SLAM map's thresholds
             (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
             recording's metadata holds it).
+        finish_after_s: how long (seconds, on the observations' clock) no reachable frontier must be left before a
+            step says ``finished`` (explore_lite's progress timeout). 0: at the first step without one, as the
+            simulated benchmarks run it (there a map never reopens by itself). A robot whose map is built from
+            noisy scans or a SLAM map that is still being corrected should give a few seconds: a doorway closed by
+            one noisy scan then reopens before exploration is declared over.
         scan_matching: the correlative scan-to-map matcher
             (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
             observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
@@ -99,6 +104,7 @@ class ExplorerConfig:
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
     scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
+    finish_after_s: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.occupancy, dict):
@@ -115,6 +121,9 @@ class ExplorerConfig:
             raise ValueError(f"prediction must be a PredictionSchedule, got {type(self.prediction).__name__}")
         if not isinstance(self.reuse, PredictionReuse):
             raise ValueError(f"reuse must be a PredictionReuse, got {type(self.reuse).__name__}")
+        if isinstance(self.finish_after_s, bool) or not isinstance(self.finish_after_s, (int, float)) \
+                or not (np.isfinite(self.finish_after_s) and self.finish_after_s >= 0.0):
+            raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")
         if int(self.frontier_min_cells) < 1:
             raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
 
@@ -193,6 +202,7 @@ class Explorer:
         self.path: list[tuple[int, int]] = []
         self.steps = 0
         self.finished = False
+        self._no_goal_since: Optional[float] = None  # stamp of the first step of the current run without a goal
         self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
         self._reach_cells = cfg.motion.goal_reached_m / frame.resolution_m
@@ -419,8 +429,9 @@ class Explorer:
         self.steps += 1
         if np.any(observed != UNKNOWN):
             new_goal = self._plan(planning, frontiers, pose, prediction, t, timings)
+            self._settle_finished(obs.stamp_s)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
-            new_goal, self.finished = False, False
+            new_goal, self.finished, self._no_goal_since = False, False, None
         timings["prediction"] += waited
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
@@ -433,6 +444,16 @@ class Explorer:
                        prediction_step=self._latest_step, step=t, timings_s=timings,
                        prediction_age_steps=t - self._latest_step if aged else None,
                        prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None)
+
+    def _settle_finished(self, stamp_s: float) -> None:
+        """``finished`` once no goal has been found for ``cfg.finish_after_s`` seconds of the observations' clock
+        (``self.finished`` holds, on entry, whether this step found none)."""
+        if not self.finished:
+            self._no_goal_since = None
+            return
+        if self._no_goal_since is None:
+            self._no_goal_since = stamp_s
+        self.finished = stamp_s - self._no_goal_since >= self.cfg.finish_after_s
 
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
               prediction: LazyPrediction, t: int, timings: dict) -> bool:
