@@ -1,5 +1,6 @@
-"""``pipeline.build_explorer``, the one way to build an explorer: what each profile and predictor gives, and the one
-default profile every entry point agrees on."""
+"""``pipeline.build_explorer``, the one way to build an explorer: what each profile and predictor gives, the one
+default profile every entry point agrees on, the retired options' errors, and a recording made before the options
+were retired that still replays."""
 
 import inspect
 import json
@@ -12,8 +13,9 @@ from superex_deploy.benchmarking import ScenarioTask, run_scenario
 from superex_deploy.cli import main
 from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import MapFrame
-from superex_deploy.onboard import SpadProcessing
-from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard import ExplorerConfig, SpadProcessing
+from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer, make_sensing
 from superex_deploy.sim.episode import run_episode
@@ -138,3 +140,76 @@ def test_an_episode_takes_a_built_explorer_only_when_it_matches():
     unrelated = build_explorer(frame, "nearest", "observed", profile="full", spad=True, cfg=cfg.explorer)
     with pytest.raises(ValueError, match="SPAD processing must be the sensing's"):
         run_episode(grid, start, explorer=unrelated, steps=2, cfg=cfg, sensing=sensing)
+
+
+@pytest.mark.parametrize("field", sorted(SuperexConfig.RETIRED))
+def test_a_retired_planner_option_is_refused_by_name(field, tmp_path, capsys):
+    value = SuperexConfig.RETIRED[field]
+    with pytest.raises(ValueError, match=f"the option '{field}' was retired"):
+        make_planner("superex", **{field: value})
+    if field == "choice":
+        out = tmp_path / "run"
+        assert main(["explore", "--map", MAP, "--planner", "superex", "--planner-option", "choice=rollout",
+                     "--steps", "2", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "'choice' was retired" in err and err.count("\n") == 1
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("field", ["match_sigma_cells", "match_sigma_deg", "start_after_scans"])
+def test_a_retired_scan_matching_option_is_refused_by_name(field):
+    assert field in ScanMatchingConfig.RETIRED
+    with pytest.raises(ValueError, match=f"ScanMatchingConfig: the option '{field}' was retired"):
+        ScanMatchingConfig(**{field: 1})
+    with pytest.raises(ValueError, match=f"'{field}' was retired"):
+        ExplorerConfig(scan_matching={field: ScanMatchingConfig.RETIRED[field]})
+    assert not hasattr(ScanMatchingConfig(), field)
+
+
+def _old_recording(tmp_path, scan_matching_extra: dict, planner_options: dict):
+    """A short recording whose metadata is written as a version before the retirement wrote it: the scan matcher's
+    retired fields in its explorer configuration, and retired planner options."""
+    from superex_deploy.recording import EpisodeRecorder
+    from superex_deploy.sim.episode import make_world_and_explorer
+
+    grid = load_map(MAP)
+    cfg = PROFILES["full"].episode_config(iou_every=0)
+    explorer_cfg = asdict(cfg.explorer)
+    explorer_cfg["scan_matching"].update(scan_matching_extra)
+    metadata = {"map": MAP, "planner": "superex", "planner_options": planner_options, "predictor": "observed",
+                "seed": 0, "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": explorer_cfg,
+                "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+    path = tmp_path / "old.mcap"
+    world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1], make_planner("superex"),
+                                              ObservedAsPrediction(), 0, cfg)
+    goals = []
+    with EpisodeRecorder(path, world.frame, metadata) as recorder, explorer:
+        for _ in range(15):
+            observation = world.observe()
+            command = explorer.step(observation)
+            recorder.write(observation, command, explorer.observed)
+            if command.new_goal:
+                goals.append(list(command.goal_rc))
+            world.apply(command)
+    return path, goals
+
+
+def test_a_recording_made_before_the_retirement_replays(tmp_path):
+    old_defaults = dict(ScanMatchingConfig.RETIRED)
+    path, goals = _old_recording(tmp_path, old_defaults, {"choice": "greedy", "candidates": 5, "n_rays": 250})
+    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
+    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
+    assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals
+
+
+@pytest.mark.parametrize("scan_matching, options, named", [
+    ({"match_sigma_cells": 0.3}, {}, "ScanMatchingConfig: the option 'match_sigma_cells' was retired"),
+    ({}, {"choice": "rollout"}, "SuperexConfig: the option 'choice' was retired"),
+])
+def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, scan_matching, options,
+                                                                     named):
+    path, _ = _old_recording(tmp_path, scan_matching, options)
+    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 2
+    err = capsys.readouterr().err
+    assert named in err and "cannot be rebuilt" in err
+    assert not (tmp_path / "replay" / "metrics.json").exists()

@@ -37,7 +37,9 @@ def build_explorer(metadata: dict, frame, models=None):
 
     from superex_deploy import pipeline
     from superex_deploy.onboard.planning.motion import MotionConfig
-    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.checks import without_retired
+    from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+    from superex_deploy.onboard.planning.planners import make_planner, planner_config
     from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
@@ -62,6 +64,11 @@ def build_explorer(metadata: dict, frame, models=None):
     if isinstance(metadata["seed"], bool) or seed != metadata["seed"] or seed < 0:
         raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
     try:
+        # A recording made before an option was retired carries it at its old default (accepted) or at another
+        # value (refused, named).
+        config = planner_config(planner_name)
+        if config is not None and isinstance(options, dict):
+            options = without_retired(config, options)
         planner = make_planner(planner_name, **options)
     except ValueError as error:
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
@@ -69,6 +76,8 @@ def build_explorer(metadata: dict, frame, models=None):
         explorer_fields = dict(metadata["explorer"])
         schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
         reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
+        if isinstance(explorer_fields.get("scan_matching"), dict):
+            explorer_fields["scan_matching"] = without_retired(ScanMatchingConfig, explorer_fields["scan_matching"])
         cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
         sensor = nlos_cfg = None
