@@ -74,7 +74,8 @@ class ScanMatchingConfig:
         refine_levels: fine search levels after the lattice (each halves the steps).
 
     The options ``match_sigma_cells``, ``match_sigma_deg`` (fusing an accepted match with the belief) and
-    ``start_after_scans`` (matching only after the first scans) were retired (``RETIRED``: their old defaults; measured in docs/on-a-robot.md, "What was tried").
+    ``start_after_scans`` (matching only after the first scans) were retired (``RETIRED``: their old defaults;
+    measured in docs/on-a-robot.md, "What was tried").
     """
 
     enabled: bool = True
