@@ -75,7 +75,7 @@ def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
     (map_name, start_index, start_rc), (pose, spad, lidar) = scenario, setting
     return ScenarioTask(map_name=map_name, start_index=start_index, start_rc=tuple(start_rc), planner=planner,
                         predictor=predictor, spad=predictor != "lama_los", steps=steps, seed=start_index,
-                        iou_every=25, pose_noise=None if pose == (0.0, 0.0) else pose,
+                        profile="full", iou_every=25, pose_noise=None if pose == (0.0, 0.0) else pose,
                         lidar_noise=None if lidar == 0.0 else (lidar, LIDAR_DROPOUT, LIDAR_SPURIOUS),
                         spad_noise=spad if predictor != "lama_los" else "off")
 

@@ -22,9 +22,6 @@ VARIANTS = {
     "off": dict(enabled=False),
     "default": dict(),
     "prior01": dict(prior_weight=0.01),
-    "fuse03": dict(match_sigma_cells=0.3, match_sigma_deg=0.1),
-    "fuse05": dict(match_sigma_cells=0.5, match_sigma_deg=0.2),
-    "delay10": dict(start_after_scans=10),
     
     "gain0": dict(min_gain=0.0),
     "gain05": dict(min_gain=0.05),

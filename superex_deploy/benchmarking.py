@@ -25,8 +25,9 @@ class ScenarioTask:
         planner_options: overrides of the planner's config (``--planner-option``).
         iou_every, iou_dense_until: when the map IoU is evaluated (see
             :class:`~superex_deploy.sim.episode.ExplorationConfig`); by default every 50 steps.
-        profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); by default ``full``
-            (the paper suite's).
+        profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); None (the default):
+            :func:`~superex_deploy.pipeline.resolve_profile` (:data:`~superex_deploy.pipeline.DEFAULT_PROFILE` where
+            the planner can use it). The paper suite names ``full``.
         pose_noise: ``(sigma_m, sigma_deg)`` of the localisation error, or None (see :func:`with_noise`).
         lidar_noise: ``(sigma_m, dropout, spurious)`` of the LiDAR, or None.
         spad_noise: the SPAD photon budget's preset name (:data:`superex_deploy.spad_types.SPAD_PRESETS`).
@@ -50,7 +51,7 @@ class ScenarioTask:
     planner_options: dict = field(default_factory=dict)
     iou_every: int = 50
     iou_dense_until: float = 1.0
-    profile: str = "full"
+    profile: Optional[str] = None
     pose_noise: Optional[tuple[float, float]] = None
     lidar_noise: Optional[tuple[float, float, float]] = None
     spad_noise: str = "off"
@@ -98,12 +99,15 @@ def with_spad_noise(sensing, preset: str):
 def run_scenario(task: ScenarioTask) -> dict:
     """One benchmark episode in a worker process; returns its JSON summary (no poses, no per-step timings), with
     the task's ``start_index`` and ``profile`` (and, on an altered floor, ``alteration`` and ``dead_ends``)."""
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.messages import MapFrame
     from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.pipeline import build_explorer, check_profile, make_sensing, resolve_profile
+    from superex_deploy.sim.episode import run_episode
     from superex_deploy.maps import load_map
 
-    profile = PROFILES[task.profile]
+    planner = make_planner(task.planner, **task.planner_options)
+    profile_name = resolve_profile(task.profile, planner, task.predictor)
+    profile = check_profile(profile_name, planner, task.predictor)
     dead_ends = alteration = None
     if task.alteration_seed is None:
         grid = load_map(task.map_name)
@@ -115,12 +119,14 @@ def run_scenario(task: ScenarioTask) -> dict:
     cfg = with_noise(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
                      task.pose_noise, task.lidar_noise, task.seed)
     sensing = with_spad_noise(make_sensing(task.predictor, task.spad, task.seed, profile=profile), task.spad_noise)
-    result = run_episode(grid, task.start_rc, make_planner(task.planner, **task.planner_options),
-                         make_predictor(task.predictor, grid, profile=profile), steps=task.steps, seed=task.seed,
-                         cfg=cfg, sensing=sensing)
+    explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, task.predictor, profile=profile_name,
+                              spad=False if sensing is None else sensing.processing(), seed=task.seed,
+                              cfg=cfg.explorer, grid=grid)
+    result = run_episode(grid, task.start_rc, explorer=explorer, steps=task.steps, seed=task.seed, cfg=cfg,
+                         sensing=sensing)
     summary = result.to_json()
     summary["start_index"] = task.start_index
-    summary["profile"] = task.profile
+    summary["profile"] = profile_name
     if alteration is not None:
         from superex_deploy.sim.dead_ends import dead_end_entries
 

@@ -1,5 +1,7 @@
-"""One place that assembles the pipeline from names: the map predictor, the simulated SPAD sensing and the
-onboard SPAD processing (used by the CLI, the benchmarks, the replay and the scripts).
+"""One place that assembles the pipeline from names: :func:`build_explorer` (the explorer of a planner, a predictor
+and a profile, with its predictor and SPAD processing; used by the CLI, the replay, the benchmarks, the Gymnasium
+environment and the scripts), and its parts: the map predictor, the simulated SPAD sensing and the onboard SPAD
+processing.
 
 The onboard pieces it builds read no ground truth: :func:`make_predictor` for every predictor but ``oracle`` (those
 come from :mod:`superex_deploy.onboard.prediction.registry`) and :func:`make_processing`; :func:`make_sensing` and the oracle
@@ -12,7 +14,8 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Optional
 
-from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
+from superex_deploy.messages import MapFrame
+from superex_deploy.onboard.explorer import Explorer, ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.prediction.inference import SessionConfig, ThreadBudget, check_member_options
 from superex_deploy.onboard.prediction.registry import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
                                                models_dir)
@@ -21,7 +24,7 @@ from superex_deploy.onboard.nlos.processing import NlosSkips
 
 __all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "DEFAULT_PROFILE", "resolve_profile",
            "check_profile",
-           "make_predictor", "make_sensing", "make_processing"]
+           "build_explorer", "make_predictor", "make_sensing", "make_processing"]
 
 @dataclass(frozen=True)
 class RealtimeProfile:
@@ -121,7 +124,9 @@ benchmarks on the simulated clock: the map of every 2nd step is predicted and ap
 latency as 2 steps, as the deterministic thread mode the profile was measured in)."""
 
 DEFAULT_PROFILE = "realtime"
-"""The profile ``superex explore`` and ``superex benchmark`` use unless told otherwise."""
+"""The profile every entry point uses unless told otherwise: :func:`build_explorer`, ``superex explore`` and
+``superex benchmark``, :class:`~superex_deploy.benchmarking.ScenarioTask` and the Gymnasium environment (each
+through :func:`resolve_profile`). The paper suite names ``full``, the pipeline its table measured."""
 
 
 def resolve_profile(profile_name: Optional[str], planner, predictor: str) -> str:
@@ -211,3 +216,63 @@ def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, ski
     bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None
     return SpadProcessing(sensor=sensor or SpadConfig(), nlos_cfg=nlos_cfg or NlosConfig(), bp_filter=bp_filter,
                           skips=skips or NlosSkips())
+
+
+def build_explorer(frame: MapFrame, planner, predictor, *, profile: Optional[str] = None, cores: Optional[int] = None,
+                   spad=False, models=None, seed: int = 0, clock: str = "robot", cfg: Optional[ExplorerConfig] = None,
+                   grid=None, sensor=None, nlos_cfg=None) -> Explorer:
+    """The :class:`~superex_deploy.onboard.explorer.Explorer` of ``planner`` and ``predictor`` under a profile:
+    the one way the CLI, the replay, the benchmarks and the Gymnasium environment build theirs.
+
+    Args:
+        frame: the map frame of the observations (:class:`~superex_deploy.messages.MapFrame`).
+        planner: a planner name (``planners.make_planner`` with its defaults) or a Planner instance.
+        predictor: a name of :data:`PREDICTORS` (built by :func:`make_predictor` under the profile, for ``cores``,
+            from ``models``) or a :class:`~superex_deploy.onboard.types.MapPredictor` instance, used as it is.
+        profile: a name of :data:`PROFILES`; None: :func:`resolve_profile` (:data:`DEFAULT_PROFILE` where the
+            planner can use it).
+        cores: the cores the explorer gets (None: the process's CPU affinity for its threads, and the profile's
+            fixed ONNX Runtime settings: the benchmarks'); the predictor's sessions get the worker's share.
+        spad: False (no SPAD frames), True (the onboard processing of :func:`make_processing` for the predictor,
+            with ``sensor``, ``nlos_cfg`` and the profile's skips), or a ready
+            :class:`~superex_deploy.onboard.nlos.processing.SpadProcessing` (a simulation's, whose evidence it reads).
+        models: folder of exported models (default: the repository's ``exported/``).
+        seed: seed of the generator handed to the planner.
+        clock: ``"robot"`` (the profile's schedule) or ``"simulated"`` (its benchmark schedule:
+            :meth:`RealtimeProfile.explorer_config`).
+        cfg: the whole :class:`~superex_deploy.onboard.explorer.ExplorerConfig` instead of the profile's (a
+            replay's recorded one, a simulation's with its noise calibration).
+        grid: the ground truth, read by the ``oracle`` predictor only (simulations).
+        sensor, nlos_cfg: the SPAD sensor model and processing parameters with ``spad=True`` (default: the
+            simulator's sensor, the default parameters).
+
+    Raises:
+        ValueError: an unknown planner, predictor or profile, a profile the planner cannot use with the predictor
+            (:func:`check_profile`), an evidence predictor without SPAD processing, models that are missing.
+    """
+    from superex_deploy.onboard.nlos.processing import SpadProcessing
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    if isinstance(planner, str):
+        planner = make_planner(planner)
+    if not isinstance(predictor, str) and not callable(getattr(predictor, "predict", None)):
+        raise ValueError(f"predictor must be a predictor name or have a predict(observed, extra) method, got "
+                         f"{type(predictor).__name__}")
+    name = predictor if isinstance(predictor, str) else getattr(predictor, "name", type(predictor).__name__)
+    if isinstance(predictor, str) and predictor not in PREDICTORS:
+        raise ValueError(f"unknown predictor {predictor!r}; choose one of {', '.join(PREDICTORS)}")
+    profile_name = resolve_profile(profile, planner, name)
+    chosen = check_profile(profile_name, planner, name)
+    if isinstance(spad, bool):
+        if name in EVIDENCE_PREDICTORS and not spad:
+            raise ValueError(f"the {name} predictor reads the SPAD evidence: build it with spad=True")
+        spad_processing = make_processing(name, sensor, nlos_cfg, models, chosen.nlos_skips) if spad else None
+    elif isinstance(spad, SpadProcessing):
+        spad_processing = spad
+    else:
+        raise ValueError(f"spad must be True, False or a SpadProcessing, got {type(spad).__name__}")
+    profile_cfg = chosen.explorer_config(clock)  # also checks the clock
+    if isinstance(predictor, str):
+        predictor = make_predictor(predictor, grid, models, chosen, cores=cores)
+    return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg or profile_cfg, seed=seed,
+                    cores=cores)

@@ -543,19 +543,6 @@ def naive_path_gain(mean, observed, path, every, n_rays, range_cells, hit_thresh
     return int(np.count_nonzero(seen & (observed == -1)))
 
 
-def naive_open_tour_first(between, from_robot):
-    """First goal of the shortest open path that starts at the robot and visits every goal once, by trying
-    every order (ties: the lexicographically first order)."""
-    from itertools import permutations
-
-    best, best_first = np.inf, -1
-    for order in permutations(range(len(from_robot))):
-        length = from_robot[order[0]] + sum(between[a][b] for a, b in zip(order[:-1], order[1:]))
-        if length < best - 1e-9:
-            best, best_first = length, order[0]
-    return best_first, best
-
-
 # --- onboard.mapper ---
 
 

@@ -122,7 +122,7 @@ def test_alteration_off_is_the_standard_suite(tmp_path):
     committed = json.loads(open("benchmarks/eval_paper/rows/superex_oracle.json").read())["episodes"]
     start = start_poses(MAP)[0]
     task = ScenarioTask(map_name=MAP, start_index=0, start_rc=start, planner="superex", predictor="oracle",
-                        spad=False, steps=30, seed=0, iou_every=10, iou_dense_until=0.35)
+                        spad=False, steps=30, seed=0, iou_every=10, iou_dense_until=0.35, profile="full")
     summary = run_scenario(task)
     reference = next(e for e in committed if e["map"] == MAP and e["start_index"] == 0)
     assert summary["coverage"] == reference["coverage"][:30]

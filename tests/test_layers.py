@@ -21,6 +21,7 @@ LAYERS = (
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
+    ("gym env", ("superex_deploy.sim.gym_env",)),  # builds its explorer with pipeline.build_explorer
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),

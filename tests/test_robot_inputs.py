@@ -102,10 +102,9 @@ def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goal
     grid = load_map(MAP)
     sensing = make_sensing("observed", True, 0)
     world = World(grid, start_poses(MAP)[2], WorldConfig(spad=sensing.spad))
-    # This world moves cell to cell and wants each path from the robot's cell: the scan matcher's correction is
-    # fused with the belief (which stays in that cell) so that it is exercised, recorded and replayed without moving
-    # the believed cell.
-    cfg = ExplorerConfig(scan_matching=ScanMatchingConfig(match_sigma_cells=0.3, match_sigma_deg=0.1))
+    # This world moves cell to cell and wants each path from the robot's cell: the belief stays within that cell,
+    # and the scan matcher's correction (exercised, recorded and replayed) brings it back towards the true pose.
+    cfg = ExplorerConfig(scan_matching=ScanMatchingConfig())
     own = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction(), spad_processing=sensing.processing(),
                    cfg=cfg, seed=1)
     rng = np.random.default_rng(5)

@@ -9,12 +9,11 @@ from superex_deploy.onboard.planning.motion import planning_map
 from superex_deploy.onboard.planning.planners import MapexPlanner, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.oracle import OraclePredictor
-from superex_deploy.onboard.planning.planners.superex import (SuperexConfig, SuperexPlanner, descend, rollout_value,
-                                                    rollout_world, tour_first)
+from superex_deploy.onboard.planning.planners.superex import SuperexConfig, SuperexPlanner, descend
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
 from superex_deploy.onboard.planning.visibility import VisibilityConfig, predicted_visibility
 from superex_deploy.maps import OccupancyGrid
-from tests.naive import naive_open_tour_first, naive_path_gain
+from tests.naive import naive_path_gain
 
 
 def _context(observed, pose, prediction, frontiers=None):
@@ -116,51 +115,6 @@ def test_descend_follows_the_cost_to_go_down_to_the_robot():
         descend(np.full((3, 3), np.inf), (1, 1))
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_tour_first_matches_a_brute_force_order_on_up_to_8_clusters(seed):
-    """In an open room the travel between goals is the 8-connected grid distance; the tour's first goal is
-    the brute-force optimum's."""
-    rng = np.random.default_rng(seed)
-    n = int(rng.integers(3, 9))
-    observed = np.zeros((60, 60), np.int8)
-    prediction = Prediction(np.zeros((60, 60), np.float32), np.zeros((60, 60), np.float32))
-    world = rollout_world(observed, prediction, 0.1, 0.1, 0.5)
-    goals = [tuple(int(v) for v in rng.integers(0, 60, 2)) for _ in range(n)]
-    while len(set(goals)) < n:
-        goals = [tuple(int(v) for v in rng.integers(0, 60, 2)) for _ in range(n)]
-    robot = (30, 30)
-
-    def octile(a, b):
-        dy, dx = abs(a[0] - b[0]), abs(a[1] - b[1])
-        return max(dy, dx) + (np.sqrt(2) - 1) * min(dy, dx)
-
-    between = [[octile(a, b) for b in goals] for a in goals]
-    from_robot = np.array([octile(robot, g) for g in goals])
-    expected, best = naive_open_tour_first(between, from_robot)
-    first = tour_first(world, goals, from_robot)
-    # fast-tsp works on rounded integer lengths: the chosen order is optimal up to that rounding.
-    order_length = lambda f: from_robot[f] + min(  # noqa: E731
-        naive_open_tour_first([[between[a][b] for b in range(n) if b != f] for a in range(n) if a != f],
-                              np.array([between[f][b] for b in range(n) if b != f]))[1] if n > 1 else 0.0, np.inf)
-    assert first == expected or order_length(first) <= best + n
-
-
-def test_rollouts_value_a_known_world_exactly_and_refuse_unreachable_goals():
-    observed = np.zeros((30, 30), np.int8)
-    observed[[0, -1], :] = observed[:, [0, -1]] = OCCUPIED
-    prediction = ObservedAsPrediction().predict(observed)
-    world = rollout_world(observed, prediction, 0.1, 0.3, 0.5)
-    cfg = SuperexConfig(horizon_m=6.0)
-    known = np.count_nonzero(world.known != UNKNOWN)
-    assert known == world.known.size
-    # Nothing to see: the curve is flat at every known cell over the whole horizon (20 rollout cells).
-    assert rollout_value(world, (5, 5), (5, 6), cfg) == pytest.approx(known * 20.0)
-    walled = world.walls.copy()
-    walled[:, 3] = 1.0
-    blocked = type(world)(world.factor, walled, world.known, world.resolution_m)
-    assert rollout_value(blocked, (5, 1), (5, 6), cfg) == -np.inf
-
-
 def test_goals_are_kept_until_reached_unless_drop_resolved_is_set():
     observed = np.zeros((20, 20), np.int8)
     observed[0:3, :] = UNKNOWN
@@ -178,21 +132,14 @@ def test_superex_episodes_run_and_are_deterministic():
     assert runs[0].goals[0][0] < 39  # into the room first (its door was seen from the start)
     mapex = run_episode(grid, (45, 25), MapexPlanner(), OraclePredictor(grid), steps=60, seed=0)
     assert runs[0].coverage[-1] >= mapex.coverage[-1] - 0.02
-    for choice in ("rollout", "tour"):
-        other = run_episode(grid, (45, 25), make_planner("superex", choice=choice), OraclePredictor(grid),
-                            steps=30, seed=0)
-        assert other.coverage[-1] > other.coverage[0]
 
 
 @pytest.mark.parametrize("field, value, message", [
     ("gain", "view", "gain must be 'path', 'goal', 'expected' or 'expected_goal'"),
     ("wall_support", "yes", "wall_support must be None, a WallSupport"),
-    ("choice", "best", "choice must be 'greedy', 'rollout' or 'tour'"),
     ("wall_threshold", 0.0, "wall_threshold must lie in"),
     ("sense_every_m", 0.0, "sense_every_m must be positive"),
     ("drop_resolved_m", -1.0, "drop_resolved_m must be None"),
-    ("candidates", 0, "candidates must be an integer >= 1"),
-    ("tour_frontiers", 19, "at most 18"),
     ("n_rays", 2.5, "n_rays must be an integer"),
 ])
 def test_bad_configuration_is_refused(field, value, message):
@@ -200,3 +147,13 @@ def test_bad_configuration_is_refused(field, value, message):
         SuperexConfig(**{field: value})
     with pytest.raises(ValueError, match="bad configuration"):
         make_planner("superex", no_such_field=1)
+
+
+@pytest.mark.parametrize("field", ["choice", "candidates", "rollout_goals", "horizon_m", "rollout_cell_m",
+                                   "rollout_frontier_cells", "tour_frontiers"])
+def test_the_retired_rollout_and_tour_options_are_refused_by_name(field):
+    value = SuperexConfig.RETIRED[field]  # even at its old default: the option no longer exists
+    with pytest.raises(ValueError, match=f"SuperexConfig: the option '{field}' was retired"):
+        SuperexConfig(**{field: value})
+    with pytest.raises(ValueError, match=f"bad configuration for planner 'superex': .*'{field}' was retired"):
+        make_planner("superex", **{field: value})

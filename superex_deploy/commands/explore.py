@@ -15,7 +15,8 @@ from pathlib import Path
 from superex_deploy.commands._options import (add_noise_options, add_planner_option, add_profile_option,
                                                check_output_file, check_output_folder, folders_made, noise_options,
                                                noise_settings, non_negative_int, planner_options, resolve_start)
-from superex_deploy.pipeline import PREDICTORS, PROFILES, check_profile, make_predictor, make_sensing, resolve_profile
+from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
+                                     resolve_profile)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,15 +85,17 @@ def run(args: argparse.Namespace) -> int:
     profile = check_profile(args.profile, planner, args.predictor)
     sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
                               noise["spad_noise"])
-    # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
-    # replay follows it); the sessions get the worker's share of this machine's cores.
-    from superex_deploy.onboard.prediction.inference import available_cores
-
-    predictor = make_predictor(args.predictor, grid, args.models, profile, cores=available_cores())
     cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
+    # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
+    # replay follows it); the sessions get the worker's share of this machine's cores.
+    from superex_deploy.onboard.prediction.inference import available_cores
+
+    explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, args.predictor, profile=args.profile,
+                              cores=available_cores(), spad=False if sensing is None else sensing.processing(),
+                              models=args.models, seed=args.seed, cfg=cfg.explorer, grid=grid)
     from superex_deploy.commands.warmup import numba_cache_is_warm
 
     if args.spad and not numba_cache_is_warm():  # the SPAD kernels are the slow ones to compile
@@ -107,13 +110,14 @@ def run(args: argparse.Namespace) -> int:
             metadata = recording_metadata(grid, args, options, sensing, cfg.explorer)
             metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
             record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
-        result = _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record)
+        result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record)
         if record is not None:
             record.write_map(result.final_observed)
             record.close()
     except BaseException as error:
         from superex_deploy.parallel import interruption_in
 
+        explorer.close()  # where the episode did not start (a recording that could not be opened)
         # parallel.Interrupted (SIGINT, SIGTERM), a Ctrl-C, or a signal wrapped by a C callback: keep the steps done.
         stop = error if isinstance(error, KeyboardInterrupt) else interruption_in(error)
         if stop is None:
@@ -130,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
 
 
-def _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done, record):
+def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record):
     from tqdm import tqdm
 
     from superex_deploy.sim.episode import run_episode
@@ -150,7 +154,7 @@ def _run_episode(args, grid, start, planner, predictor, cfg, sensing, gif, done,
             if record is not None:
                 record.write(observation, command, explorer.observed)
 
-        return run_episode(grid, start, planner, predictor, steps=args.steps, seed=args.seed, cfg=cfg,
+        return run_episode(grid, start, explorer=explorer, steps=args.steps, seed=args.seed, cfg=cfg,
                            on_step=on_step, sensing=sensing, on_observation=on_observation)
 
 

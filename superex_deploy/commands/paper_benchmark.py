@@ -80,7 +80,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
     row = PAPER_ROWS[name]
     altered = {} if "alteration" not in setting else {"floors_dir": str(args.out / "floors")}
     tasks = [ScenarioTask(map_name=m, start_index=k, start_rc=pose, planner=row.planner, predictor=row.predictor,
-                          spad=row.spad, steps=args.steps, seed=args.seed, **IOU_SCHEDULE, **altered,
+                          spad=row.spad, steps=args.steps, seed=args.seed, profile="full", **IOU_SCHEDULE, **altered,
                           **({"alteration_seed": alteration_seed(m, pose)} if altered else {}))
              for m in maps for k, pose in enumerate(start_poses(m))]
     keys = [f"{task.map_name}/{task.start_index}" for task in tasks]

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def build_explorer(metadata: dict, frame, models=None):
-    """The explorer a recording's metadata describes.
+    """The explorer a recording's metadata describes (:func:`superex_deploy.pipeline.build_explorer` with the
+    recorded configuration).
 
     Raises:
         ValueError: metadata that names no planner or predictor, the oracle predictor (it reads the truth), or
@@ -34,11 +35,13 @@ def build_explorer(metadata: dict, frame, models=None):
     """
     from dataclasses import fields
 
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_processing
+    from superex_deploy import pipeline
     from superex_deploy.onboard.planning.motion import MotionConfig
-    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.onboard.checks import without_retired
+    from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+    from superex_deploy.onboard.planning.planners import make_planner, planner_config
     from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, PredictionSchedule
+    from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
 
     try:
@@ -50,10 +53,10 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError("the recording used the oracle predictor, which reads the ground truth: it cannot be replayed")
     models = models or metadata.get("models")
     profile_name = metadata.get("profile", "full")
-    if profile_name not in PROFILES:
+    if profile_name not in pipeline.PROFILES:
         raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
-                         f"({', '.join(PROFILES)})")
-    profile = PROFILES[profile_name]
+                         f"({', '.join(pipeline.PROFILES)})")
+    profile = pipeline.PROFILES[profile_name]
     if "profile_settings" in metadata and _settings_as_now(metadata["profile_settings"]) != profile.to_json():
         raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
                          f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
@@ -61,29 +64,39 @@ def build_explorer(metadata: dict, frame, models=None):
     if isinstance(metadata["seed"], bool) or seed != metadata["seed"] or seed < 0:
         raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
     try:
+        # A recording made before an option was retired carries it at its old default (accepted) or at another
+        # value (refused, named).
+        config = planner_config(planner_name)
+        if config is not None and isinstance(options, dict):
+            options = without_retired(config, options)
         planner = make_planner(planner_name, **options)
-        predictor = make_predictor(predictor_name, None, models, profile)
     except ValueError as error:
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     try:
         explorer_fields = dict(metadata["explorer"])
         schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
         reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
+        if isinstance(explorer_fields.get("scan_matching"), dict):
+            explorer_fields["scan_matching"] = without_retired(ScanMatchingConfig, explorer_fields["scan_matching"])
         cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
                              **explorer_fields)
-        spad_processing = None
+        sensor = nlos_cfg = None
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
             nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
                                      if f.name in metadata["nlos"]})
-            spad_processing = make_processing(predictor_name, sensor, nlos_cfg, models, profile.nlos_skips)
     except KeyError as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt: it lacks the field {error}") from None
     except (TypeError, ValueError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt: a field has the wrong type or value "
                          f"({error})") from None
-    return Explorer(frame, planner, predictor, spad_processing=spad_processing, cfg=cfg, seed=seed)
+    try:
+        return pipeline.build_explorer(frame, planner, predictor_name, profile=profile_name,
+                                       spad=bool(metadata.get("spad")), models=models, seed=seed, cfg=cfg,
+                                       sensor=sensor, nlos_cfg=nlos_cfg)
+    except ValueError as error:
+        raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
 
 
 def _settings_as_now(settings):

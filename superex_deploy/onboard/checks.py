@@ -7,16 +7,18 @@ text a string (``"x"``, ``"none"``); ``"nan"`` and ``"inf"`` become floats. Each
 either returns the field's value in its one type (integral floats such as ``2500.0`` become ``int``, integers
 become ``float`` where a real is expected) or raises one ``ValueError`` that names the field, says what it takes
 and shows what it got. No check lets a non-finite number through: a count or a distance of ``inf`` is never a
-setting.
+setting. A config whose options were retired (:func:`retires`) refuses them by name.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
-from typing import Optional
+from types import MappingProxyType
+from typing import Mapping, Optional
 
-__all__ = ["check_int", "check_real", "check_choice", "check_instance"]
+__all__ = ["check_int", "check_real", "check_choice", "check_instance", "retires", "without_retired"]
 
 
 def _number(value) -> Optional[float]:
@@ -100,3 +102,47 @@ def check_instance(name: str, value, kind: type, allow_none: bool = False):
         return value
     raise ValueError(f"{name} must be a {kind.__name__}{' or None' if allow_none else ''}, got "
                      f"{type(value).__name__} {value!r}")
+
+
+def _refuse_retired(config_class, names, advice: str) -> None:
+    named = sorted(set(names) & set(config_class.RETIRED))
+    if named:
+        many = len(named) > 1
+        raise ValueError(f"{config_class.__name__}: the option{'s' if many else ''} "
+                         f"{', '.join(repr(name) for name in named)} {'were' if many else 'was'} retired (measured, "
+                         f"with a negative result: {config_class.RETIRED_WHERE}); {advice}")
+
+
+def retires(where: str, **old_defaults):
+    """Class decorator of a config dataclass whose options ``old_defaults`` (name: the value it had by default)
+    were retired after the measurement ``where`` (a documentation page): building the class with one of them
+    raises one ``ValueError`` naming it as retired, instead of Python's ``TypeError`` for an unknown argument. The
+    class keeps them as ``RETIRED`` for :func:`without_retired`."""
+    def decorate(cls):
+        init = cls.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs):
+            _refuse_retired(cls, kwargs, "leave it out")
+            init(self, *args, **kwargs)
+
+        cls.__init__ = __init__
+        cls.RETIRED = MappingProxyType(dict(old_defaults))
+        cls.RETIRED_WHERE = where
+        return cls
+    return decorate
+
+
+def without_retired(config_class, values: Mapping[str, object]) -> dict:
+    """``values`` (the fields of a configuration recorded by an earlier version, e.g. in a recording) without the
+    options ``config_class`` retired that hold their old default: with those the recorded run behaved as this
+    version does.
+
+    Raises:
+        ValueError: a retired option at another value (a run this version cannot reproduce), named.
+    """
+    retired = getattr(config_class, "RETIRED", {})
+    changed = [name for name in values if name in retired and values[name] != retired[name]]
+    if changed:
+        _refuse_retired(config_class, changed, "this version cannot reproduce a run that used it")
+    return {name: value for name, value in values.items() if name not in retired}

@@ -221,25 +221,47 @@ def _check_inputs(grid: OccupancyGrid, steps: int, cfg: ExplorationConfig, sensi
     return int(steps)
 
 
-def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, seed: int = 0,
-                            cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None
-                            ) -> tuple[World, Explorer]:
-    """The two halves of an episode: the :class:`World` on ``grid`` with the robot at ``start_rc``, and a fresh
-    :class:`Explorer` on the world's map frame (see :func:`run_episode` for the arguments)."""
+def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Optional[Planner] = None,
+                            predictor: Optional[MapPredictor] = None, seed: int = 0,
+                            cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None,
+                            explorer: Optional[Explorer] = None) -> tuple[World, Explorer]:
+    """The two halves of an episode: the :class:`World` on ``grid`` with the robot at ``start_rc``, and the
+    explorer on the world's map frame: ``explorer`` where given, else a fresh :class:`Explorer` of ``planner`` and
+    ``predictor`` (see :func:`run_episode` for the arguments).
+
+    Raises:
+        ValueError: both or neither of ``explorer`` and (``planner``, ``predictor``); an explorer on another frame,
+            with another configuration than ``cfg.explorer``, or whose SPAD processing is not ``sensing``'s.
+    """
+    given = (planner is not None, predictor is not None)
+    if given != ((True, True) if explorer is None else (False, False)):
+        raise ValueError("give either an explorer or a planner and a predictor")
     world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
                                               step_cells=cfg.explorer.motion.step_cells,
                                               seed=0 if sensing is None else sensing.seed,
                                               pose_noise=cfg.pose_noise, lidar_noise=cfg.lidar_noise))
-    explorer = Explorer(world.frame, planner, predictor,
-                        spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
-                        seed=seed)
+    if explorer is None:
+        explorer = Explorer(world.frame, planner, predictor,
+                            spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
+                            seed=seed)
+        return world, explorer
+    if not isinstance(explorer, Explorer):
+        raise ValueError(f"explorer must be an Explorer, got {type(explorer).__name__}")
+    if explorer.frame != world.frame:
+        raise ValueError(f"the explorer's map frame {explorer.frame} is not the world's {world.frame}")
+    if explorer.cfg != cfg.explorer:
+        raise ValueError("the explorer's configuration is not cfg.explorer (the episode records cfg)")
+    if explorer.spad_processing is not (None if sensing is None else sensing._processing):
+        raise ValueError("the explorer's SPAD processing must be the sensing's (sensing.processing()), or None "
+                         "without sensing")
     return world, explorer
 
 
-def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapPredictor, steps: int = 1000,
-                seed: int = 0, cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None,
+def run_episode(grid: OccupancyGrid, start_rc, planner: Optional[Planner] = None,
+                predictor: Optional[MapPredictor] = None, steps: int = 1000, seed: int = 0,
+                cfg: ExplorationConfig = ExplorationConfig(), sensing: Optional[SpadSensing] = None,
                 on_step: Optional[Callable[[EpisodeState], None]] = None,
-                on_observation: Optional[Callable] = None) -> EpisodeResult:
+                on_observation: Optional[Callable] = None, explorer: Optional[Explorer] = None) -> EpisodeResult:
     """Explore ``grid`` from ``start_rc`` for up to ``steps`` steps (see the module docstring).
 
     Args:
@@ -254,6 +276,9 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
         on_step: optional callback, called once per step with the :class:`EpisodeState`.
         on_observation: optional callback ``(observation, command, explorer)`` once per step, right after the
             explorer's step (recording).
+        explorer: a fresh explorer on the grid's frame instead of ``planner`` and ``predictor``
+            (:func:`superex_deploy.pipeline.build_explorer` with ``cfg=cfg.explorer`` and
+            ``spad=sensing.processing()``); the episode closes it.
 
     Returns:
         The :class:`EpisodeResult`.
@@ -264,7 +289,13 @@ def run_episode(grid: OccupancyGrid, start_rc, planner: Planner, predictor: MapP
         RuntimeError: the planner returned a goal that no path reaches (a planner bug).
     """
     steps = _check_inputs(grid, steps, cfg, sensing)
-    world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, sensing)
+    try:
+        world, explorer = make_world_and_explorer(grid, start_rc, planner, predictor, seed, cfg, sensing, explorer)
+    except BaseException:
+        if explorer is not None:
+            explorer.close()
+        raise
+    planner, predictor = explorer.planner, explorer.predictor
     iou_area = evaluation_area(grid) if cfg.iou_every else None
     try:
         return _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area, on_step, on_observation)

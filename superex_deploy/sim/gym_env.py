@@ -23,7 +23,9 @@ from superex_deploy.onboard.planning.planners import NearestFrontier
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext
 from superex_deploy.maps import load_map, random_start
-from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
+from superex_deploy.messages import MapFrame
+from superex_deploy.pipeline import build_explorer
+from superex_deploy.sim.episode import make_world_and_explorer
 
 __all__ = ["ExplorationEnv"]
 
@@ -65,6 +67,8 @@ class ExplorationEnv(gym.Env):
         max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
         steps_per_action: simulator steps per action at most.
         max_steps: simulator steps per episode (truncation).
+        profile: the pipeline's profile (:data:`superex_deploy.pipeline.PROFILES`; None:
+            :data:`~superex_deploy.pipeline.DEFAULT_PROFILE`), on the simulated clock (reproducible for a seed).
 
     Spaces:
         observation: float32 ``[C, crop, crop]`` in [0, 1]: free, occupied, unknown (+ predicted wall probability).
@@ -80,8 +84,9 @@ class ExplorationEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
-                 max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500):
-        from superex_deploy.onboard.prediction.registry import EVIDENCE_PREDICTORS, make_onboard_predictor
+                 max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500,
+                 profile: Optional[str] = None):
+        from superex_deploy.pipeline import EVIDENCE_PREDICTORS, check_profile, make_predictor, resolve_profile
 
         if predictor == "oracle":
             raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
@@ -92,14 +97,16 @@ class ExplorationEnv(gym.Env):
                             ("steps_per_action", steps_per_action), ("max_steps", max_steps)):
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        self.profile = resolve_profile(profile, _AgentGoal(), predictor or "observed")
+        chosen = check_profile(self.profile, _AgentGoal(), predictor or "observed")
         self.grid = load_map(map)
-        self._predictor = make_onboard_predictor(predictor) if predictor is not None else None
+        self._predictor = make_predictor(predictor, profile=chosen) if predictor is not None else None
         self.crop_cells, self.max_frontiers = int(crop_cells), int(max_frontiers)
         self.steps_per_action, self.max_steps = int(steps_per_action), int(max_steps)
         channels = 3 + (self._predictor is not None)
         self.observation_space = spaces.Box(0.0, 1.0, (channels, self.crop_cells, self.crop_cells), np.float32)
         self.action_space = spaces.Discrete(self.max_frontiers)
-        self._cfg = ExplorationConfig()
+        self._cfg = chosen.episode_config()
         self._world = self._explorer = None
         self._goals: list[tuple[int, int]] = []
         self._ended: Optional[str] = "reset() has not been called yet"  # why step() is refused, or None
@@ -143,9 +150,10 @@ class ExplorationEnv(gym.Env):
         self.close()
         start = random_start(self.grid, self.np_random, 0.4)
         self._agent = _AgentGoal()
-        self._world, self._explorer = make_world_and_explorer(self.grid, start, self._agent,
-                                                              self._predictor or ObservedAsPrediction(),
-                                                              seed=int(self.np_random.integers(2 ** 31)), cfg=self._cfg)
+        explorer = build_explorer(MapFrame(self.grid.shape, self.grid.resolution_m), self._agent,
+                                  self._predictor or ObservedAsPrediction(), profile=self.profile,
+                                  seed=int(self.np_random.integers(2 ** 31)), cfg=self._cfg.explorer)
+        self._world, self._explorer = make_world_and_explorer(self.grid, start, cfg=self._cfg, explorer=explorer)
         self._command = self._explorer.step(self._world.observe())
         self._ended = None
         return self._observation(), self._info()

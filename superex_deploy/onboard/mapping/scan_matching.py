@@ -37,6 +37,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance
+from superex_deploy.onboard.checks import retires
 
 __all__ = ["ScanMatchingConfig", "ScanMatch", "ScanMatcher", "score_poses", "likelihood_field"]
 
@@ -46,6 +47,7 @@ _FACE_TO_CENTRE_CELLS = 0.5
 """Added to each return's range (cells) before scoring: from the wall's face to its cell's centre, along the ray."""
 
 
+@retires("docs/on-a-robot.md", match_sigma_cells=0.0, match_sigma_deg=0.0, start_after_scans=0)
 @dataclass(frozen=True)
 class ScanMatchingConfig:
     """Parameters of the correlative scan matcher (see the module docstring; fixed on train floors).
@@ -70,15 +72,10 @@ class ScanMatchingConfig:
             Fixed on train floors by the true walls the map holds free (measured in docs/on-a-robot.md, "What was
             tried").
         refine_levels: fine search levels after the lattice (each halves the steps).
-        match_sigma_cells, match_sigma_deg: the match's own standard deviation (cells, degrees) relative to the
-            map. An accepted match is fused with the believed pose as two independent estimates (per axis, weights
-            inverse to the variances), so the map, anchored where the first scans were believed to be, keeps being
-            pulled towards the unbiased belief instead of keeping the first scan's error for good; 0 (the
-            default) takes the match alone: fusing lowers the pose error but holds more true walls free
-            (docs/on-a-robot.md, "What was tried").
-        start_after_scans: scans integrated at the believed pose before matching starts (the map's anchor is
-            their average rather than the first scan's error); 0 by default, since waiting costs coverage
-            (docs/on-a-robot.md, "What was tried").
+
+    The options ``match_sigma_cells``, ``match_sigma_deg`` (fusing an accepted match with the belief) and
+    ``start_after_scans`` (matching only after the first scans) were retired (``RETIRED``: their old defaults;
+    measured in docs/on-a-robot.md, "What was tried").
     """
 
     enabled: bool = True
@@ -96,9 +93,6 @@ class ScanMatchingConfig:
     min_gain: float = 0.02
     prior_weight: float = 0.01
     refine_levels: int = 3
-    match_sigma_cells: float = 0.0
-    match_sigma_deg: float = 0.0
-    start_after_scans: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
@@ -109,13 +103,13 @@ class ScanMatchingConfig:
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("min_fit", "min_gain", "prior_weight", "match_sigma_cells", "match_sigma_deg"):
+        for name in ("min_fit", "min_gain", "prior_weight"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number >= 0, got {value!r}")
         for name, low in (("max_points", 1), ("starts", 1), ("min_points", 1), ("min_map_walls", 0),
-                          ("refine_levels", 0), ("start_after_scans", 0)):
+                          ("refine_levels", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"ScanMatchingConfig.{name} must be an integer >= {low}, got {value!r}")
@@ -218,18 +212,6 @@ def likelihood_fields(walls: np.ndarray, sigmas_cells) -> list[np.ndarray]:
     return [np.exp(-0.5 * (distance / float(sigma)) ** 2) for sigma in sigmas_cells]
 
 
-def _fuse(believed: Pose2D, matched: Pose2D, belief_sigmas, match_sigmas) -> Pose2D:
-    """Per axis, the inverse-variance weighted mean of the believed and the matched pose."""
-    def weight(belief_sigma: float, match_sigma: float) -> float:  # the belief's weight
-        total = belief_sigma ** 2 + match_sigma ** 2
-        return match_sigma ** 2 / total if total > 0.0 else 0.0
-
-    wx, wy, wyaw = (weight(b, m) for b, m in zip(belief_sigmas, match_sigmas))
-    turn = math.remainder(believed.yaw - matched.yaw, 2.0 * math.pi)
-    return Pose2D(matched.x + wx * (believed.x - matched.x), matched.y + wy * (believed.y - matched.y),
-                  math.remainder(matched.yaw + wyaw * turn, 2.0 * math.pi))
-
-
 def _lattice(half: float, step: float) -> np.ndarray:
     count = int(math.floor(half / step + 1e-9))
     return np.arange(-count, count + 1, dtype=np.float64) * step
@@ -271,8 +253,6 @@ class ScanMatcher:
             return ScanMatch(pose, False, nan, nan, "no covariance" if covariance is None else "disabled")
         cfg, res = self.cfg, frame.resolution_m
         self.scans_seen += 1
-        if self.scans_seen <= cfg.start_after_scans:
-            return ScanMatch(pose, False, nan, nan, "before start_after_scans")
         rho, angles = self.returns(scan, res)
         if rho.size < cfg.min_points:
             return ScanMatch(pose, False, nan, nan, "too few returns")
@@ -336,6 +316,4 @@ class ScanMatcher:
         cell = frame.cell_of(corrected.x, corrected.y)
         if not frame.contains(cell) or walls[cell]:
             return ScanMatch(pose, False, best_fit, believed_fit, "corrected pose in a wall or off the map")
-        fused = _fuse(pose, corrected, (sigma_x, sigma_y, sigma_yaw),
-                      (cfg.match_sigma_cells * res, cfg.match_sigma_cells * res, math.radians(cfg.match_sigma_deg)))
-        return ScanMatch(fused, True, best_fit, believed_fit, "")
+        return ScanMatch(corrected, True, best_fit, believed_fit, "")

@@ -38,7 +38,7 @@ __all__ = [
     "reachable_frontiers",
     "RandomTree", "grow_rrt",
     "NearestFrontier", "HectorConfig", "HectorPlanner", "UpenConfig", "UpenPlanner", "MapexConfig", "MapexPlanner",
-    "SuperexConfig", "SuperexPlanner", "PLANNERS", "make_planner",
+    "SuperexConfig", "SuperexPlanner", "PLANNERS", "make_planner", "planner_config",
 ]
 
 PLANNERS: dict[str, type[Planner]] = {
@@ -51,6 +51,17 @@ PLANNERS: dict[str, type[Planner]] = {
 
 _CONFIGS = {HectorPlanner: HectorConfig, UpenPlanner: UpenConfig, MapexPlanner: MapexConfig,
             SuperexPlanner: SuperexConfig}
+
+
+def planner_config(name: str):
+    """The config dataclass of the planner called ``name``, or None for a planner that takes no configuration.
+
+    Raises:
+        ValueError: an unknown name.
+    """
+    if not isinstance(name, str) or name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose one of {', '.join(sorted(PLANNERS))}")
+    return _CONFIGS.get(PLANNERS[name])
 
 
 def make_planner(name: str, **config_overrides) -> Planner:

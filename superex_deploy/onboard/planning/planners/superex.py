@@ -1,4 +1,4 @@
-"""The SuperEx planner: pathwise predicted gain per unit of travel, with rollouts and tours as measured options.
+"""The SuperEx planner: pathwise predicted gain per unit of travel.
 
 MapEx scores a frontier by what its predicted map says is visible from the frontier cell alone. The robot,
 though, scans every 0.3 m on its way there: a frontier down a corridor lined with doors is worth what the robot
@@ -8,15 +8,8 @@ planner does): the currently unknown cells predicted visible from its goal cell 
 to it, sampled every ``sense_every_m``, per unit of travel cost; the best frontier wins and is kept until
 reached or blocked (MapEx's locked goal). Rays stop at cells predicted walls at or above ``wall_threshold``.
 
-Ideas measured on the train floors (``scripts/ceiling_study.py``, oracle against observed predictor; see
-docs/benchmarks/better-map.md) and kept as options because each answers a question:
+Options a user may choose (measured on the train floors, docs/benchmarks/better-map.md):
 
-* ``choice="rollout"``: for the ``candidates`` best frontiers, play the rest of the exploration out on the
-  predicted map (pooled into ``rollout_cell_m`` cells; greedy goals, travel priced through predicted-free
-  unknown space, sensing along each path) and head to the first goal of the rollout with the most area under its
-  known-cells curve over ``horizon_m`` of travel;
-* ``choice="tour"``: the first goal of the shortest open tour through the nearest ``tour_frontiers`` frontiers
-  (``fast-tsp``, exact up to 20 nodes), travel between them priced on the predicted map;
 * ``gain="goal"``: MapEx's gain (the view from the goal cell only);
 * ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
 
@@ -42,21 +35,17 @@ import numpy as np
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.planning.frontiers import find_frontiers
-from superex_deploy.onboard.planning.motion import dijkstra
-from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real
+from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real, retires
 from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown_flat, visible_gains
-from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map, predicted_visibility,
-                                               reachable_frontiers)
-from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map,
+                                                       reachable_frontiers)
+from superex_deploy.onboard.types import UNKNOWN, Planner, PlanningContext, Prediction
 
-__all__ = ["SuperexConfig", "SuperexPlanner", "RolloutWorld", "rollout_world", "rollout_value", "tour_first", "descend",
-           "descend_all", "path_viewpoints"]
-
-MAX_ROLLOUT_CELL_M = 10.0
-"""The largest rollout cell (metres): the rollout world is padded to a whole number of cells."""
+__all__ = ["SuperexConfig", "SuperexPlanner", "descend", "descend_all", "path_viewpoints"]
 
 
+@retires("docs/benchmarks/better-map.md", choice="greedy", candidates=5, rollout_goals=4, horizon_m=60.0,
+         rollout_cell_m=0.3, rollout_frontier_cells=3, tour_frontiers=18)
 @dataclass(frozen=True)
 class SuperexConfig:
     """Settings of :class:`SuperexPlanner` (chosen on the train floors only, never on ``eval/``).
@@ -66,52 +55,37 @@ class SuperexConfig:
             from the goal cell only (MapEx); ``"expected"`` / ``"expected_goal"``: the expected number of unknown
             cells seen along the path / from the goal (transmittance through the predicted wall probabilities,
             no threshold; ``n_rays`` and ``range_m`` as for the others).
-        choice: ``"greedy"``: the best gain per unit of travel; ``"rollout"``: the best of ``candidates``
-            rollouts; ``"tour"``: the first goal of the shortest tour through the nearest frontiers.
         wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.5, chosen on the
             held-out train buildings with LaMa-LOS (docs/benchmarks/better-map.md, "Ceilings first"): a lower
             threshold lets the ensembles' faint predicted walls stop most rays, and the choice drifts towards the
             nearest frontier. Binary maps (observed, oracle) do not depend on it.
-        sense_every_m: the path is sampled every this many metres for the pathwise gain and in rollouts.
+        sense_every_m: the path is sampled every this many metres for the pathwise gain.
         range_m: the sensor's range (metres; the LiDAR's 20 m).
         n_rays: rays of each visibility cast (over a full turn).
         drop_resolved_m: None keeps a goal until it is reached or blocked (MapEx); a distance drops it as soon as
             no unknown cell is left that close to it.
-        candidates: frontiers compared by rollouts (``choice="rollout"``).
-        rollout_goals: goals a rollout plays after the forced first one.
-        horizon_m: travel over which a rollout's known-area curve is integrated (metres).
-        rollout_cell_m: side of a rollout cell (metres; a whole number of map cells).
-        rollout_frontier_cells: smallest frontier region (rollout cells) and gain a rollout goes for.
-        tour_frontiers: frontiers in a tour (``choice="tour"``; at most 18 keeps the solver exact).
         wall_support: None reads the prediction as it is; a
             :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
-            first, for every gain and rollout.
+            first, for every gain.
         transmittance: how the expected gains combine the wall probabilities along a ray: ``"independent"``
             (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
             :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
-    ``[3, MAX_RAYS]``, ``rollout_cell_m`` at most :data:`MAX_ROLLOUT_CELL_M`.
+    ``[3, MAX_RAYS]``. The rollout and tour choices were retired (``RETIRED``: their options and old defaults).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.checks`).
+            :mod:`~superex_deploy.onboard.checks`); a retired option.
     """
 
     gain: str = "path"
-    choice: str = "greedy"
     wall_threshold: float = 0.5
     sense_every_m: float = 1.5
     range_m: float = 20.0
     n_rays: int = 250
     drop_resolved_m: Optional[float] = None
-    candidates: int = 5
-    rollout_goals: int = 4
-    horizon_m: float = 60.0
-    rollout_cell_m: float = 0.3
-    rollout_frontier_cells: int = 3
-    tour_frontiers: int = 18
     wall_support: Optional[WallSupport] = None
     transmittance: str = "independent"
 
@@ -119,190 +93,13 @@ class SuperexConfig:
         check_choice("gain", self.gain, ("path", "goal", "expected", "expected_goal"))
         object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
         check_choice("transmittance", self.transmittance, TRANSMITTANCES)
-        check_choice("choice", self.choice, ("greedy", "rollout", "tour"))
         values = {"wall_threshold": check_real("wall_threshold", self.wall_threshold, 0.0, 1.0, low_open=True),
                   "drop_resolved_m": check_real("drop_resolved_m", self.drop_resolved_m, 0.0, allow_none=True),
-                  "rollout_cell_m": check_real("rollout_cell_m", self.rollout_cell_m, 0.0, MAX_ROLLOUT_CELL_M,
-                                               low_open=True),
                   "n_rays": check_int("n_rays", self.n_rays, 3, MAX_RAYS)}
-        for name in ("sense_every_m", "range_m", "horizon_m"):
+        for name in ("sense_every_m", "range_m"):
             values[name] = check_real(name, getattr(self, name), 0.0, low_open=True)
-        for name, low in (("candidates", 1), ("rollout_goals", 0), ("rollout_frontier_cells", 1),
-                          ("tour_frontiers", 1)):
-            values[name] = check_int(name, getattr(self, name), low)
-        if values["tour_frontiers"] > 18:
-            raise ValueError(f"tour_frontiers must be at most 18 (the solver is exact up to 20 nodes), got "
-                             f"{self.tour_frontiers}")
         for name, value in values.items():
             object.__setattr__(self, name, value)
-
-
-@dataclass(frozen=True)
-class RolloutWorld:
-    """The pooled world a rollout plays in (cells of ``factor`` x ``factor`` map cells).
-
-    Attributes:
-        factor: map cells per rollout cell along each axis.
-        walls: float32 ``[h, w]`` 1 where the rollout cell is a wall (observed or predicted), else 0.
-        known: int8 ``[h, w]`` UNKNOWN / FREE / OCCUPIED: the rollout's starting knowledge.
-        resolution_m: metres per rollout cell.
-    """
-
-    factor: int
-    walls: np.ndarray
-    known: np.ndarray
-    resolution_m: float
-
-    def cell(self, map_rc) -> tuple[int, int]:
-        """Rollout cell holding map cell ``map_rc``."""
-        return int(map_rc[0]) // self.factor, int(map_rc[1]) // self.factor
-
-
-def _pool(mask: np.ndarray, factor: int, how: str) -> np.ndarray:
-    rows, cols = -(-mask.shape[0] // factor) * factor, -(-mask.shape[1] // factor) * factor
-    padded = np.zeros((rows, cols), mask.dtype)
-    padded[:mask.shape[0], :mask.shape[1]] = mask
-    blocks = padded.reshape(rows // factor, factor, cols // factor, factor)
-    if how == "any":
-        return blocks.any(axis=(1, 3))
-    return blocks.sum(axis=(1, 3)) * 2 > factor * factor
-
-
-def rollout_world(observed: np.ndarray, prediction: Prediction, resolution_m: float, cell_m: float,
-                  wall_threshold: float) -> RolloutWorld:
-    """Pool the observed map and the prediction into a :class:`RolloutWorld`.
-
-    Args:
-        observed: int8 ``[H, W]`` observed map.
-        prediction: its prediction (``mean`` float32 ``[H, W]``).
-        resolution_m: metres per map cell.
-        cell_m: side of a rollout cell in metres (rounded to a whole number of map cells, at least 1).
-        wall_threshold: predicted wall probability from which an unknown map cell is a wall.
-    """
-    factor = max(1, int(round(cell_m / resolution_m)))
-    unknown = observed == UNKNOWN
-    walls = (observed == OCCUPIED) | (unknown & (prediction.mean >= wall_threshold))
-    wall_cells = _pool(walls, factor, "any")
-    known_cells = _pool(~unknown, factor, "majority")
-    known = np.full(wall_cells.shape, UNKNOWN, np.int8)
-    known[known_cells] = FREE
-    known[known_cells & wall_cells] = OCCUPIED
-    return RolloutWorld(factor, wall_cells.astype(np.float32), known, resolution_m * factor)
-
-
-def _visible_unknown(world: RolloutWorld, known: np.ndarray, cell, visibility: VisibilityConfig) -> np.ndarray:
-    """bool ``[h, w]`` unknown rollout cells visible from ``cell`` through the rollout's walls."""
-    return predicted_visibility(world.walls, cell, visibility, world.resolution_m) & (known == UNKNOWN)
-
-
-def rollout_value(world: RolloutWorld, start, first_goal, cfg: SuperexConfig,
-                  first_leg: Optional[tuple[list, np.ndarray]] = None) -> float:
-    """Area under the known-cells curve of one rollout, over ``cfg.horizon_m`` of travel.
-
-    The robot starts at rollout cell ``start``, travels to ``first_goal`` (a rollout cell), then the base policy
-    (greedy visible-unknown per unit of travel over the rollout's frontiers) picks up to ``cfg.rollout_goals``
-    more; at each arrival the unknown cells visible from the goal become known.
-
-    ``first_leg``: the robot's real path to the first goal as rollout cells and the travel (rollout cells) to
-    each; without it the first leg is planned in the rollout world like the others (through unknown cells
-    predicted free, which the robot cannot drive through yet: that would credit what it sees on a shortcut).
-
-    Returns:
-        ``sum over the horizon of known cells x travel`` in cells x metres (the rollout's coverage AUC, unnormalised);
-        ``-inf`` when ``first_goal`` cannot be reached in the rollout world.
-    """
-    visibility = VisibilityConfig(n_rays=max(3, cfg.n_rays // 2), range_m=cfg.range_m, hit_threshold=0.5)
-    passable = np.where(world.walls > 0, np.inf, 1.0)
-    known = world.known.copy()
-    position = (int(start[0]), int(start[1]))
-    passable[position] = 1.0
-    horizon = cfg.horizon_m / world.resolution_m
-    clock, area, leg_clock = 0.0, 0.0, 0.0
-    count = float(np.count_nonzero(known != UNKNOWN))
-    goal: Optional[tuple[int, int]] = (int(first_goal[0]), int(first_goal[1]))
-    passable[goal] = 1.0  # a real frontier cell is known free, whatever else shares its rollout cell
-    sense_every = max(1, int(round(cfg.sense_every_m / world.resolution_m)))
-    width = world.walls.shape[1]
-    for step in range(cfg.rollout_goals + 1):
-        cost, parent = dijkstra(passable, position)
-        if step > 0:
-            goal = None
-            frontiers = find_frontiers(known, cfg.rollout_frontier_cells)
-            cells = np.array([f.cell_rc for f in frontiers], np.int64).reshape(-1, 2)
-            if len(cells):
-                travel = cost[cells[:, 0], cells[:, 1]]
-                ok = np.isfinite(travel) & (travel > 0)
-                if ok.any():
-                    gains = np.array([np.count_nonzero(_visible_unknown(world, known, tuple(c), visibility))
-                                      if o else 0 for c, o in zip(cells, ok)], np.float64)
-                    ratio = np.where(ok, gains / np.maximum(travel, 1.0), -np.inf)
-                    best = int(np.argmax(ratio))
-                    if gains[best] >= cfg.rollout_frontier_cells:
-                        goal = (int(cells[best, 0]), int(cells[best, 1]))
-            if goal is None:
-                break
-        if not np.isfinite(cost[goal]) and not (step == 0 and first_leg is not None):
-            return -np.inf if step == 0 else area + count * max(horizon - clock, 0.0)
-        # The robot scans all along its way: sense every few cells of the path and at the goal.
-        if step == 0 and first_leg is not None:
-            path, path_cost = first_leg
-        else:
-            path = [goal]
-            while parent[path[-1]] >= 0:
-                flat = int(parent[path[-1]])
-                path.append((flat // width, flat % width))
-            path.reverse()
-            path_cost = np.array([cost[cell] for cell in path])
-        stops = list(range(sense_every, len(path) - 1, sense_every)) + [len(path) - 1]
-        for index in stops:
-            at = float(path_cost[index]) + leg_clock
-            stop = min(at, horizon)
-            area += count * (stop - clock)
-            clock = stop
-            if clock >= horizon:
-                return area
-            newly = _visible_unknown(world, known, path[index], visibility)
-            known[newly] = np.where(world.walls[newly] > 0, OCCUPIED, FREE)
-            count += float(np.count_nonzero(newly))
-        leg_clock = clock
-        position = goal
-        passable[position] = 1.0
-    return area + count * max(horizon - clock, 0.0)
-
-
-def tour_first(world: RolloutWorld, goals_rc: list, robot_costs: np.ndarray) -> int:
-    """Index of the first goal of the shortest open tour from the robot through every goal (fast-tsp, exact
-    for the at most 18 goals plus the robot and a dummy node that makes the tour open-ended).
-
-    Travel between goals is the Dijkstra cost on the rollout world (through cells predicted free); from the
-    robot, its real cost-to-go (``robot_costs``, map cells)."""
-    import fast_tsp
-
-    n = len(goals_rc)
-    if n == 1:
-        return 0
-    passable = np.where(world.walls > 0, np.inf, 1.0)
-    cells = [world.cell(g) for g in goals_rc]
-    for cell in cells:
-        passable[cell] = 1.0
-    scale = world.factor  # rollout cells -> map cells
-    between = np.zeros((n, n))
-    for a in range(n):
-        cost, _ = dijkstra(passable, cells[a])
-        for b in range(n):
-            between[a, b] = cost[cells[b]] * scale
-    between = np.minimum(between, between.T)  # symmetric; unreachable pairs stay large
-    big = 10 * (np.nanmax(np.where(np.isfinite(between), between, 0)) + np.max(robot_costs) + 1)
-    between = np.where(np.isfinite(between), between, big)
-    size = n + 2  # goals, the robot (n), a dummy (n + 1) tied to the robot only
-    matrix = np.zeros((size, size))
-    matrix[:n, :n] = between
-    matrix[n, :n] = matrix[:n, n] = robot_costs
-    matrix[n + 1, :n] = matrix[:n, n + 1] = big
-    tour = fast_tsp.find_tour(np.rint(matrix).astype(int).tolist())
-    at = tour.index(n)
-    after, before = tour[(at + 1) % size], tour[(at - 1) % size]
-    return int(before if after == n + 1 else after)
 
 
 @numba.njit(cache=True)
@@ -460,23 +257,4 @@ class SuperexPlanner(Planner):
         gains = self.gains(ctx, prediction, frontiers)
         ratio = gains / np.maximum(costs, 1.0)
         order = sorted(range(len(frontiers)), key=lambda i: (-ratio[i], costs[i], frontiers[i].cell_rc))
-        if self.cfg.choice == "greedy" or len(frontiers) == 1:
-            return frontiers[order[0]].cell_rc
-        world = rollout_world(ctx.observed, prediction, ctx.resolution_m, self.cfg.rollout_cell_m,
-                              self.cfg.wall_threshold)
-        if self.cfg.choice == "tour":
-            useful = [i for i in range(len(frontiers)) if gains[i] > 0] or list(range(len(frontiers)))
-            near = sorted(useful, key=lambda i: (costs[i], frontiers[i].cell_rc))[:self.cfg.tour_frontiers]
-            first = tour_first(world, [frontiers[i].cell_rc for i in near], costs[near])
-            return frontiers[near[first]].cell_rc
-        shortlist = order[:self.cfg.candidates]
-        start = world.cell(ctx.pose_rc)
-        values = []
-        for i in shortlist:
-            path = descend(ctx.travel_cost, frontiers[i].cell_rc)
-            coarse = [world.cell(cell) for cell in path]
-            keep = [0] + [k for k in range(1, len(coarse)) if coarse[k] != coarse[k - 1]]
-            leg = ([coarse[k] for k in keep], np.array([ctx.travel_cost[path[k]] for k in keep]) / world.factor)
-            values.append(rollout_value(world, start, world.cell(frontiers[i].cell_rc), self.cfg, leg))
-        # The greedy choice wins ties (it is first in the shortlist).
-        return frontiers[shortlist[int(np.argmax(values))]].cell_rc
+        return frontiers[order[0]].cell_rc
