@@ -24,6 +24,7 @@ COMMANDS = {
     "explore": "Run one exploration episode and write metrics, a final plot and a GIF",
     "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
     "replay": "Rerun the onboard explorer on a recorded episode (MCAP) and compare its goals",
+    "offline": "Run the explorer open-loop on a robot's bag (ROS 1, ROS 2 or MCAP): map, goals, finished, timings",
     "warmup": "Compile the numba kernels once (cached on disk) and check the models load",
 }
 

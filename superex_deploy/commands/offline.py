@@ -100,9 +100,10 @@ def _first_map(path: Path, reading):
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.onboard import Explorer
+    import dataclasses
+
     from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import PROFILES, check_profile, make_predictor, resolve_profile
+    from superex_deploy.pipeline import PROFILES, build_explorer, resolve_profile
     from superex_deploy.recording.bags import BagTopics, read_bag
 
     if not (math.isfinite(args.finish_after) and args.finish_after >= 0):
@@ -113,23 +114,19 @@ def run(args: argparse.Namespace) -> int:
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
     profile_name = resolve_profile(None, planner, args.predictor)
-    profile = check_profile(profile_name, planner, args.predictor)
     topics = BagTopics(scan_topic=args.scan_topic, pose_source=args.pose_source, map_topic=args.map_topic,
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
     first_map = _first_map(args.bag, reading)
     resolution = args.resolution or (first_map[0] if first_map else 0.1)
     frame = frame_for(reading.extent_xy, resolution, args.margin_m, first_map[1] if first_map else None)
-    import dataclasses
-
-    cfg = dataclasses.replace(profile.explorer_config("robot"), finish_after_s=float(args.finish_after))
-    predictor = make_predictor(args.predictor, models=args.models, profile=profile, cores=None)
+    cfg = dataclasses.replace(PROFILES[profile_name].explorer_config("robot"), finish_after_s=float(args.finish_after))
+    explorer = build_explorer(frame, planner, args.predictor, profile=profile_name, models=args.models, cfg=cfg)
     print(f"superex offline: {args.bag} -> {out}: scans {reading.scan_topic}, pose {reading.pose_source}, "
           f"map {reading.map_topic or '-'}; grid {frame.shape[0]} x {frame.shape[1]} at {frame.resolution_m} m",
           flush=True)
     rows, step_ms, finished_at, command = [], [], None, None
     interrupted = None
-    explorer = Explorer(frame, planner, predictor, cfg=cfg)
     try:
         from tqdm import tqdm
 
