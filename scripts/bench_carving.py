@@ -29,7 +29,7 @@ import numpy as np
 from superex_deploy.files import write_atomically
 from superex_deploy.maps import list_maps, load_map, random_start, start_poses
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
-from superex_deploy.onboard.nlos.carving import _carve_sectors
+from superex_deploy.onboard.nlos.carving import carve_sectors
 from superex_deploy.parallel import process_pool
 from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.sim.suite import bootstrap_interval
@@ -114,13 +114,13 @@ def ideal_carving(scan) -> np.ndarray:
     d2 = truth.fan_d2_m[fans]
     nearest = np.where(np.isnan(d2), scan.config.range_m, d2).min(axis=1) / scan.resolution_m
     out = np.zeros(scan.grid_shape, bool)
-    _carve_sectors(apex, np.ascontiguousarray(normals), nearest, np.zeros(len(fans)), 0.0, 0, 0, out, 1)
+    carve_sectors(apex, np.ascontiguousarray(normals), nearest, np.zeros(len(fans)), 0.0, 0, 0, out, 1)
     return out
 
 
 def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np.ndarray:
     """bool ``[H, W]`` carved from the wall-end cells only (see ``_ends_margin_deg`` in :data:`VARIANTS`)."""
-    from superex_deploy.onboard.nlos.normals import _face_the_robot, _hit_normals
+    from superex_deploy.onboard.nlos.normals import face_the_robot, hit_normals
 
     n = len(los.wall_cells)
     if n == 0:
@@ -128,9 +128,9 @@ def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np
     points = los.wall_cells + 0.5
     normals, straight, apex = np.zeros((n, 2)), np.zeros(n, bool), np.empty((n, 2))
     # Interior 0: every straight, contiguous run of hits, its ends included.
-    _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio, cfg.normal_max_residual_cells,
-                 cfg.normal_max_gap_cells, np.zeros(n), normals, straight, 1)
-    _face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, straight, apex)
+    hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio, cfg.normal_max_residual_cells,
+                cfg.normal_max_gap_cells, np.zeros(n), normals, straight, 1)
+    face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, straight, apex)
     ends = straight & ~los.normal_reliable
     margin = min(cfg.sector_margin_deg + extra_margin_deg, 89.0)
     return carve(scan, replace(los, wall_normal=normals, normal_reliable=ends, wall_apex=apex),

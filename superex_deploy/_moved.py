@@ -38,6 +38,7 @@ MOVED: dict[str, str] = {
     "superex_deploy.onboard.spad_processing": "superex_deploy.onboard.nlos.processing",
     "superex_deploy.sim.localization": "superex_deploy.sim.noise.pose",
     "superex_deploy.sim.lidar_noise": "superex_deploy.sim.noise.lidar",
+    "superex_deploy.commands._options": "superex_deploy.commands.options",
 }
 """Old dotted module path -> new one. A moved package's submodules moved with it
 (``superex_deploy.onboard.planners.superex`` -> ``superex_deploy.onboard.planning.planners.superex``).

@@ -223,6 +223,10 @@ class ShardDataset:
         directory: the dataset.
         kind: if given, the dataset must be of this kind.
         verify: recompute every file's sha256 against the index (slow for large datasets).
+
+    Attributes:
+        shard_arrays: ``"inputs"``, ``"targets"``, ``"mask"`` and ``"groups"`` -> that array of every shard, in
+            the index's order (memory-mapped numpy arrays, one row per sample).
     """
 
     def __init__(self, directory: PathLike, kind: Optional[ModelKind] = None, verify: bool = False):
@@ -230,7 +234,7 @@ class ShardDataset:
         if kind is not None and self.info.kind is not kind:
             raise ValueError(f"{directory} holds {self.info.kind.value} data, expected {kind.value}")
         index = json.loads((self.info.directory / INDEX_NAME).read_text())
-        self._arrays: dict[str, list[np.ndarray]] = {name: [] for name in _ARRAYS}
+        self.shard_arrays: dict[str, list[np.ndarray]] = {name: [] for name in _ARRAYS}
         for shard in index["shards"]:
             for name in _ARRAYS:
                 path = self.info.directory / f"{shard['name']}.{name}.npy"
@@ -242,10 +246,10 @@ class ShardDataset:
                 if len(array) != shard["count"]:
                     raise ValueError(f"dataset file {path} holds {len(array)} samples, the index says "
                                      f"{shard['count']}")
-                self._arrays[name].append(array)
+                self.shard_arrays[name].append(array)
         counts = np.array([n for _, n in self.info.shards])
         self._starts = np.concatenate([[0], np.cumsum(counts)])
-        self.groups = np.concatenate([np.asarray(g, np.int64) for g in self._arrays["groups"]])
+        self.groups = np.concatenate([np.asarray(g, np.int64) for g in self.shard_arrays["groups"]])
 
     def __len__(self) -> int:
         return int(self._starts[-1])
@@ -259,9 +263,9 @@ class ShardDataset:
     def arrays(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sample ``index`` as numpy: float32 inputs ``[C, h, w]``, bool target and mask ``[h, w]``."""
         shard, row = self._locate(int(index))
-        return (np.asarray(self._arrays["inputs"][shard][row], np.float32),
-                np.asarray(self._arrays["targets"][shard][row]).astype(bool),
-                np.asarray(self._arrays["mask"][shard][row]).astype(bool))
+        return (np.asarray(self.shard_arrays["inputs"][shard][row], np.float32),
+                np.asarray(self.shard_arrays["targets"][shard][row]).astype(bool),
+                np.asarray(self.shard_arrays["mask"][shard][row]).astype(bool))
 
     def __getitem__(self, index: int):
         import torch

@@ -139,7 +139,7 @@ class _InMemory:
     is one fancy-indexing step instead of a Python loop over memory-mapped samples."""
 
     def __init__(self, dataset: ShardDataset, device: torch.device):
-        parts = dataset._arrays
+        parts = dataset.shard_arrays
         self.inputs = np.concatenate([np.asarray(a) for a in parts["inputs"]])
         self.targets = np.concatenate([np.asarray(a) for a in parts["targets"]])
         self.mask = np.concatenate([np.asarray(a) for a in parts["mask"]])

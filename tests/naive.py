@@ -206,7 +206,7 @@ def naive_los_and_first_late_bins(histograms, threshold, guard):
 
 
 def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_residual=np.inf, max_gap=np.inf):
-    """numpy eigh of the covariance of the points within radius of each point (nlos.normals._hit_normals);
+    """numpy eigh of the covariance of the points within radius of each point (nlos.normals.hit_normals);
     ``interior``: one distance for every point, or one each."""
     normals = np.zeros((len(points), 2))
     reliable = np.zeros(len(points), bool)
@@ -227,7 +227,7 @@ def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_res
 
 
 def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_limit):
-    """Test every cell of the grid against every wall point's carve sector (nlos.carving._carve_sectors);
+    """Test every cell of the grid against every wall point's carve sector (nlos.carving.carve_sectors);
     ``strip_cells``: one width for every wall point, or one each."""
     out = np.zeros(shape, bool)
     strips = np.broadcast_to(np.asarray(strip_cells, float), (len(apex),))
@@ -431,7 +431,7 @@ def _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle):
 
 
 def naive_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate):
-    """Per-ray visible range of the probabilistic raycast (visibility._ray_visible_ranges): a cell blocks when its
+    """Per-ray visible range of the probabilistic raycast (visibility.ray_visible_ranges): a cell blocks when its
     probability (or, accumulating, 1 - prod(1 - p) from the start cell on) reaches the threshold; the range
     ends at the blocking cell's entry + 0.5, at max_t or at the border; all zero from a blocking start cell."""
     n_rows, n_cols = mean.shape
@@ -694,7 +694,7 @@ def naive_descend(travel_cost, goal_rc):
 def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
     """visibility.visible_gains as first written (one cast and one fill per viewpoint, from Python), the slow
     twin of visibility._grouped_gains without union."""
-    from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
+    from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, ray_visible_ranges
 
     cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
     observed = np.ascontiguousarray(observed)
@@ -704,8 +704,8 @@ def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
     no_mask = np.zeros((1, 1), bool)
     max_t = cfg.range_m / float(resolution_m)
     for i, (r, c) in enumerate(cells):
-        _ray_visible_ranges(prediction.mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
-                            ranges)
+        ray_visible_ranges(prediction.mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
+                           ranges)
         counts[i], var_sums[i] = _fill_visibility(ranges, r + 0.5, c + 0.5, observed, prediction.variance, no_mask,
                                                   False, _NO_STAMP, -1)
     return counts, var_sums
@@ -714,7 +714,7 @@ def reference_visible_gains(prediction, observed, cells_rc, cfg, resolution_m):
 def reference_union_visible_unknown(mean, observed, viewpoints, cfg, resolution_m):
     """visibility.union_visible_unknown as first written (a dict of casts, one fill per viewpoint and group, from
     Python), the slow twin of visibility._grouped_gains with union."""
-    from superex_deploy.onboard.planning.visibility import _fill_visibility, _ray_visible_ranges
+    from superex_deploy.onboard.planning.visibility import _fill_visibility, ray_visible_ranges
 
     observed = np.ascontiguousarray(observed)
     max_t = cfg.range_m / float(resolution_m)
@@ -728,8 +728,8 @@ def reference_union_visible_unknown(mean, observed, viewpoints, cfg, resolution_
             key = (int(r), int(c))
             if key not in cast:
                 ranges = np.empty(cfg.n_rays, np.float64)
-                _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
-                                    ranges)
+                ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_t, cfg.hit_threshold, cfg.accumulate,
+                                   ranges)
                 cast[key] = ranges
             count, _ = _fill_visibility(cast[key], r + 0.5, c + 0.5, observed, no_variance, no_mask, False, stamp,
                                         label)

@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from superex_deploy.cli import COMMANDS, main
-from superex_deploy.commands._options import (name_list, non_negative_int, planner_options, positive_int,
-                                              settings_differences)
+from superex_deploy.commands.options import (name_list, non_negative_int, planner_options, positive_int,
+                                             settings_differences)
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D
 from superex_deploy.parallel import Interrupted, read_journal, signals_deferred, stop_signals
 

@@ -13,7 +13,7 @@ PACKAGES = ("superex_deploy", "superex_train")
 
 LAYERS = (
     # (name, module prefixes): a module belongs to the layer of its longest matching prefix (``a.b`` matches
-    # ``a.b`` and ``a.b.*``), so new modules inside a package (onboard/nlos/, sim/spad/, commands/_options.py) join
+    # ``a.b`` and ``a.b.*``), so new modules inside a package (onboard/nlos/, sim/spad/, commands/options.py) join
     # its layer by themselves. A new top-level module of superex_deploy falls back on the base layer: if it imports
     # anything higher, give it its own place here.
     ("base", ("superex_deploy",)),  # geometry, messages, maps, spad_types, parallel, files, ...
@@ -164,3 +164,109 @@ def test_superex_deploy_never_imports_torch_at_run_time():
     report = json.loads(result.stdout.strip().splitlines()[-1])
     assert not report["offenders"], report["offenders"]
     assert set(report["names"]) == {m for m in _modules() if m.startswith("superex_deploy.")}
+
+
+SOURCES = PACKAGES + ("scripts",)
+
+
+def _sources() -> dict[str, str]:
+    """Dotted name -> source text of every module of the packages and of ``scripts/``."""
+    sources = {}
+    for top in SOURCES:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            sources[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path.read_text(encoding="utf-8")
+    return sources
+
+
+def _is_private(name: str) -> bool:
+    """``_name`` is private; ``__name__`` (a protocol name, ``__version__``) is not."""
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _private_crossings(sources: dict[str, str], packages: tuple = SOURCES) -> list[str]:
+    """Every use of a private name outside the module that defines it, as ``"module:line: dotted name"``.
+
+    A use is ``from X import _name``, ``import X._name``, ``from X._name import ...`` or an attribute ``X._name``
+    of an imported module or name ``X`` (``import a.b as m; m._f``, ``from a import b; b._f``), anywhere in the
+    source, relative imports resolved. Only names of ``packages`` count (``os._exit`` is not ours). A private
+    module (``pkg/_options.py``) belongs to its package: the package and its other modules may use it. Any other
+    private name belongs to its module alone, so a package's ``__init__`` that imports a submodule's private name
+    is a crossing too. ``sources`` maps dotted module names to their text (``__init__`` as the package's name)."""
+    is_package = {name: any(other.startswith(name + ".") for other in sources) for name in sources}
+    crossings = []
+
+    def check(module: str, line: int, dotted: str) -> None:
+        parts = dotted.split(".")
+        if parts[0] not in packages:
+            return
+        for k, part in enumerate(parts):
+            if not _is_private(part):
+                continue
+            name = ".".join(parts[:k + 1])
+            owner = ".".join(parts[:k])
+            if name in sources and (module == owner or module.startswith(owner + ".")):
+                continue  # a private module used inside its package: its own private names are checked next
+            if module != owner:
+                crossings.append(f"{module}:{line}: {dotted}")
+            return
+
+    for module, text in sources.items():
+        tree = ast.parse(text, module)
+        package = module.split(".") if is_package[module] else module.split(".")[:-1]
+        bound = {}  # local name -> the dotted name it was imported as
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    check(module, node.lineno, alias.name)
+                    if alias.asname:
+                        bound[alias.asname] = alias.name
+                    else:
+                        bound[alias.name.split(".")[0]] = alias.name.split(".")[0]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package[:len(package) - node.level + 1]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module
+                for alias in node.names:
+                    if alias.name != "*":
+                        check(module, node.lineno, f"{target}.{alias.name}")
+                        bound[alias.asname or alias.name] = f"{target}.{alias.name}"
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and _is_private(node.attr):
+                chain, value = [node.attr], node.value
+                while isinstance(value, ast.Attribute):
+                    chain.append(value.attr)
+                    value = value.value
+                if isinstance(value, ast.Name) and value.id in bound:
+                    check(module, node.lineno, ".".join([bound[value.id]] + chain[::-1]))
+    return sorted(set(crossings))
+
+
+def test_the_private_name_check_finds_each_kind_of_crossing():
+    sources = {
+        "p": "from p.kernels import _kernel\nfrom p import _helpers\n__version__ = '1'\n",
+        "p._helpers": "def _tool(): pass\n",
+        "p.kernels": "def _kernel(): pass\ndef public(): return _kernel()\n",
+        "p.user": ("from p.kernels import _kernel, public\nfrom p._helpers import _tool\nfrom . import _helpers\n"
+                   "import p.kernels as k\nfrom p import kernels\nimport p.kernels\nfrom p import __version__\n"
+                   "k._kernel(); kernels._kernel(); p.kernels._kernel(); k.public(); self._own = 1\n"),
+        "p.mine": "def _own(): pass\nclass A:\n    def f(self): return self._x, _own()\n",
+        "q": "from p._helpers import public\nimport p._helpers\nimport os\nos._exit\n",
+    }
+    assert _private_crossings(sources, packages=("p", "q")) == sorted([
+        "p:1: p.kernels._kernel",  # a package re-exporting its submodule's private name
+        "p.user:1: p.kernels._kernel",
+        "p.user:2: p._helpers._tool",  # a private module's private name
+        "p.user:8: p.kernels._kernel",  # k._kernel, kernels._kernel and p.kernels._kernel, all on line 8
+        "q:1: p._helpers.public",  # a private module outside its package
+        "q:2: p._helpers",
+    ])
+
+
+def test_no_private_name_crosses_a_module_boundary():
+    """A name another module needs is public API of its module (a numba kernel called from another module's kernel
+    included); tests may still reach into the module they test."""
+    crossings = _private_crossings(_sources())
+    assert not crossings, "private names used outside their module:\n" + "\n".join(crossings)

@@ -9,9 +9,9 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.nlos import (
     NlosConfig, back_project, carve, carve_radius_cap_m, estimate_los, laplacian_filter, process_scan)
 from superex_deploy.onboard.nlos.back_projection import RING_PAD, _accumulate_votes, _draw_rings, _window
-from superex_deploy.onboard.nlos.carving import _carve_sectors
-from superex_deploy.onboard.nlos.los import _late_threshold, _los_and_first_late_bins
-from superex_deploy.onboard.nlos.normals import _hit_normals
+from superex_deploy.onboard.nlos.carving import carve_sectors
+from superex_deploy.onboard.nlos.los import _los_and_first_late_bins, late_threshold
+from superex_deploy.onboard.nlos.normals import hit_normals
 from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SpadConfig, SpadNoise, SparseHistograms
@@ -105,7 +105,7 @@ def test_hit_normals_match_naive():
         for n_parts in (1, 4, 70):  # sequential, uneven runs, more parts than points
             normals = np.zeros((60, 2))
             reliable = np.zeros(60, bool)
-            _hit_normals(points, 5.0, 0.1, max_residual, max_gap, interior, normals, reliable, n_parts)
+            hit_normals(points, 5.0, 0.1, max_residual, max_gap, interior, normals, reliable, n_parts)
             np.testing.assert_array_equal(reliable, ref_reliable)
             np.testing.assert_allclose(np.abs(np.sum(normals * ref_normals, axis=1))[reliable], 1.0, atol=1e-6)
             results.append(normals)
@@ -129,12 +129,12 @@ def test_carve_sectors_match_naive():
     assert expected.any()
     for n_parts in (1, 2, 5):  # rows dealt to parallel parts in blocks
         out = np.zeros((30, 32), bool)
-        _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
+        carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
         np.testing.assert_array_equal(out, expected)
         # A patch of the grid receives exactly its part of the carving.
         for top, left, height, width in [(7, 3, 12, 20), (0, 20, 30, 12), (29, 31, 1, 1), (10, 10, 0, 5)]:
             patch = np.zeros((height, width), bool)
-            _carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
+            carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
             np.testing.assert_array_equal(patch, expected[top:top + height, left:left + width])
 
 
@@ -155,7 +155,7 @@ def test_back_projection_matches_naive(noisy):
     fast = back_project(scan, los, cfg, known)
     for threads in (1, 2, 5):  # the parallel split changes nothing
         np.testing.assert_array_equal(back_project(scan, los, replace(cfg, threads=threads), known), fast)
-    threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
+    threshold, guard = late_threshold(scan, cfg, scan.n_bins)
     assert scan.is_sparse != noisy  # noise-free scans come sparse, noisy ones dense
     apex, normals = los.wall_apex, los.wall_normal
     n_radii = int(np.ceil(scan.config.range_m / RES)) + 1
@@ -232,7 +232,7 @@ def test_noisy_false_alarm_rate_matches_its_setting():
     scan = simulate_scan(grid, (200, 200), cfg_spad, rng=np.random.default_rng(3))
     n_bins = scan.n_bins
     for stated in (0.05, 0.2):
-        threshold, _ = _late_threshold(scan, NlosConfig(false_alarm_rate=stated), n_bins)
+        threshold, _ = late_threshold(scan, NlosConfig(false_alarm_rate=stated), n_bins)
         rate = np.mean((scan.histograms > threshold).any(axis=1))
         per_bin = stats.poisson.sf(np.floor(threshold), noise.background_per_bin)
         expected = 1.0 - (1.0 - per_bin) ** n_bins
@@ -240,7 +240,7 @@ def test_noisy_false_alarm_rate_matches_its_setting():
         assert stated / 4 < expected <= stated
         assert abs(rate - expected) <= 5 * np.sqrt(expected * (1 - expected) / n_rays), (stated, rate, expected)
     loose = NlosConfig(false_alarm_rate=0.9)
-    assert _late_threshold(scan, loose, n_bins)[0] < _late_threshold(scan, NlosConfig(), n_bins)[0]
+    assert late_threshold(scan, loose, n_bins)[0] < late_threshold(scan, NlosConfig(), n_bins)[0]
 
 
 def test_carve_radius_cap_follows_angular_sampling():

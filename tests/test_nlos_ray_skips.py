@@ -8,9 +8,9 @@ import pytest
 
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start
 from superex_deploy.onboard.nlos import NlosConfig, estimate_los
-from superex_deploy.onboard.nlos.back_projection import (READ_BLOCK, _back_projection_patch, _n_radii,
-                                                          _readable_ring_bounds, _window, rays_reaching_unknown)
-from superex_deploy.onboard.nlos.los import _late_threshold
+from superex_deploy.onboard.nlos.back_projection import (READ_BLOCK, _n_radii, _readable_ring_bounds, _window,
+                                                          back_project_patch, rays_reaching_unknown)
+from superex_deploy.onboard.nlos.los import late_threshold
 from superex_deploy.onboard.nlos.processing import COUNTS, NlosSkips, SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig, SpadNoise
@@ -85,7 +85,7 @@ def test_a_kept_ray_is_one_whose_rings_span_meets_the_bounds_and_every_ray_that_
         keep = rays_reaching_unknown(scan, los, cfg, known)
         window = _window(scan, cfg)
         readable = naive_readable_rings(los.wall_apex, los.wall_normal, window, known)
-        threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
+        threshold, guard = late_threshold(scan, cfg, scan.n_bins)
         d = los.detections
         voted = naive_voted_rings(d.row_start, d.bins, d.counts, los.los_bin, los.ray_wall, guard, threshold,
                                   scan.bin_path_m, scan.resolution_m, _n_radii(scan))
@@ -109,8 +109,8 @@ def test_skipping_the_rays_that_reach_no_unknown_cell_gives_the_same_back_projec
     for grid, pose, scan, known in _scenes(n, 3 + n, sensor):
         los = estimate_los(scan, cfg)
         keep = rays_reaching_unknown(scan, los, cfg, known)
-        full = _back_projection_patch(scan, los, cfg, known)
-        skipped = _back_projection_patch(scan, los, cfg, known, keep_rays=keep)
+        full = back_project_patch(scan, los, cfg, known)
+        skipped = back_project_patch(scan, los, cfg, known, keep_rays=keep)
         assert (full.top, full.left) == (skipped.top, skipped.left)
         np.testing.assert_array_equal(skipped.values, full.values)
         voting = (los.ray_wall >= 0).sum()
@@ -123,7 +123,7 @@ def test_keep_rays_is_checked():
     grid, pose, scan, known = next(_scenes(1, 0, SHORT))
     los = estimate_los(scan)
     with pytest.raises(ValueError, match="keep_rays must be a bool array of shape"):
-        _back_projection_patch(scan, los, NlosConfig(), known, keep_rays=np.ones(3, bool))
+        back_project_patch(scan, los, NlosConfig(), known, keep_rays=np.ones(3, bool))
     with pytest.raises(ValueError, match="known must be a bool array of shape"):
         rays_reaching_unknown(scan, los, NlosConfig(), known[:-1])
 
@@ -191,13 +191,13 @@ def test_the_filter_reruns_when_the_input_or_the_robot_cell_changes():
     processing.process_scan(scan, known)
     assert bp_filter.calls == 1 and processing.counts["same_input"] == 1
     # A known cell in the window changes the back-projection: the filter runs again.
-    bp = _back_projection_patch(scan, estimate_los(scan), NlosConfig(), known)
+    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
     r, c = np.argwhere(bp.values > 0)[0]
     known[bp.top + r, bp.left + c] = True
     processing.process_scan(scan, known)
     assert bp_filter.calls == 2
     # The same back-projection read from another robot cell is another input (the filter reads the cell).
-    bp = _back_projection_patch(scan, estimate_los(scan), NlosConfig(), known)
+    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
     assert processing._same_filter_input(bp, scan.pose_rc)
     assert not processing._same_filter_input(bp, (scan.pose_rc[0], scan.pose_rc[1] + 1))
 

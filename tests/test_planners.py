@@ -9,7 +9,7 @@ from superex_deploy.onboard.planning.planners import (
 from superex_deploy.onboard.planning.planners.upen import _grow_rrt
 from superex_deploy.sim.oracle import OraclePredictor
 from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown
-from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, _ray_visible_ranges
+from superex_deploy.onboard.planning.visibility import _NO_STAMP, _fill_visibility, ray_visible_ranges
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, PlanningContext, Prediction
 from superex_deploy.maps import OccupancyGrid
 from tests.naive import naive_fill_visibility, naive_grow_rrt, naive_visible_ranges
@@ -68,7 +68,7 @@ def test_probabilistic_ray_stops_at_the_hit_threshold():
     ranges = np.empty(4)  # ray 0 along +col from the centre of (1, 0); ray 1 along +row
 
     def ray_range(threshold, accumulate, max_t=100.0):
-        _ray_visible_ranges(mean, 1.5, 0.5, 4, max_t, threshold, accumulate, ranges)
+        ray_visible_ranges(mean, 1.5, 0.5, 4, max_t, threshold, accumulate, ranges)
         return ranges[0]
 
     # Per cell (MapEx as run): the first cell of probability >= 0.8 is col 6, entered at t = 5.5.
@@ -144,7 +144,7 @@ def test_visibility_kernels_match_naive_on_random_maps(accumulate):
         y0, x0 = rng.uniform(0, shape[0]), rng.uniform(0, shape[1])
         n_rays, max_t, threshold = int(rng.integers(8, 40)), float(rng.uniform(2, 20)), float(rng.uniform(0.3, 1))
         ranges = np.empty(n_rays)
-        _ray_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate, ranges)
+        ray_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate, ranges)
         np.testing.assert_allclose(ranges, naive_visible_ranges(mean, y0, x0, n_rays, max_t, threshold, accumulate),
                                    atol=1e-9)
         visible = np.zeros(shape, bool)

@@ -284,7 +284,7 @@ def test_a_recording_made_before_the_schedule_modes_still_loads_and_replays(tmp_
         "float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older "
         "files)\n", "")
     assert old_command != schemas.EXPLORER_COMMAND_MSG
-    monkeypatch.setitem(schemas._SCHEMAS, "/command", ("superex_msgs/msg/ExplorerCommand", old_command))
+    monkeypatch.setitem(schemas.SCHEMAS, "/command", ("superex_msgs/msg/ExplorerCommand", old_command))
     old_schedule = {"asynchronous": False, "every_steps": 10, "apply_after_steps": 1, "wait_first": False}
     written = explore.recording_metadata
 

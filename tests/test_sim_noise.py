@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.cli import main
-from superex_deploy.commands._options import noise_options, parse_lidar_noise, parse_pose_noise
+from superex_deploy.commands.options import noise_options, parse_lidar_noise, parse_pose_noise
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import Command, Pose2D
 from superex_deploy.onboard.nlos.los import estimate_los

@@ -6,9 +6,9 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.sim.spad import fans as spad_fans, simulate as spad_simulate
 from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig, SpadNoise, SparseHistograms
 from superex_deploy.sim.spad import BLOCK_CELLS, FAN_OFFSET_CELLS, prepare_scene, simulate_scan
-from superex_deploy.sim.spad.fans import _sort_paths, _trace_fans
+from superex_deploy.sim.spad.fans import _sort_paths, trace_fans
 from superex_deploy.sim.spad.scene import _thin_wall_normals
-from superex_deploy.sim.spad.tracer import _cast_primaries, _trace_first_hit_blocks
+from superex_deploy.sim.spad.tracer import cast_primaries, trace_first_hit_blocks
 from tests.naive import naive_first_hit, naive_simulate_histograms, naive_sort_paths, naive_thin_wall_normals
 
 RES = 0.1
@@ -137,8 +137,8 @@ def test_block_tracer_matches_naive_first_hit(seed):
         angle = rng.uniform(0, 2 * np.pi) if rng.random() < 0.9 else rng.integers(4) * np.pi / 2
         max_t = rng.uniform(1.0, 60.0)
         expected = naive_first_hit(walls, y0, x0, angle, max_t)
-        got = _trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, y0, x0, np.sin(angle), np.cos(angle),
-                                      max_t)
+        got = trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, y0, x0, np.sin(angle), np.cos(angle),
+                                     max_t)
         assert got[:2] == expected[:2]
         if expected[0] >= 0:
             assert got[3] == expected[3]
@@ -147,7 +147,7 @@ def test_block_tracer_matches_naive_first_hit(seed):
     wall = np.argwhere(walls)
     if len(wall):
         r, c = wall[0]
-        assert _trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, r + 0.5, c + 0.5, 0.6, 0.8, 10.0) == (
+        assert trace_first_hit_blocks(scene.cell_kind, scene.wall_blocks, r + 0.5, c + 0.5, 0.6, 0.8, 10.0) == (
             r, c, 0.0, -1)
 
 
@@ -165,8 +165,8 @@ def test_cast_primaries_match_geometry_cast_rays(n_parts):
         distance = np.empty(len(angles))
         entry_axis = np.empty(len(angles), np.int8)
         direction = np.empty((len(angles), 2))
-        _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, 45.0, hit_rc, distance,
-                        entry_axis, direction, n_parts)
+        cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, 45.0, hit_rc, distance,
+                       entry_axis, direction, n_parts)
         np.testing.assert_array_equal(hit_rc, reference.hit_rc)
         np.testing.assert_array_equal(entry_axis, reference.entry_axis)
         hit = reference.hit_mask
@@ -286,8 +286,8 @@ def test_fan_tracing_does_not_depend_on_the_thread_split():
         k = cfg.n_secondary
         arrays = [np.zeros((fans, k)), np.zeros((fans, k)), np.zeros((fans, k, 2), np.int32), np.zeros((fans, k)),
                   np.zeros((fans, k)), np.zeros(fans, np.int64)]
-        _trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, cells, normals,
-                    np.arange(fans), np.arange(fans), k, cfg.range_m / RES, RES, 0.05, *arrays, n_parts)
+        trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, cells, normals,
+                   np.arange(fans), np.arange(fans), k, cfg.range_m / RES, RES, 0.05, *arrays, n_parts)
         outputs.append(arrays)
     np.testing.assert_array_equal(outputs[0][0], scan.truth.fan_d2_m)
     for other in outputs[1:]:

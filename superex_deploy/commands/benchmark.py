@@ -14,10 +14,10 @@ import json
 from pathlib import Path
 
 from superex_deploy.benchmarking import ScenarioTask, run_scenario
-from superex_deploy.commands._options import (add_noise_options, add_parallel_options, add_planner_option,
-                                               add_profile_option, check_jobs, check_output_folder, eval_maps,
-                                               make_backend, name_list, noise_options, noise_settings,
-                                               non_negative_int, planner_options, settings_differences)
+from superex_deploy.commands.options import (add_noise_options, add_parallel_options, add_planner_option,
+                                             add_profile_option, check_jobs, check_output_folder, eval_maps,
+                                             make_backend, name_list, noise_options, noise_settings,
+                                             non_negative_int, planner_options, settings_differences)
 from superex_deploy.files import write_atomically
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.commands._options import add_planner_option, check_output_folder, planner_options
+from superex_deploy.commands.options import add_planner_option, check_output_folder, planner_options
 from superex_deploy.files import write_atomically
 
 STAGES_MS = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")

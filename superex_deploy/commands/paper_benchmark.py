@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.commands._options import (check_jobs, check_output_folder, eval_maps, make_backend,
-                                               settings_differences)
+from superex_deploy.commands.options import (check_jobs, check_output_folder, eval_maps, make_backend,
+                                             settings_differences)
 from superex_deploy.files import write_atomically
 from superex_deploy.sim.suite import (CHECKPOINTS, DEAD_END_METRICS, IOU_BINS, IOU_LEVELS, PAPER_ROWS,
                                       REFERENCE_ROW, common_scenarios, paired_summary, row_summary)
@@ -29,7 +29,7 @@ IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 
 
 def _rows(names: list[str]) -> list[str]:
-    """``--rows`` (a :func:`~superex_deploy.commands._options.name_list`) -> row names; ``["all"]`` is every row."""
+    """``--rows`` (a :func:`~superex_deploy.commands.options.name_list`) -> row names; ``["all"]`` is every row."""
     names = list(PAPER_ROWS) if list(names) == ["all"] else list(names)
     unknown = [r for r in names if r not in PAPER_ROWS]
     if unknown:

@@ -121,7 +121,7 @@ def _settings_as_now(settings):
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.commands._options import check_output_folder
+    from superex_deploy.commands.options import check_output_folder
     from superex_deploy.recording import read_recording
 
     check_output_folder(args.out)

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from superex_deploy.commands._options import check_output_folder, non_negative_int, positive_int, resolve_start
+from superex_deploy.commands.options import check_output_folder, non_negative_int, positive_int, resolve_start
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from superex_deploy.messages.limits import _finite, _heading, _point_xy, check_map_size
+from superex_deploy.messages.limits import check_finite, check_heading, check_map_size, check_point_xy
 
 __all__ = ["MapFrame", "Pose2D", "grid_angles"]
 
@@ -41,10 +41,10 @@ class MapFrame:
             raise ValueError(f"shape must be a (rows, cols) pair of integers, got {self.shape!r}") from None
         if len(shape) != 2 or min(shape) < 1 or not integral:
             raise ValueError(f"shape must be a positive (rows, cols) pair of integers, got {self.shape!r}")
-        resolution = _finite("resolution_m", self.resolution_m)
+        resolution = check_finite("resolution_m", self.resolution_m)
         if resolution <= 0.0:
             raise ValueError(f"resolution_m must be positive, got {resolution}")
-        origin = _point_xy("origin_xy", self.origin_xy)
+        origin = check_point_xy("origin_xy", self.origin_xy)
         check_map_size(shape, resolution, "the map frame")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "resolution_m", resolution)
@@ -111,5 +111,5 @@ class Pose2D:
 
     def __post_init__(self) -> None:
         for name in ("x", "y"):
-            object.__setattr__(self, name, _finite(f"pose.{name}", getattr(self, name)))
-        object.__setattr__(self, "yaw", _heading("pose.yaw", self.yaw))
+            object.__setattr__(self, name, check_finite(f"pose.{name}", getattr(self, name)))
+        object.__setattr__(self, "yaw", check_heading("pose.yaw", self.yaw))

@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 __all__ = ["MAX_MAP_CELLS", "MAX_MAP_CELLS_ENV", "MIN_RESOLUTION_M", "MAX_STAMP_S", "MAX_ABS_YAW", "max_map_cells",
-           "check_map_size", "check_stamp"]
+           "check_map_size", "check_stamp", "check_finite", "check_point_xy", "check_float32", "check_heading"]
 
 MAX_MAP_CELLS = 25_000_000
 """Default limit on a map's cells (rows x cols); see :func:`max_map_cells`."""
@@ -22,7 +22,12 @@ MAX_ABS_YAW = 1e6
 """The largest heading magnitude accepted (radians) before normalisation to ``(-pi, pi]``."""
 
 
-def _finite(name: str, value) -> float:
+def check_finite(name: str, value) -> float:
+    """``value`` as a finite Python float; ``name`` names it in the error.
+
+    Raises:
+        ValueError: ``value`` is not a real number, or not finite.
+    """
     try:
         value = float(value)
     except (TypeError, ValueError):
@@ -32,10 +37,10 @@ def _finite(name: str, value) -> float:
     return value
 
 
-def _point_xy(name: str, value) -> tuple[float, float]:
+def check_point_xy(name: str, value) -> tuple[float, float]:
     """A finite map-frame point ``(x, y)`` (metres) as a tuple of floats."""
     try:
-        point = tuple(_finite(name, v) for v in value)
+        point = tuple(check_finite(name, v) for v in value)
     except TypeError:
         raise ValueError(f"{name} must be an (x, y) pair, got {value!r}") from None
     if len(point) != 2:
@@ -43,9 +48,9 @@ def _point_xy(name: str, value) -> tuple[float, float]:
     return point
 
 
-def _float32(name: str, value) -> float:
+def check_float32(name: str, value) -> float:
     """``value`` rounded to float32, as a Python float (finite)."""
-    value = _finite(name, value)
+    value = check_finite(name, value)
     with np.errstate(over="ignore"):  # too large for float32: inf, refused below
         rounded = np.float32(value)
     if not np.isfinite(rounded):
@@ -100,16 +105,16 @@ def check_stamp(name: str, value) -> float:
     Raises:
         ValueError: any other value.
     """
-    value = _finite(name, value)
+    value = check_finite(name, value)
     if not 0.0 <= value <= MAX_STAMP_S:
         raise ValueError(f"{name} must lie in [0, {MAX_STAMP_S:.0f}] seconds (a ROS time: int32 seconds since "
                          f"the epoch), got {value}")
     return value
 
 
-def _heading(name: str, value) -> float:
+def check_heading(name: str, value) -> float:
     """A yaw (radians) normalised to ``(-pi, pi]``; one there already is returned unchanged."""
-    value = _finite(name, value)
+    value = check_finite(name, value)
     if -math.pi < value <= math.pi:
         return value
     if abs(value) > MAX_ABS_YAW:

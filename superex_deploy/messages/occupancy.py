@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from superex_deploy.messages.frame import MapFrame
-from superex_deploy.messages.limits import _finite, _point_xy, check_map_size
+from superex_deploy.messages.limits import check_finite, check_map_size, check_point_xy
 
 __all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN", "SYMMETRY_RTOL", "same_resolution"]
 
@@ -62,7 +62,7 @@ class OccupancyGridMessage:
     data: np.ndarray
 
     def __post_init__(self) -> None:
-        resolution = _finite("occupancy grid resolution_m", self.resolution_m)
+        resolution = check_finite("occupancy grid resolution_m", self.resolution_m)
         if resolution <= 0.0:
             raise ValueError(f"occupancy grid resolution_m must be positive, got {resolution}")
         for name in ("width", "height"):
@@ -71,7 +71,7 @@ class OccupancyGridMessage:
                 raise ValueError(f"occupancy grid {name} must be a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
         check_map_size((self.height, self.width), resolution, "the occupancy grid")
-        origin = _point_xy("occupancy grid origin_xy", self.origin_xy)
+        origin = check_point_xy("occupancy grid origin_xy", self.origin_xy)
         data = np.asarray(self.data)
         if data.dtype != np.int8 or data.shape != (self.height * self.width,):
             raise ValueError(f"occupancy grid data must be int8 [height * width] = [{self.height * self.width}], "
@@ -176,8 +176,8 @@ class PoseCovariance:
     @classmethod
     def from_sigmas(cls, sigma_xy_m: float, sigma_yaw_rad: float) -> "PoseCovariance":
         """Independent errors: ``sigma_xy_m`` on ``x`` and on ``y`` (metres), ``sigma_yaw_rad`` on the heading."""
-        sigma_xy_m = _finite("sigma_xy_m", sigma_xy_m)
-        sigma_yaw_rad = _finite("sigma_yaw_rad", sigma_yaw_rad)
+        sigma_xy_m = check_finite("sigma_xy_m", sigma_xy_m)
+        sigma_yaw_rad = check_finite("sigma_yaw_rad", sigma_yaw_rad)
         if sigma_xy_m < 0.0 or sigma_yaw_rad < 0.0:
             raise ValueError(f"sigmas must be >= 0, got {sigma_xy_m} m and {sigma_yaw_rad} rad")
         return cls(np.diag([sigma_xy_m ** 2, sigma_xy_m ** 2, sigma_yaw_rad ** 2]))

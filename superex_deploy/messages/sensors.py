@@ -8,7 +8,7 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.messages.limits import _finite, _float32
+from superex_deploy.messages.limits import check_finite, check_float32
 
 __all__ = ["LaserScan", "SpadFrame"]
 
@@ -50,7 +50,7 @@ class LaserScan:
 
     def __post_init__(self) -> None:
         for name in ("angle_min", "angle_increment", "range_min", "range_max"):
-            object.__setattr__(self, name, _float32(f"scan.{name}", getattr(self, name)))
+            object.__setattr__(self, name, check_float32(f"scan.{name}", getattr(self, name)))
         if self.angle_increment == 0.0:
             raise ValueError("scan.angle_increment must not be 0")
         if not 0.0 <= self.range_min < self.range_max:
@@ -64,7 +64,7 @@ class LaserScan:
                              f"full turn")
         derived = float(np.float32(self.angle_min + (ranges.size - 1) * self.angle_increment))
         if self.angle_max is not None:
-            angle_max = _float32("scan.angle_max", self.angle_max)
+            angle_max = check_float32("scan.angle_max", self.angle_max)
             expected = int(round((angle_max - self.angle_min) / self.angle_increment)) + 1
             if expected != ranges.size:
                 raise ValueError(f"scan has {ranges.size} ranges, but its angles from {self.angle_min} to {angle_max} "
@@ -118,7 +118,7 @@ class SpadFrame:
                 or not np.all(np.isfinite(angles)):
             raise ValueError(f"spad.angles must be a non-empty 1-D array of finite floats, got {angles.dtype} "
                              f"{angles.shape}")
-        bin_width = _finite("spad.bin_width_s", self.bin_width_s)
+        bin_width = check_finite("spad.bin_width_s", self.bin_width_s)
         if bin_width <= 0.0:
             raise ValueError(f"spad.bin_width_s must be positive, got {bin_width}")
         if not isinstance(self.n_bins, (int, np.integer)) or isinstance(self.n_bins, bool) or self.n_bins < 1:

@@ -14,7 +14,8 @@ import numpy as np
 
 from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance,
                                      SpadFrame, same_resolution)
-from superex_deploy.recording.schemas import _REPLAYED_TOPICS, FORMAT_VERSION, METADATA_NAME, _seconds, check_metadata
+from superex_deploy.recording.schemas import (FORMAT_VERSION, METADATA_NAME, REPLAYED_TOPICS, check_metadata,
+                                             stamp_seconds)
 
 __all__ = ["RecordedStep", "Recording", "read_recording"]
 
@@ -93,7 +94,7 @@ def _observation(parts: dict, frame: MapFrame) -> Observation:
     if "/pose_covariance" in parts:
         full = np.asarray(parts["/pose_covariance"].pose.covariance, np.float64)
         covariance = PoseCovariance.from_ros(full)
-    return Observation(stamp_s=_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad,
+    return Observation(stamp_s=stamp_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad,
                        pose_covariance=covariance, occupancy_grid=grid)
 
 
@@ -174,7 +175,7 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
         try:
             for _, channel, message, decoded in messages:
                 topic, sequence = channel.topic, message.sequence
-                if topic in _REPLAYED_TOPICS:
+                if topic in REPLAYED_TOPICS:
                     if sequence != current:
                         parts, current = {}, sequence
                     parts[topic] = decoded

@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 
 __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata", "SPAD_FRAME_MSG",
-           "EXPLORER_COMMAND_MSG"]
+           "EXPLORER_COMMAND_MSG", "SCHEMAS", "REPLAYED_TOPICS", "COVARIANCE_INDEX", "stamp_message", "stamp_seconds",
+           "header_message", "pose_message"]
 
 FORMAT_VERSION = "1"
 METADATA_NAME = "superex.episode"
@@ -116,31 +117,39 @@ float64 robot_yaw        # the observation's yaw (rad), exactly: the /pose quate
 float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older files)
 """ + _SEPARATOR + _HEADER
 
-_SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
-            "/scan": ("sensor_msgs/msg/LaserScan", LASER_SCAN_MSG),
-            "/spad": ("superex_msgs/msg/SpadFrame", SPAD_FRAME_MSG),
-            "/command": ("superex_msgs/msg/ExplorerCommand", EXPLORER_COMMAND_MSG),
-            "/plan": ("nav_msgs/msg/Path", PATH_MSG),
-            "/map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
-            "/slam_map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
-            "/pose_covariance": ("geometry_msgs/msg/PoseWithCovarianceStamped", POSE_WITH_COVARIANCE_STAMPED_MSG)}
-_REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/slam_map", "/pose_covariance", "/command")
-_COVARIANCE_INDEX = (0, 1, 5)  # x, y and yaw among the 6 x 6 covariance's x, y, z, roll, pitch, yaw
+SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
+           "/scan": ("sensor_msgs/msg/LaserScan", LASER_SCAN_MSG),
+           "/spad": ("superex_msgs/msg/SpadFrame", SPAD_FRAME_MSG),
+           "/command": ("superex_msgs/msg/ExplorerCommand", EXPLORER_COMMAND_MSG),
+           "/plan": ("nav_msgs/msg/Path", PATH_MSG),
+           "/map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
+           "/slam_map": ("nav_msgs/msg/OccupancyGrid", OCCUPANCY_GRID_MSG),
+           "/pose_covariance": ("geometry_msgs/msg/PoseWithCovarianceStamped", POSE_WITH_COVARIANCE_STAMPED_MSG)}
+"""Topic -> (ROS 2 message type, its schema text) of every topic a recording holds."""
+REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/slam_map", "/pose_covariance", "/command")
+"""The topics the reader gathers into recorded steps (``/plan`` and ``/map`` are written for viewers)."""
+COVARIANCE_INDEX = (0, 1, 5)  # x, y and yaw among the 6 x 6 covariance's x, y, z, roll, pitch, yaw
+"""Rows and columns of x, y and yaw in a ROS 2 pose's 6 x 6 covariance."""
 
 
-def _stamp(seconds: float) -> dict:
+def stamp_message(seconds: float) -> dict:
+    """A ROS 2 time ``{"sec", "nanosec"}`` (ints) of ``seconds`` (float, rounded to the nanosecond)."""
     nanoseconds = int(round(seconds * 1e9))
     return {"sec": nanoseconds // 1_000_000_000, "nanosec": nanoseconds % 1_000_000_000}
 
 
-def _seconds(stamp) -> float:
+def stamp_seconds(stamp) -> float:
+    """Seconds (float) of a decoded ROS 2 time (an object with ``sec`` and ``nanosec``)."""
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def _header(seconds: float, frame_id: str) -> dict:
-    return {"stamp": _stamp(seconds), "frame_id": frame_id}
+def header_message(seconds: float, frame_id: str) -> dict:
+    """A ``std_msgs/Header`` as a dict: the time of ``seconds`` and ``frame_id``."""
+    return {"stamp": stamp_message(seconds), "frame_id": frame_id}
 
 
-def _pose(x: float, y: float, yaw: float) -> dict:
+def pose_message(x: float, y: float, yaw: float) -> dict:
+    """A planar ``geometry_msgs/Pose`` as a dict: position ``(x, y, 0)`` (metres), orientation the quaternion of a
+    rotation by ``yaw`` (radians) about z."""
     return {"position": {"x": x, "y": y, "z": 0.0},
             "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}}

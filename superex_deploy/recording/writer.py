@@ -13,8 +13,8 @@ import numpy as np
 
 from superex_deploy.messages import Command, MapFrame, Observation, check_stamp
 from superex_deploy.parallel import signals_deferred
-from superex_deploy.recording.schemas import (_COVARIANCE_INDEX, _SCHEMAS, FORMAT_VERSION, METADATA_NAME, _header, _pose,
-                                             _stamp, check_metadata)
+from superex_deploy.recording.schemas import (COVARIANCE_INDEX, FORMAT_VERSION, METADATA_NAME, SCHEMAS, check_metadata,
+                                             header_message, pose_message, stamp_message)
 
 __all__ = ["EpisodeRecorder"]
 
@@ -69,7 +69,7 @@ class EpisodeRecorder:
             self._file = open(self._part, "wb")
             self._writer = Writer(self._file, chunk_size=int(chunk_bytes))
             self._schemas = {topic: self._writer.register_msgdef(name, text)
-                             for topic, (name, text) in _SCHEMAS.items()}
+                             for topic, (name, text) in SCHEMAS.items()}
             self._writer.add_metadata(METADATA_NAME, encoded)
         except BaseException:
             self.abort()
@@ -92,10 +92,11 @@ class EpisodeRecorder:
         stamp, step = observation.stamp_s, command.step
         self._last = (stamp, step)
         pose = observation.pose
-        self._write("/pose", {"header": _header(stamp, "map"), "pose": _pose(pose.x, pose.y, pose.yaw)}, stamp, step)
+        self._write("/pose", {"header": header_message(stamp, "map"), "pose": pose_message(pose.x, pose.y, pose.yaw)},
+                    stamp, step)
         scan = observation.scan
         if scan is not None:
-            self._write("/scan", {"header": _header(stamp, "base_scan"), "angle_min": scan.angle_min,
+            self._write("/scan", {"header": header_message(stamp, "base_scan"), "angle_min": scan.angle_min,
                                   "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
                                   "time_increment": 0.0, "scan_time": 0.0, "range_min": scan.range_min,
                                   "range_max": scan.range_max, "ranges": scan.ranges.tolist(), "intensities": []},
@@ -103,14 +104,14 @@ class EpisodeRecorder:
         self._write_robot_inputs(observation, stamp, step)
         spad = observation.spad
         if spad is not None:
-            self._write("/spad", {"header": _header(stamp, "base_scan"), "bin_width_s": spad.bin_width_s,
+            self._write("/spad", {"header": header_message(stamp, "base_scan"), "bin_width_s": spad.bin_width_s,
                                   "n_rays": spad.n_rays, "n_bins": spad.n_bins, "nnz": int(spad.bins.size),
                                   "angles_f64le": spad.angles.astype("<f8").tobytes(),
                                   "row_start_i64le": spad.row_start.astype("<i8").tobytes(),
                                   "bins_i32le": spad.bins.astype("<i4").tobytes(),
                                   "counts_f32le": spad.counts.astype("<f4").tobytes()}, stamp, step)
         goal = command.goal_rc
-        self._write("/command", {"header": _header(stamp, "map"), "step": step, "has_goal": goal is not None,
+        self._write("/command", {"header": header_message(stamp, "map"), "step": step, "has_goal": goal is not None,
                                  "goal_row": -1 if goal is None else goal[0],
                                  "goal_col": -1 if goal is None else goal[1],
                                  "goal_x": math.nan if goal is None else command.goal_xy[0],
@@ -120,8 +121,9 @@ class EpisodeRecorder:
                                  "prediction_age_s": (math.nan if command.prediction_age_s is None
                                                       else float(command.prediction_age_s))},
                     stamp, step)
-        self._write("/plan", {"header": _header(stamp, "map"),
-                              "poses": [{"header": _header(stamp, "map"), "pose": _pose(float(x), float(y), 0.0)}
+        self._write("/plan", {"header": header_message(stamp, "map"),
+                              "poses": [{"header": header_message(stamp, "map"),
+                                         "pose": pose_message(float(x), float(y), 0.0)}
                                         for x, y in command.path_xy]}, stamp, step)
         if observed is not None and (step % self.map_every == 0 or command.finished):
             self._write_map(observed, stamp, step)
@@ -130,18 +132,18 @@ class EpisodeRecorder:
         """The SLAM map and the pose covariance of an observation that carries them."""
         grid = observation.occupancy_grid
         if grid is not None:
-            self._write("/slam_map", {"header": _header(stamp, "map"),
-                                      "info": {"map_load_time": _stamp(0.0), "resolution": grid.resolution_m,
+            self._write("/slam_map", {"header": header_message(stamp, "map"),
+                                      "info": {"map_load_time": stamp_message(0.0), "resolution": grid.resolution_m,
                                                "width": grid.width, "height": grid.height,
-                                               "origin": _pose(grid.origin_xy[0], grid.origin_xy[1], 0.0)},
+                                               "origin": pose_message(grid.origin_xy[0], grid.origin_xy[1], 0.0)},
                                       "data": grid.data.tolist()}, stamp, step)
         covariance = observation.pose_covariance
         if covariance is not None:
             full = np.zeros((6, 6))
-            full[np.ix_(_COVARIANCE_INDEX, _COVARIANCE_INDEX)] = covariance.matrix
+            full[np.ix_(COVARIANCE_INDEX, COVARIANCE_INDEX)] = covariance.matrix
             pose = observation.pose
-            self._write("/pose_covariance", {"header": _header(stamp, "map"),
-                                             "pose": {"pose": _pose(pose.x, pose.y, pose.yaw),
+            self._write("/pose_covariance", {"header": header_message(stamp, "map"),
+                                             "pose": {"pose": pose_message(pose.x, pose.y, pose.yaw),
                                                       "covariance": full.ravel().tolist()}}, stamp, step)
 
     def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None) -> None:
@@ -159,10 +161,10 @@ class EpisodeRecorder:
         observed = np.asarray(observed)
         data = np.where(observed > 0, 100, observed).astype(np.int8)[::-1]
         height, width = self.frame.shape
-        self._write("/map", {"header": _header(stamp_s, "map"),
-                             "info": {"map_load_time": _stamp(0.0), "resolution": self.frame.resolution_m,
+        self._write("/map", {"header": header_message(stamp_s, "map"),
+                             "info": {"map_load_time": stamp_message(0.0), "resolution": self.frame.resolution_m,
                                       "width": width, "height": height,
-                                      "origin": _pose(self.frame.origin_xy[0], self.frame.origin_xy[1], 0.0)},
+                                      "origin": pose_message(self.frame.origin_xy[0], self.frame.origin_xy[1], 0.0)},
                              "data": data.ravel().tolist()}, stamp_s, step)
         self._last_map_step = step
 

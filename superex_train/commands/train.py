@@ -8,7 +8,7 @@ import json
 import os
 from pathlib import Path
 
-from superex_deploy.commands._options import add_parallel_options, make_backend
+from superex_deploy.commands.options import add_parallel_options, make_backend
 
 
 def _common(parser: argparse.ArgumentParser, epochs: int, batch_size: int, lr: float, wall_weight: float,

@@ -35,10 +35,10 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.nlos.back_projection import _back_projection_patch, back_project
-from superex_deploy.onboard.nlos.carving import _carved_patch, carve
+from superex_deploy.onboard.nlos.back_projection import back_project, back_project_patch
+from superex_deploy.onboard.nlos.carving import carve, carve_patch
 from superex_deploy.onboard.nlos.config import GridPatch, LosEstimate, NlosConfig, NlosResult, carve_radius_cap_m
-from superex_deploy.onboard.nlos.filters import _filtered_patch, laplacian_filter
+from superex_deploy.onboard.nlos.filters import laplacian_filter, laplacian_filter_patch
 from superex_deploy.onboard.nlos.los import estimate_los
 from superex_deploy.spad_types import SpadScan
 
@@ -52,6 +52,6 @@ def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional
     result's ``carved``, ``bp`` and ``bp_filtered`` give whole maps). ``pose_sigma``: ``(sigma_xy_m,
     sigma_yaw_rad)`` of the scan's pose, which widens the carving margins (:func:`carve`)."""
     los = estimate_los(scan, cfg)
-    bp = _back_projection_patch(scan, los, cfg, known)
-    return NlosResult(carved_patch=_carved_patch(scan, los, cfg, pose_sigma), bp_patch=bp,
-                      bp_filtered_patch=_filtered_patch(bp, 1.0), los=los)
+    bp = back_project_patch(scan, los, cfg, known)
+    return NlosResult(carved_patch=carve_patch(scan, los, cfg, pose_sigma), bp_patch=bp,
+                      bp_filtered_patch=laplacian_filter_patch(bp, 1.0), los=los)

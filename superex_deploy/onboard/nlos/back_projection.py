@@ -25,7 +25,7 @@ import numpy as np
 
 from superex_deploy.parallel import kernel_parts
 from superex_deploy.onboard.nlos.config import ROW_BLOCK, GridPatch, LosEstimate, NlosConfig
-from superex_deploy.onboard.nlos.los import _late_threshold
+from superex_deploy.onboard.nlos.los import late_threshold
 from superex_deploy.spad_types import SpadScan
 
 
@@ -306,7 +306,7 @@ def rays_reaching_unknown(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = Nl
                           known: Optional[np.ndarray] = None) -> np.ndarray:
     """bool ``[n_rays]``: the rays whose late (three-bounce) light may vote on an unknown cell of the
     back-projection window; every other ray adds nothing to :func:`back_project`, so leaving them out
-    (``_back_projection_patch(..., keep_rays=...)``) gives the same back-projection to the last bit.
+    (``back_project_patch(..., keep_rays=...)``) gives the same back-projection to the last bit.
 
     A ray votes on the rings about its wall point whose radii its late bins cover, only on unknown cells of the
     window in front of the wall; it is kept when that span of rings meets the rings the wall point's unknown
@@ -323,7 +323,7 @@ def rays_reaching_unknown(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = Nl
     ring_lo = np.empty(n_walls, np.int64)
     ring_hi = np.empty(n_walls, np.int64)
     _readable_ring_bounds(los.wall_apex, los.wall_normal, _window(scan, cfg), known, ring_lo, ring_hi)
-    _, guard = _late_threshold(scan, cfg, scan.n_bins)
+    _, guard = late_threshold(scan, cfg, scan.n_bins)
     keep = np.empty(len(los.los_bin), np.bool_)
     detections = los.detections
     _rays_reaching_rings(detections.row_start, detections.bins, los.los_bin, los.ray_wall, guard, scan.bin_path_m,
@@ -331,8 +331,8 @@ def rays_reaching_unknown(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = Nl
     return keep
 
 
-def _back_projection_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, known: Optional[np.ndarray],
-                           keep_rays: Optional[np.ndarray] = None) -> GridPatch:
+def back_project_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, known: Optional[np.ndarray],
+                       keep_rays: Optional[np.ndarray] = None) -> GridPatch:
     """:func:`back_project` as a patch of the window; ``keep_rays``: optional bool ``[n_rays]``, only these rays
     vote (:func:`rays_reaching_unknown`)."""
     shape = scan.grid_shape
@@ -350,7 +350,7 @@ def _back_projection_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, kn
         n_radii = _n_radii(scan)
         votes = np.zeros((len(los.wall_cells), n_radii + RING_PAD))
         q_max = np.full(len(los.wall_cells), -1, np.int64)
-        threshold, guard = _late_threshold(scan, cfg, scan.n_bins)
+        threshold, guard = late_threshold(scan, cfg, scan.n_bins)
         background = scan.config.noise.background_per_bin
         n_parts = kernel_parts(cfg.threads)
         detections = los.detections
@@ -373,4 +373,4 @@ def back_project(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(
         cfg: processing parameters (``window_m``).
         known: optional bool ``[H, W]`` of cells already known (skipped).
     """
-    return _back_projection_patch(scan, los, cfg, known).to_grid()
+    return back_project_patch(scan, los, cfg, known).to_grid()

@@ -53,7 +53,7 @@ from superex_deploy.spad_types import SpadScan
 
 
 @numba.njit(cache=True, parallel=True)
-def _carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, top, left, out, n_parts):
+def carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, top, left, out, n_parts):
     """Mark cells whose centre lies within ``radius_cells[u]`` of ``apex[u]``, at least ``strip_cells[u]`` in front
     of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit`` seen from a vertex 0.75
     cells in front of the apex (a scattering model may start its fan off the surface, as the simulator does;
@@ -67,7 +67,7 @@ def _carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, top, lef
 
 @numba.njit(cache=True)
 def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top, left, out, part, n_parts):
-    """:func:`_carve_sectors` in the rows of ``out`` that belong to ``part``."""
+    """:func:`carve_sectors` in the rows of ``out`` that belong to ``part``."""
     row_end = top + out.shape[0]
     col_end = left + out.shape[1]
     for u in range(apex.shape[0]):
@@ -187,7 +187,7 @@ def check_pose_sigma(pose_sigma) -> tuple[float, float]:
     return sigma_xy, sigma_yaw
 
 
-def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0.0, 0.0)) -> GridPatch:
+def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0.0, 0.0)) -> GridPatch:
     """:func:`carve` as a patch around the carved sectors."""
     shape = scan.grid_shape
     if len(los.wall_cells) == 0:
@@ -210,8 +210,8 @@ def _carved_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=
     top, left, bottom, right = _carved_box(los.wall_apex, radius_cells, strip_cells, shape[0], shape[1])
     carved = np.zeros((bottom - top, right - left), bool)
     cos_limit = np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))
-    _carve_sectors(los.wall_apex, los.wall_normal, radius_cells, strip_cells, cos_limit, top, left, carved,
-                   kernel_parts(cfg.threads))
+    carve_sectors(los.wall_apex, los.wall_normal, radius_cells, strip_cells, cos_limit, top, left, carved,
+                  kernel_parts(cfg.threads))
     return GridPatch(carved, int(top), int(left), shape)
 
 
@@ -220,4 +220,4 @@ def carve(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(), pose
 
     ``pose_sigma``: ``(sigma_xy_m, sigma_yaw_rad)`` of the pose the scan was placed by (point 4 above); zeros for
     an exact pose."""
-    return _carved_patch(scan, los, cfg, pose_sigma).to_grid()
+    return carve_patch(scan, los, cfg, pose_sigma).to_grid()

@@ -196,7 +196,13 @@ def carve_radius_cap_m(n_secondary: int, resolution_m: float) -> float:
     return resolution_m * n_secondary / np.pi
 
 
-def _check_scan(scan: SpadScan) -> None:
+def check_scan(scan: SpadScan) -> None:
+    """Refuse anything but a :class:`SpadScan` whose histograms (dense or sparse) are float32
+    ``[n_rays, n_bins]``, one row per angle.
+
+    Raises:
+        ValueError: naming the type, dtype or shape found.
+    """
     if not isinstance(scan, SpadScan):
         raise ValueError(f"scan must be a SpadScan, got {type(scan).__name__}")
     stored = scan.stored

@@ -96,7 +96,7 @@ def _gaussian_weights(sigma_cells: float) -> np.ndarray:
     return weights
 
 
-def _filtered_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
+def laplacian_filter_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
     """:func:`laplacian_filter` of a map that is zero outside the patch ``bp``: only the patch, widened by a margin,
     is filtered. float32 in [0, 1]."""
     # Filter the patch plus twice the stencil reach (Gaussian truncated at 4 sigma, plus the Laplacian's one cell),
@@ -131,4 +131,4 @@ def laplacian_filter(bp: np.ndarray, sigma_cells: float = 1.0) -> np.ndarray:
     if len(rows) == 0:
         return np.zeros(bp.shape, np.float32)
     nonzero = GridPatch(bp[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1], int(rows[0]), int(cols[0]), bp.shape)
-    return _filtered_patch(nonzero, sigma_cells).to_grid()
+    return laplacian_filter_patch(nonzero, sigma_cells).to_grid()

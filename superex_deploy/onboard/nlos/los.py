@@ -14,8 +14,8 @@ import numpy as np
 from scipy import stats
 
 from superex_deploy.geometry import group_by_cell
-from superex_deploy.onboard.nlos.config import LosEstimate, NlosConfig, _check_scan
-from superex_deploy.onboard.nlos.normals import _observed_normals
+from superex_deploy.onboard.nlos.config import LosEstimate, NlosConfig, check_scan
+from superex_deploy.onboard.nlos.normals import observed_normals
 from superex_deploy.spad_types import SpadScan, SparseHistograms
 
 
@@ -26,8 +26,10 @@ def _detections(scan: SpadScan, threshold: float) -> SparseHistograms:
     return SparseHistograms.from_dense(scan.histograms, threshold)
 
 
-def _late_threshold(scan: SpadScan, cfg: NlosConfig, n_late_bins: int) -> tuple[float, int]:
-    """(count threshold, guard bins after the direct peak)."""
+def late_threshold(scan: SpadScan, cfg: NlosConfig, n_late_bins: int) -> tuple[float, int]:
+    """``(threshold, guard)``: the count (float) a late bin must exceed to be a detection, set so that the
+    background alone gives ``cfg.false_alarm_rate`` false detections per ray over ``n_late_bins`` bins (0 without
+    noise: any photon), and the bins (int) after the direct peak that its timing jitter can still fill."""
     noise = scan.config.noise
     if not noise.enabled:
         return 0.0, 1
@@ -103,10 +105,10 @@ def _wall_points_of_rays(los_bin, first_late, angles, origin_y, origin_x, bin_pa
 
 def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
     """Direct returns, wall points and their normals, and the first late bin of every ray."""
-    _check_scan(scan)
+    check_scan(scan)
     res, w = scan.resolution_m, scan.bin_path_m
     n_rays, n_bins = scan.angles.shape[0], scan.n_bins
-    threshold, guard = _late_threshold(scan, cfg, n_bins)
+    threshold, guard = late_threshold(scan, cfg, n_bins)
     detections = _detections(scan, threshold)
     # The direct return is the earliest detection, not the strongest bin: a fan starting in a corner returns
     # all its rays at one tiny d2, and together they can outshine the direct photons. Timing jitter spreads the
@@ -121,7 +123,7 @@ def estimate_los(scan: SpadScan, cfg: NlosConfig = NlosConfig()) -> LosEstimate:
     _wall_points_of_rays(los_bin, first_late, scan.angles, scan.origin_yx[0], scan.origin_yx[1], w, res,
                          scan.grid_shape[0], scan.grid_shape[1], scan.config.range_m, d1, h1, empty_radius)
     ray_wall, wall_cells, _ = group_by_cell(h1, scan.grid_shape[1])
-    wall_normal, normal_reliable, wall_apex = _observed_normals(wall_cells, scan, cfg)
+    wall_normal, normal_reliable, wall_apex = observed_normals(wall_cells, scan, cfg)
     return LosEstimate(los_bin=los_bin, d1_m=d1, h1_rc=h1, first_late_bin=first_late,
                        empty_radius_m=empty_radius, wall_cells=wall_cells, ray_wall=ray_wall,
                        wall_normal=wall_normal, wall_apex=wall_apex, normal_reliable=normal_reliable,

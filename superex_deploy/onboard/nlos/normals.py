@@ -15,7 +15,7 @@ from superex_deploy.spad_types import SpadScan
 
 
 @numba.njit(cache=True, parallel=True)
-def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interior, normals, reliable, n_parts):
+def hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interior, normals, reliable, n_parts):
     """Minor principal axis of the points within ``radius`` of each point (itself included); ``reliable`` where
     there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, every
     point lies within ``max_residual`` of the fitted line, no two neighbours along it are more than ``max_gap``
@@ -35,7 +35,7 @@ def _hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interio
 @numba.njit(cache=True)
 def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, interior, normals, reliable, first,
                     stop):
-    """:func:`_hit_normals` of the points ``first .. stop - 1``."""
+    """:func:`hit_normals` of the points ``first .. stop - 1``."""
     n = points.shape[0]
     along_buffer = np.empty(n)
     near = np.empty(n, np.int64)
@@ -104,7 +104,7 @@ def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, inte
 
 
 @numba.njit(cache=True)
-def _face_the_robot(points, origin_y, origin_x, normals, reliable, apex):
+def face_the_robot(points, origin_y, origin_x, normals, reliable, apex):
     """Where a normal is not ``reliable`` the unit direction from the point to the robot replaces it; every
     normal is then turned to face the robot (in place). ``apex`` receives each wall cell's fan origin X1: where
     the normal through the cell centre ``points[u]`` leaves the cell."""
@@ -125,8 +125,8 @@ def _face_the_robot(points, origin_y, origin_x, normals, reliable, apex):
         apex[u, 1] = points[u, 1] + half * normals[u, 1]
 
 
-def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normals from the scan's own wall hits: the minor principal axis of the hits within
     ``normal_radius_cells`` of each wall cell, facing the robot.
 
@@ -145,22 +145,22 @@ def _observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
     if n_walls == 0:
         return normals, reliable, apex
     points = wall_cells + 0.5
-    _hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                 cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
-                 np.full(n_walls, float(cfg.normal_interior_cells)), normals, reliable, kernel_parts(cfg.threads))
-    _face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, reliable, apex)
+    hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
+                cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
+                np.full(n_walls, float(cfg.normal_interior_cells)), normals, reliable, kernel_parts(cfg.threads))
+    face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, reliable, apex)
     return normals, reliable, apex
 
 
 def reliable_with_interior(wall_cells: np.ndarray, cfg: NlosConfig, interior_cells: np.ndarray) -> np.ndarray:
-    """bool ``[U]``: which wall cells' normals :func:`_observed_normals` would trust with a per-cell interior
+    """bool ``[U]``: which wall cells' normals :func:`observed_normals` would trust with a per-cell interior
     distance ``interior_cells`` (float64 ``[U]``) in place of ``cfg.normal_interior_cells`` (the carving's stricter
     test under pose uncertainty)."""
     n_walls = len(wall_cells)
     reliable = np.zeros(n_walls, bool)
     if n_walls:
-        _hit_normals(wall_cells + 0.5, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                     cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
-                     np.ascontiguousarray(interior_cells, np.float64), np.zeros((n_walls, 2)), reliable,
-                     kernel_parts(cfg.threads))
+        hit_normals(wall_cells + 0.5, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
+                    cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
+                    np.ascontiguousarray(interior_cells, np.float64), np.zeros((n_walls, 2)), reliable,
+                    kernel_parts(cfg.threads))
     return reliable

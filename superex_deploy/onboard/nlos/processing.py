@@ -15,8 +15,8 @@ import numpy as np
 
 from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame, grid_angles
 from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
-from superex_deploy.onboard.nlos.back_projection import _back_projection_patch, rays_reaching_unknown
-from superex_deploy.onboard.nlos.filters import _filtered_patch
+from superex_deploy.onboard.nlos.back_projection import back_project_patch, rays_reaching_unknown
+from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
 __all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame", "check_frame_matches"]
@@ -204,7 +204,7 @@ class SpadProcessing:
         los = estimate_los(scan, self.nlos_cfg)
         bp = self._back_projection(scan, los, known)
         if self.bp_filter is None:
-            filtered = _filtered_patch(bp, 1.0)
+            filtered = laplacian_filter_patch(bp, 1.0)
             area = filtered.slices
             np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
         elif self.skips.filter_without_votes and not bp.values.any():
@@ -219,12 +219,12 @@ class SpadProcessing:
     def _back_projection(self, scan: SpadScan, los, known: np.ndarray):
         """The raw back-projection patch, the rays that cannot vote on an unknown cell left out if asked."""
         if not self.skips.rays_without_unknown:
-            return _back_projection_patch(scan, los, self.nlos_cfg, known)
+            return back_project_patch(scan, los, self.nlos_cfg, known)
         keep = rays_reaching_unknown(scan, los, self.nlos_cfg, known)
         voting = int((los.ray_wall >= 0).sum())
         self.counts["rays"] += voting
         self.counts["rays_skipped"] += voting - int(keep.sum())
-        return _back_projection_patch(scan, los, self.nlos_cfg, known, keep_rays=keep)
+        return back_project_patch(scan, los, self.nlos_cfg, known, keep_rays=keep)
 
     def _same_filter_input(self, bp, pose_rc) -> bool:
         """Whether the filter's input (the back-projection patch and the robot cell) is the last run's; if not,

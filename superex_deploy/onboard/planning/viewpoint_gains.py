@@ -19,26 +19,26 @@ import numba
 import numpy as np
 
 from superex_deploy.onboard.types import Prediction, check_observed
-from superex_deploy.onboard.planning.visibility import (VisibilityConfig, _max_range_cells, _polygon_runs, _ray_visible_ranges,
-                                               check_cells, check_map)
+from superex_deploy.onboard.planning.visibility import (VisibilityConfig, check_cells, check_map, max_range_cells,
+                                                        polygon_runs, ray_visible_ranges)
 
 __all__ = ["visible_gains", "union_visible_unknown", "union_visible_unknown_flat"]
 
 
 @numba.njit(cache=True)
 def _cast_distinct(mean, cast_rows, cast_cols, n_rays, max_t, hit_threshold, accumulate):
-    """float64 ``[U, n_rays]``: :func:`_ray_visible_ranges` from each distinct viewpoint cell."""
+    """float64 ``[U, n_rays]``: :func:`ray_visible_ranges` from each distinct viewpoint cell."""
     ranges = np.empty((cast_rows.shape[0], n_rays))
     for u in range(cast_rows.shape[0]):
-        _ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold, accumulate,
-                            ranges[u])
+        ray_visible_ranges(mean, cast_rows[u] + 0.5, cast_cols[u] + 0.5, n_rays, max_t, hit_threshold, accumulate,
+                           ranges[u])
     return ranges
 
 
 @numba.njit(cache=True)
 def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast):
     """Visible-unknown count and variance sum of each viewpoint ``v`` (cell ``view_rows[v], view_cols[v]``, rays
-    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`_polygon_runs`) is filled in the
+    ``ranges[view_cast[v]]``), in one compiled pass: its polygon (:func:`polygon_runs`) is filled in the
     row-major order of ``_fill_visibility``, so counts and sums are the same additions. (Jumping over runs of
     known cells through per-row links was measured and dropped: no faster in the trie fill, slower here, where the
     views from frontier cells are mostly unknown.)
@@ -49,8 +49,8 @@ def _viewpoint_gains(ranges, observed, variance, view_rows, view_cols, view_cast
     counts = np.zeros(n_views, np.int64)
     var_sums = np.zeros(n_views)
     for v in range(n_views):
-        rows, firsts, lasts = _polygon_runs(ranges[view_cast[v]], view_rows[v] + 0.5, view_cols[v] + 0.5, n_rows,
-                                            n_cols)
+        rows, firsts, lasts = polygon_runs(ranges[view_cast[v]], view_rows[v] + 0.5, view_cols[v] + 0.5, n_rows,
+                                           n_cols)
         count = 0
         var_sum = 0.0
         for k in range(rows.shape[0]):
@@ -81,8 +81,8 @@ def _trie_union_counts(ranges, observed, node_rows, node_cols, node_cast, subtre
     for p in range(n_nodes):
         end = subtree_end[p]
         added = 0
-        rows, firsts, lasts = _polygon_runs(ranges[node_cast[p]], node_rows[p] + 0.5, node_cols[p] + 0.5, n_rows,
-                                            n_cols)
+        rows, firsts, lasts = polygon_runs(ranges[node_cast[p]], node_rows[p] + 0.5, node_cols[p] + 0.5, n_rows,
+                                           n_cols)
         for k in range(rows.shape[0]):
             r = rows[k]
             for c in range(firsts[k], lasts[k] + 1):
@@ -120,7 +120,7 @@ def _distinct_casts(mean: np.ndarray, cells: np.ndarray, cfg: VisibilityConfig, 
                     ) -> tuple[np.ndarray, np.ndarray]:
     """The rays of each distinct cell of ``cells`` (int64 ``[V, 2]``, checked), cast once: ``(ranges float64 [U,
     n_rays], cast int64 [V])``, cell ``v``'s rays being ``ranges[cast[v]]``."""
-    max_t = _max_range_cells(cfg, resolution_m)
+    max_t = max_range_cells(cfg, resolution_m)
     distinct, cast = np.unique(cells[:, 0] * mean.shape[1] + cells[:, 1], return_inverse=True)
     ranges = _cast_distinct(mean, distinct // mean.shape[1], distinct % mean.shape[1], cfg.n_rays, max_t,
                             float(cfg.hit_threshold), bool(cfg.accumulate))

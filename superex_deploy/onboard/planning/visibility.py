@@ -70,7 +70,7 @@ class VisibilityConfig:
 
 
 @numba.njit(cache=True)
-def _ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, ranges):
+def ray_visible_ranges(mean, y0, x0, n_rays, max_t, hit_threshold, accumulate, ranges):
     """Visible range (cells) of ray ``k`` at angle ``2 pi k / n_rays``: to the centre of the first blocking cell
     (entry + 0.5 cells), to ``max_t``, or to the grid border, whichever comes first. All zero when the
     viewpoint's own cell blocks (MapEx: nothing is visible from inside a wall)."""
@@ -163,7 +163,7 @@ def _polygon_spans(ranges, y0, x0, n_rows):
 
 
 @numba.njit(cache=True)
-def _polygon_runs(ranges, y0, x0, n_rows, n_cols):
+def polygon_runs(ranges, y0, x0, n_rows, n_cols):
     """The cells inside the polygon of :func:`_polygon_spans` as runs, in row-major order: run ``k`` is row
     ``rows[k]``, columns ``firsts[k]..lasts[k]`` (inclusive; a cell is inside when its centre lies between
     crossings ``2j`` and ``2j + 1`` of its row; runs clipped to the map may be empty, ``first > last``).
@@ -189,14 +189,14 @@ def _polygon_runs(ranges, y0, x0, n_rows, n_cols):
 @numba.njit(cache=True)
 def _fill_visibility(ranges, y0, x0, observed, variance, visible_out, write_mask, stamp, label):
     """Cells whose centre lies inside the polygon of :func:`_polygon_spans`, by scanline fill
-    (:func:`_polygon_runs`). The work is the edges' row spans plus the visible cells.
+    (:func:`polygon_runs`). The work is the edges' row spans plus the visible cells.
 
     Marks the cells in ``visible_out`` when ``write_mask``; returns the number of those whose ``observed`` code
     is UNKNOWN (-1) and the sum of their ``variance``. With ``label >= 0`` an unknown cell counts only if
     ``stamp`` (int32, the map's shape) does not hold ``label`` there yet, and is then stamped with it: calls with
     one label count the union of their views. Nothing is visible when every range is zero."""
     n_rows, n_cols = observed.shape
-    rows, firsts, lasts = _polygon_runs(ranges, y0, x0, n_rows, n_cols)
+    rows, firsts, lasts = polygon_runs(ranges, y0, x0, n_rows, n_cols)
     count = 0
     var_sum = 0.0
     for k in range(rows.shape[0]):
@@ -232,7 +232,12 @@ def check_cells(cells_rc, shape) -> np.ndarray:
     return cells
 
 
-def _max_range_cells(cfg: VisibilityConfig, resolution_m: float) -> float:
+def max_range_cells(cfg: VisibilityConfig, resolution_m: float) -> float:
+    """The visibility range ``cfg.range_m`` in cells of ``resolution_m`` metres (float).
+
+    Raises:
+        ValueError: ``resolution_m`` is not positive and finite.
+    """
     if not (np.isfinite(resolution_m) and resolution_m > 0):
         raise ValueError(f"resolution_m must be positive and finite, got {resolution_m}")
     return cfg.range_m / float(resolution_m)
@@ -254,8 +259,8 @@ def visible_ranges(mean: np.ndarray, cell_rc, cfg: VisibilityConfig, resolution_
     mean = check_map("mean", mean, np.float32)
     (r, c), = check_cells([cell_rc], mean.shape)
     ranges = np.empty(cfg.n_rays, np.float64)
-    _ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, _max_range_cells(cfg, resolution_m), cfg.hit_threshold,
-                        cfg.accumulate, ranges)
+    ray_visible_ranges(mean, r + 0.5, c + 0.5, cfg.n_rays, max_range_cells(cfg, resolution_m), cfg.hit_threshold,
+                       cfg.accumulate, ranges)
     return ranges
 
 

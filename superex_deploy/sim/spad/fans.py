@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from superex_deploy.sim.spad.tracer import _facing_normal, _trace_first_hit_blocks
+from superex_deploy.sim.spad.tracer import facing_normal, trace_first_hit_blocks
 
 __all__ = ["FAN_OFFSET_CELLS", "FAN_VARIANTS", "MAX_CACHED_FAN_BYTES", "FanCache"]
 
@@ -87,8 +87,8 @@ class FanCache:
 
 
 @numba.njit(cache=True)
-def _fan_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_axis, robot_y, robot_x,
-              fan_normal, fan_key, fan_row):
+def fan_cache_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_axis, robot_y, robot_x,
+                   fan_normal, fan_key, fan_row):
     """Per fan: ``fan_normal`` the unit normal at its cell facing the robot, ``fan_key`` its cache key
     (``wall_index * FAN_VARIANTS + variant``; -1 for a normal that is no face and no stored normal, which only a
     ray starting inside a wall produces) and ``fan_row`` its cached row (-1: not cached; ``row_of_key`` holds
@@ -99,8 +99,8 @@ def _fan_rows(normals, two_sided, wall_index, row_of_key, fan_cells, fan_entry_a
         c1 = fan_cells[u, 1]
         cy = r1 + 0.5
         cx = c1 + 0.5
-        ny, nx, _ = _facing_normal(normals, two_sided, r1, c1, fan_entry_axis[u], cy - robot_y, cx - robot_x,
-                                   robot_y - cy, robot_x - cx)
+        ny, nx, _ = facing_normal(normals, two_sided, r1, c1, fan_entry_axis[u], cy - robot_y, cx - robot_x,
+                                  robot_y - cy, robot_x - cx)
         if ny * (robot_y - cy) + nx * (robot_x - cx) < 0.0:
             ny = -ny
             nx = -nx
@@ -151,7 +151,7 @@ def _trace_fan(cell_kind, wall_blocks, normals, two_sided, r1, c1, ny, nx, cos_p
             continue
         dy = ny * cos_phi[k] - nx * sin_phi[k]
         dx = ny * sin_phi[k] + nx * cos_phi[k]
-        r2, c2, t, axis = _trace_first_hit_blocks(cell_kind, wall_blocks, oy, ox, dy, dx, max_t)
+        r2, c2, t, axis = trace_first_hit_blocks(cell_kind, wall_blocks, oy, ox, dy, dx, max_t)
         if r2 < 0:
             continue
         hy = oy + t * dy
@@ -163,7 +163,7 @@ def _trace_fan(cell_kind, wall_blocks, normals, two_sided, r1, c1, ny, nx, cos_p
             # The offset start lies inside a wall: an early return straight back, full cosine.
             cos2[k] = 1.0
             continue
-        n2y, n2x, _ = _facing_normal(normals, two_sided, r2, c2, axis, dy, dx, -dy, -dx)
+        n2y, n2x, _ = facing_normal(normals, two_sided, r2, c2, axis, dy, dx, -dy, -dx)
         cos2[k] = max(0.0, -(dy * n2y + dx * n2x))
     n = 0
     for k in range(n_secondary):
@@ -225,8 +225,8 @@ def _sort_paths(path_m, gain, n, scratch_path, scratch_gain, bucket_start):
 
 
 @numba.njit(cache=True, parallel=True)
-def _trace_fans(cell_kind, wall_blocks, normals, two_sided, fan_cells, fan_normal, todo, rows, n_secondary,
-                max_t, resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain, n_paths, n_parts):
+def trace_fans(cell_kind, wall_blocks, normals, two_sided, fan_cells, fan_normal, todo, rows, n_secondary,
+               max_t, resolution_m, min_distance_m, d2_m, cos2, h2_rc, path_m, gain, n_paths, n_parts):
     """Trace the fans ``todo`` (indices into ``fan_cells`` / ``fan_normal``) into cache rows ``rows``; the
     fans are dealt round-robin into ``n_parts`` parts traced in parallel (each fan is independent, so the
     result does not depend on the split)."""

@@ -9,9 +9,9 @@ import numpy as np
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_sparse(direction, hit_fan, d1_cells, fan_normal, fan_row, path_m, gain, n_paths, resolution_m,
-                 bin_path_m, n_bins, direct_counts, three_bounce_scale, min_distance_m, d1_out, cos1_out,
-                 normal1_out, n_parts):
+def fill_sparse(direction, hit_fan, d1_cells, fan_normal, fan_row, path_m, gain, n_paths, resolution_m,
+                bin_path_m, n_bins, direct_counts, three_bounce_scale, min_distance_m, d1_out, cos1_out,
+                normal1_out, n_parts):
     """Eq. (1) and eq. (2) as sparse histograms: returns ``(row_start, bins, counts)`` (see
     :class:`SparseHistograms`).
 

@@ -15,7 +15,13 @@ from superex_deploy.spad_types import SpadConfig
 _POISSON_NORMAL_ABOVE = 1e7
 
 
-def _check_rng(cfg: SpadConfig, rng) -> Optional[np.random.Generator]:
+def check_noise_rng(cfg: SpadConfig, rng) -> Optional[np.random.Generator]:
+    """The generator the noise draws from: None when ``cfg.noise`` is disabled, else ``rng``.
+
+    Raises:
+        ValueError: noise is enabled and ``rng`` is not a :class:`numpy.random.Generator` (a noisy scan must be
+            reproducible).
+    """
     if not cfg.noise.enabled:
         return None
     if rng is None:
@@ -25,7 +31,10 @@ def _check_rng(cfg: SpadConfig, rng) -> Optional[np.random.Generator]:
     return rng
 
 
-def _add_noise(histograms: np.ndarray, cfg: SpadConfig, rng: np.random.Generator) -> np.ndarray:
+def add_noise(histograms: np.ndarray, cfg: SpadConfig, rng: np.random.Generator) -> np.ndarray:
+    """Noisy counts of the noise-free histograms (float64 ``[n_rays, n_bins]``): blurred along the bins by the
+    timing jitter ``cfg.noise.jitter_s``, plus ``background_per_bin``, then drawn as Poisson counts (normal above
+    ``1e7``, where numpy's Poisson sampler stops). float64, same shape."""
     jitter_bins = cfg.noise.jitter_s / cfg.bin_width_s
     if jitter_bins > 0.0:
         histograms = ndimage.gaussian_filter1d(histograms, jitter_bins, axis=1, mode="constant", truncate=4.0)

@@ -74,7 +74,7 @@ class SpadScene:
         wall_blocks: bool ``[ceil(H / 4), ceil(W / 4)]``: True where the 4x4 block of cells holds a wall.
         cell_kind: uint8 ``[H, W]``: ``CELL_WALL`` at walls, ``CELL_OPEN_BLOCK`` at free cells of wall-free
             blocks, ``CELL_FREE`` at the other free cells (codes from :mod:`superex_deploy.sim.spad.tracer`). Rays
-            cross wall-free blocks four cells at a time (see :func:`.tracer._trace_first_hit_blocks`); one byte per
+            cross wall-free blocks four cells at a time (see :func:`.tracer.trace_first_hit_blocks`); one byte per
             cell tells a cell step both outcomes at once.
         wall_index: int32 ``[H, W]``: running index of each wall cell (row-major), -1 at free cells; keys the
             fan caches.

@@ -11,11 +11,11 @@ import numpy as np
 from superex_deploy.parallel import kernel_parts
 from superex_deploy.geometry import cell_centre, group_by_cell, ray_angles
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.sim.spad.fans import _fan_rows, _trace_fans
-from superex_deploy.sim.spad.histograms import _fill_sparse
-from superex_deploy.sim.spad.noise import _add_noise, _check_rng
+from superex_deploy.sim.spad.fans import fan_cache_rows, trace_fans
+from superex_deploy.sim.spad.histograms import fill_sparse
+from superex_deploy.sim.spad.noise import add_noise, check_noise_rng
 from superex_deploy.sim.spad.scene import prepare_scene
-from superex_deploy.sim.spad.tracer import _cast_primaries
+from superex_deploy.sim.spad.tracer import cast_primaries
 from superex_deploy.sim.spad.truth import SpadTruth
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
@@ -61,7 +61,7 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
         raise ValueError(f"cfg must be a SpadConfig, got {type(cfg).__name__}")
     scene = prepare_scene(grid)
     pose_rc = grid.check_pose(pose_rc)
-    rng = _check_rng(cfg, rng)
+    rng = check_noise_rng(cfg, rng)
     origin = cell_centre(pose_rc) if origin_yx is None else _origin_in_cell(origin_yx, pose_rc)
     resolution = grid.resolution_m
     max_t = cfg.range_m / resolution
@@ -71,8 +71,8 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     entry_axis = np.empty(cfg.n_rays, np.int8)
     direction = np.empty((cfg.n_rays, 2))
     n_parts = kernel_parts()
-    _cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
-                    entry_axis, direction, n_parts)
+    cast_primaries(scene.cell_kind, scene.wall_blocks, origin[0], origin[1], angles, max_t, hit_rc, distance,
+                   entry_axis, direction, n_parts)
     hit_fan, fan_cells, first_ray = group_by_cell(hit_rc, grid.shape[1])
     fan_entry_axis = entry_axis[first_ray]  # the lowest-index ray that hit the cell
 
@@ -81,8 +81,8 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     fan_normal = np.empty((n_fans, 2))
     fan_key = np.empty(n_fans, np.int64)
     fan_row = np.empty(n_fans, np.int64)
-    n_missing = _fan_rows(scene.normals, scene.two_sided, scene.wall_index, cache.row_of_key, fan_cells,
-                          fan_entry_axis, origin[0], origin[1], fan_normal, fan_key, fan_row)
+    n_missing = fan_cache_rows(scene.normals, scene.two_sided, scene.wall_index, cache.row_of_key, fan_cells,
+                               fan_entry_axis, origin[0], origin[1], fan_normal, fan_key, fan_row)
     min_distance_m = MIN_DISTANCE_CELLS * resolution
     if n_missing:
         rows, cleared = cache.reserve(n_missing, n_fans)
@@ -92,9 +92,9 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
         fan_row[todo] = rows
         keyed = fan_key[todo] >= 0
         cache.row_of_key[fan_key[todo][keyed]] = rows[keyed] + 1
-        _trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, fan_cells, fan_normal,
-                    todo, rows, cfg.n_secondary, max_t, resolution, min_distance_m, cache.d2_m, cache.cos2,
-                    cache.h2_rc, cache.path_m, cache.gain, cache.n_paths, n_parts)
+        trace_fans(scene.cell_kind, scene.wall_blocks, scene.normals, scene.two_sided, fan_cells, fan_normal,
+                   todo, rows, cfg.n_secondary, max_t, resolution, min_distance_m, cache.d2_m, cache.cos2,
+                   cache.h2_rc, cache.path_m, cache.gain, cache.n_paths, n_parts)
         cache.traced += len(todo)
     cache.reused += n_fans - n_missing
 
@@ -102,13 +102,13 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
     cos1 = np.empty(cfg.n_rays)
     normal1 = np.empty((cfg.n_rays, 2))
     three_bounce_scale = cfg.three_bounce_scale(resolution)
-    row_start, bins, counts = _fill_sparse(direction, hit_fan, distance, fan_normal, fan_row, cache.path_m,
-                                           cache.gain, cache.n_paths, resolution, cfg.bin_path_m, cfg.n_bins,
-                                           cfg.direct_counts, three_bounce_scale, min_distance_m, d1_m, cos1,
-                                           normal1, n_parts)
+    row_start, bins, counts = fill_sparse(direction, hit_fan, distance, fan_normal, fan_row, cache.path_m,
+                                          cache.gain, cache.n_paths, resolution, cfg.bin_path_m, cfg.n_bins,
+                                          cfg.direct_counts, three_bounce_scale, min_distance_m, d1_m, cos1,
+                                          normal1, n_parts)
     stored: Union[SparseHistograms, np.ndarray] = SparseHistograms(row_start, bins, counts, cfg.n_bins)
     if rng is not None:
-        noisy = np.minimum(_add_noise(stored.to_dense().astype(np.float64), cfg, rng), _FLOAT32_MAX)
+        noisy = np.minimum(add_noise(stored.to_dense().astype(np.float64), cfg, rng), _FLOAT32_MAX)
         stored = noisy.astype(np.float32)
 
     truth = SpadTruth(h1_rc=hit_rc, d1_m=d1_m, normal1=normal1, cos1=cos1, ray_fan=hit_fan, fan_rows=fan_row,

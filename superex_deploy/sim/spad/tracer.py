@@ -23,7 +23,7 @@ CELL_OPEN_BLOCK = 2
 
 
 @numba.njit(cache=True, inline="always")
-def _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
+def trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
     """``geometry._trace_first_hit`` on two levels: exact DDA steps through the cells of blocks that hold a
     wall, DDA steps of whole ``BLOCK_CELLS x BLOCK_CELLS`` blocks through wall-free blocks. The hit cell, its
     entry distance and its entry axis are the exact DDA's up to float rounding (each level's boundary parameters
@@ -118,7 +118,7 @@ def _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t):
 
 
 @numba.njit(cache=True, parallel=True)
-def _cast_primaries(cell_kind, wall_blocks, y0, x0, angles, max_t, hit_rc, distance, entry_axis, direction, n_parts):
+def cast_primaries(cell_kind, wall_blocks, y0, x0, angles, max_t, hit_rc, distance, entry_axis, direction, n_parts):
     """``geometry._cast_rays`` with the two-level tracer (same outputs, up to float rounding); ``direction[i]``
     receives the unit vector ``(dy, dx)`` of ray ``i``. The rays are cut into ``n_parts`` runs of neighbouring
     angles traced in parallel (each ray is independent: the split does not change the result)."""
@@ -130,7 +130,7 @@ def _cast_primaries(cell_kind, wall_blocks, y0, x0, angles, max_t, hit_rc, dista
             dx = np.cos(angles[i])
             direction[i, 0] = dy
             direction[i, 1] = dx
-            r, c, t, axis = _trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t)
+            r, c, t, axis = trace_first_hit_blocks(cell_kind, wall_blocks, y0, x0, dy, dx, max_t)
             hit_rc[i, 0] = r
             hit_rc[i, 1] = c
             distance[i] = t
@@ -138,7 +138,7 @@ def _cast_primaries(cell_kind, wall_blocks, y0, x0, angles, max_t, hit_rc, dista
 
 
 @numba.njit(cache=True)
-def _facing_normal(normals, two_sided, r, c, entry_axis, dy, dx, towards_y, towards_x):
+def facing_normal(normals, two_sided, r, c, entry_axis, dy, dx, towards_y, towards_x):
     """Unit normal at wall cell (r, c) for light arriving along (dy, dx). Thin-wall and undefined normals get
     the sign pointing towards (towards_y, towards_x) (the side the light comes from); Sobel normals keep their
     physical sign. Returns (ny, nx, physical)."""
