@@ -75,6 +75,19 @@ def _observed_image(observed: np.ndarray) -> np.ndarray:
     return image
 
 
+def save_map_image(observed: np.ndarray, path: Path) -> Path:
+    """The observed map (int8 ``[H, W]``: -1 unknown, 0 free, 1 wall; row 0 at the top) as an 8-bit grey PNG, one
+    pixel per cell, in map_saver's colours (free 254, wall 0, unknown 205)."""
+    from PIL import Image
+
+    observed = np.asarray(observed)
+    image = np.full(observed.shape, 205, np.uint8)
+    image[observed == 0] = 254
+    image[observed == 1] = 0
+    Image.fromarray(image).save(path, format="PNG")
+    return Path(path)
+
+
 def save_episode_figure(path: Path, grid, result) -> Path:
     """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
     frontier regions left (orange, dots at their goal cells); the final prediction."""

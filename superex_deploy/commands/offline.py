@@ -117,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     topics = BagTopics(scan_topic=args.scan_topic, pose_source=args.pose_source, map_topic=args.map_topic,
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
+    out.mkdir(parents=True, exist_ok=True)
     first_map = _first_map(args.bag, reading)
     resolution = args.resolution or (first_map[0] if first_map else 0.1)
     frame = frame_for(reading.extent_xy, resolution, args.margin_m, first_map[1] if first_map else None)
@@ -161,7 +162,7 @@ def _row(command, total_ms: float) -> list:
 
 
 def _write(out: Path, args, reading, frame, explorer, rows, step_ms, command, finished_at, interrupted) -> None:
-    from superex_deploy.render import save_map_png
+    from superex_deploy.render import save_map_image
 
     table = io.StringIO()
     writer = csv.writer(table)
@@ -170,10 +171,13 @@ def _write(out: Path, args, reading, frame, explorer, rows, step_ms, command, fi
     writer.writerows(rows)
     write_atomically(out / "commands.csv", table.getvalue())
     observed = explorer.observed
-    write_atomically(out / "map.npz", lambda part: np.savez_compressed(
-        open(part, "wb"), observed=observed, shape=np.asarray(frame.shape), resolution_m=frame.resolution_m,
-        origin_xy=np.asarray(frame.origin_xy)))
-    write_atomically(out / "map.png", lambda part: save_map_png(observed, part))
+    def save_npz(part: Path) -> None:
+        with open(part, "wb") as file:
+            np.savez_compressed(file, observed=observed, shape=np.asarray(frame.shape),
+                                resolution_m=frame.resolution_m, origin_xy=np.asarray(frame.origin_xy))
+
+    write_atomically(out / "map.npz", save_npz)
+    write_atomically(out / "map.png", lambda part: save_map_image(observed, part))
     times = np.asarray(step_ms) if step_ms else np.zeros(1)
     summary = {
         "bag": str(args.bag), "scan_topic": reading.scan_topic, "pose_source": reading.pose_source,

@@ -192,11 +192,12 @@ def _open(path: Path):
 
 
 def _topics_of(reader, msgtype: str) -> list[str]:
-    return sorted({c.topic for c in reader.connections if c.msgtype == msgtype})
+    """The topics of ``msgtype`` that hold messages (a topic declared but never written is left out)."""
+    return sorted({c.topic for c in reader.connections if c.msgtype == msgtype and c.msgcount})
 
 
 def _choose(reader, topics: BagTopics) -> BagReading:
-    found = {c.topic: c.msgtype for c in reader.connections}
+    found = {c.topic: c.msgtype for c in reader.connections if c.msgcount}
     listing = ", ".join(f"{topic} ({kind})" for topic, kind in sorted(found.items())) or "no topics"
     scans = _topics_of(reader, LASER_SCAN)
     if topics.scan_topic is not None:
