@@ -50,6 +50,23 @@ class MapFrame:
         object.__setattr__(self, "resolution_m", resolution)
         object.__setattr__(self, "origin_xy", origin)
 
+    @classmethod
+    def around(cls, x: float, y: float, resolution_m: float, size_m: float = 10.0,
+               lattice_xy: tuple[float, float] = (0.0, 0.0)) -> "MapFrame":
+        """A square frame of at least ``size_m`` metres a side centred near the map-frame point ``(x, y)``, its
+        cell corners on the lattice through ``lattice_xy`` (a SLAM map's origin, so that its cells line up): the
+        first frame of an explorer whose map grows (:class:`~superex_deploy.onboard.ExplorerConfig`'s
+        ``growth``)."""
+        resolution_m = check_finite("resolution_m", resolution_m)
+        size_m = check_finite("size_m", size_m)
+        if resolution_m <= 0.0 or size_m <= 0.0:
+            raise ValueError(f"resolution_m and size_m must be positive, got {resolution_m} and {size_m}")
+        cells = int(math.ceil(size_m / resolution_m))
+        lx, ly = check_point_xy("lattice_xy", lattice_xy)
+        left = lx + math.floor((check_finite("x", x) - lx) / resolution_m - cells / 2) * resolution_m
+        bottom = ly + math.floor((check_finite("y", y) - ly) / resolution_m - cells / 2) * resolution_m
+        return cls((cells, cells), resolution_m, (left, bottom))
+
     def grid_yx(self, x: float, y: float) -> tuple[float, float]:
         """Continuous grid position ``(y down, x right)`` in cells of the map-frame point ``(x, y)`` (metres)."""
         return (self.shape[0] - (y - self.origin_xy[1]) / self.resolution_m,

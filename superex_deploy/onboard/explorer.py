@@ -49,6 +49,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.mapping.growth import MapGrowth, Regrid, grown_frame, reach_of
 from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig
 from superex_deploy.onboard.planning.motion import (MotionConfig, PlanningMap, check_wall_reach, path_is_clear,
                                                     planning_map)
@@ -87,6 +88,12 @@ class ExplorerConfig:
         occupancy: the map's log-odds parameters and the SLAM map's thresholds
             (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
             recording's metadata holds it).
+        growth: None (the default): the grid is the frame the explorer was built with, and what lies beyond it is
+            dropped; a :class:`~superex_deploy.onboard.mapping.growth.MapGrowth`: the grid grows as scans, SPAD
+            frames or SLAM maps reach beyond it (a robot entering a building of unknown size; start from a small
+            frame around the start, e.g. :meth:`~superex_deploy.messages.MapFrame` of 10 m). Cells in commands
+            (``goal_rc``, ``path_rc``) are then the grid's of that step (:attr:`Explorer.frame`); the map-frame
+            fields (``goal_xy``, ``path_xy``) never move.
         finish_after_s: how long (seconds, on the observations' clock) no reachable frontier must be left before a
             step says ``finished`` (explore_lite's progress timeout). 0: at the first step without one, as the
             simulated benchmarks run it (there a map never reopens by itself). A robot whose map is built from
@@ -105,8 +112,13 @@ class ExplorerConfig:
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
     scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
     finish_after_s: float = 0.0
+    growth: Optional[MapGrowth] = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.growth, dict):
+            object.__setattr__(self, "growth", MapGrowth(**self.growth))
+        if self.growth is not None and not isinstance(self.growth, MapGrowth):
+            raise ValueError(f"growth must be a MapGrowth or None, got {type(self.growth).__name__}")
         if isinstance(self.occupancy, dict):
             object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
         if isinstance(self.scan_matching, dict):
@@ -369,13 +381,18 @@ class Explorer:
         if self._closed:
             raise RuntimeError("this explorer was closed")
         # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
-        pose = self._pose_cell(obs)
+        regrid = self._regrid_for(obs) if self.cfg.growth is not None else None
+        if regrid is None:
+            pose = self._pose_cell(obs)
         if self._stamps and obs.stamp_s < self._stamps[-1]:
             raise ValueError(f"observation stamps must not go backwards: {obs.stamp_s} s after {self._stamps[-1]} s "
                              f"(a reset simulation clock or a looping bag starts a new exploration: build a new "
                              f"Explorer)")
         if self.spad_processing is not None and obs.spad is not None:
             self.spad_processing.check_frame(obs.spad)
+        if regrid is not None:
+            self._regrid(regrid)
+            pose = self._pose_cell(obs)
         self._pose_exact = obs.pose_covariance is None
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
@@ -444,6 +461,35 @@ class Explorer:
                        prediction_step=self._latest_step, step=t, timings_s=timings,
                        prediction_age_steps=t - self._latest_step if aged else None,
                        prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None)
+
+    def _regrid_for(self, obs: Observation) -> Optional[Regrid]:
+        """The larger grid this observation needs (see :mod:`~superex_deploy.onboard.mapping.growth`), or None."""
+        spad_reach_m = 0.0
+        if self.spad_processing is not None and obs.spad is not None:
+            spad_reach_m = self.spad_processing.reach_cells(self.frame.resolution_m) * self.frame.resolution_m
+        return grown_frame(self.frame, reach_of(obs, spad_reach_m), self.cfg.growth)
+
+    def _regrid(self, regrid: Regrid) -> None:
+        """Move every per-cell state to the larger grid ``regrid``: the map's layers, the SPAD evidence, the
+        predictions kept and in progress, the goal, its path and the goals reached."""
+        if self.scheduled is not None:
+            self.scheduled.regrid(regrid)
+        if self.reusing is not None:
+            self.reusing.regrid(regrid)
+        self.mapper.regrid(regrid)
+        if self.spad_processing is not None:
+            self.spad_processing.regrid(regrid)
+        if self._latest is not None:
+            self._latest = Prediction(mean=regrid.embed(self._latest.mean, 0.0),
+                                      variance=regrid.embed(self._latest.variance, 0.0))
+        self._no_evidence = None
+        self.observed = regrid.embed(self.observed, UNKNOWN)
+        self._planning = regrid.embed(self._planning, UNKNOWN)
+        self.goal = None if self.goal is None else regrid.cell(self.goal)
+        self.path = [regrid.cell(cell) for cell in self.path]
+        self._visited = {regrid.cell(cell) for cell in self._visited}
+        self.frontiers = ()
+        self.frame = regrid.frame
 
     def _settle_finished(self, stamp_s: float) -> None:
         """``finished`` once no goal has been found for ``cfg.finish_after_s`` seconds of the observations' clock

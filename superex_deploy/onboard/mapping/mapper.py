@@ -366,6 +366,13 @@ class Mapper:
         window[clear] = cfg.lowest
         return changed
 
+    def regrid(self, regrid) -> None:
+        """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): both layers keep their
+        values at the new indices, new cells are unknown (log-odds 0)."""
+        self.log_odds = regrid.embed(self.log_odds, 0.0)
+        self.carve_log_odds = regrid.embed(self.carve_log_odds, 0.0)
+        self._touched = np.zeros(self.log_odds.shape + (2,), np.int32)
+
     def set_line_of_sight(self, occupancy_percent: np.ndarray) -> None:
         """Replace the line-of-sight layer by a SLAM map on this grid (the carving layer is kept).
 

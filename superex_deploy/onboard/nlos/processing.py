@@ -152,6 +152,15 @@ class SpadProcessing:
         """
         check_frame_matches(frame, self.sensor)
 
+    def regrid(self, regrid) -> None:
+        """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): the evidence keeps its
+        values at the new indices (0 in new cells); the last frame's view and filter input, kept in cells, are
+        forgotten (the next frame is processed in full)."""
+        if self._evidence is not None:
+            self._evidence = regrid.embed(self._evidence, 0.0)
+        self._last_view = None
+        self._last_filter_input = None
+
     def reset(self) -> None:
         """Forget the evidence and the last frame of an earlier episode."""
         self._evidence = None

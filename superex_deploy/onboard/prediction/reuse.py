@@ -230,6 +230,19 @@ class ReusingPredictor:
             self.runs = self.reused = self.predicted_cells = 0
             self.last_crop = None
 
+    def regrid(self, regrid) -> None:
+        """Move the last prediction to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`;
+        waits for a prediction in progress): new cells are unknown in its map and predicted free with no variance,
+        as the observed-map predictor has them, until a prediction covers them."""
+        with self._lock:
+            if self._base is not None:
+                self._base = Prediction(mean=regrid.embed(self._base.mean, 0.0),
+                                        variance=regrid.embed(self._base.variance, 0.0))
+                self._base_observed = regrid.embed(self._base_observed, UNKNOWN)
+                if self._base_evidence is not None:
+                    self._base_evidence = regrid.embed(self._base_evidence, 0.0)
+            self.last_crop = None
+
     def _changed(self, observed: np.ndarray, evidence: Optional[np.ndarray]) -> np.ndarray:
         if self._base_observed is None:
             changed = observed != UNKNOWN

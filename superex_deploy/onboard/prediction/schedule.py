@@ -12,7 +12,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from superex_deploy.onboard.prediction.reuse import ReusingPredictor, merge_with_map
-from superex_deploy.onboard.types import OCCUPIED, Prediction
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["MODES", "PredictionSchedule", "LazyPrediction", "StalePrediction", "ScheduledPredictions",
            "set_numba_threads"]
@@ -233,6 +233,20 @@ class ScheduledPredictions:
         if self._worker is not None:
             self._worker.shutdown(wait=True, cancel_futures=True)
             self._worker = None
+
+    def regrid(self, regrid) -> None:
+        """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): a prediction in
+        progress is waited for and becomes the newest; the newest prediction and the maps kept for later
+        predictions are embedded in the new grid (new cells unknown, predicted free with no variance)."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self.latest, self.latest_step = pending.result(), self._pending_step
+        if self.latest is not None:
+            self.latest = Prediction(mean=regrid.embed(self.latest.mean, 0.0),
+                                     variance=regrid.embed(self.latest.variance, 0.0))
+        self._kept = {step: (regrid.embed(observed, UNKNOWN),
+                             None if evidence is None else regrid.embed(evidence, 0.0))
+                      for step, (observed, evidence) in self._kept.items()}
 
     def advance(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> float:
         """Step ``t``'s share: apply what is due (or, in ``free`` mode, finished), start or keep what the schedule

@@ -1,0 +1,135 @@
+"""A map that grows (:mod:`superex_deploy.onboard.mapping.growth`): an explorer started on a small frame keeps the
+map an explorer on the whole floor builds from the same observations, its frontiers are never hidden by the grid's
+edge, and every per-cell state (goal, path, predictions in progress, SPAD evidence) moves with the grid."""
+
+import numpy as np
+import pytest
+
+from superex_deploy.maps import list_maps, load_map, random_start
+from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D,
+                                     max_map_cells)
+from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, PredictionSchedule
+from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame, reach_of
+from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.types import UNKNOWN
+from superex_deploy.sim.world import World, WorldConfig
+
+GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
+
+
+def _explorer(frame, **cfg) -> Explorer:
+    return Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=ExplorerConfig(**cfg))
+
+
+def _in_frame(observed: np.ndarray, frame: MapFrame, target: MapFrame) -> np.ndarray:
+    """``observed`` (on ``frame``) on the cells of ``target`` (same lattice), unknown where it has none."""
+    shift_c = round((frame.origin_xy[0] - target.origin_xy[0]) / target.resolution_m)
+    shift_r = round((target.origin_xy[1] + target.shape[0] * target.resolution_m
+                     - frame.origin_xy[1] - frame.shape[0] * frame.resolution_m) / target.resolution_m)
+    out = np.full(target.shape, UNKNOWN, np.int8)
+    r0, c0 = max(shift_r, 0), max(shift_c, 0)
+    r1, c1 = min(shift_r + frame.shape[0], target.shape[0]), min(shift_c + frame.shape[1], target.shape[1])
+    out[r0:r1, c0:c1] = observed[r0 - shift_r:r1 - shift_r, c0 - shift_c:c1 - shift_c]
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_growing_map_is_the_whole_floors_map_of_the_same_observations(seed):
+    rng = np.random.default_rng(seed)
+    grid = load_map(list_maps("train")[seed * 7])
+    world = World(grid, random_start(grid, rng, 0.5), WorldConfig())
+    whole = _explorer(world.frame)
+    observations = []
+    for _ in range(40):
+        observation = world.observe()
+        observations.append(observation)
+        command = whole.step(observation)
+        if command.finished:
+            break
+        world.apply(command)
+    start = observations[0].pose
+    growing = _explorer(MapFrame.around(start.x, start.y, grid.resolution_m, size_m=4.0), growth=GROWTH)
+    for observation in observations:
+        growing.step(observation)
+    assert growing.frame.shape != (40, 40)  # it grew
+    assert growing.frame.shape[0] * growing.frame.shape[1] < world.frame.shape[0] * world.frame.shape[1] * 4
+    mine = _in_frame(growing.observed, growing.frame, world.frame)
+    known = (mine != UNKNOWN) | (whole.observed != UNKNOWN)
+    assert np.mean(mine[known] != whole.observed[known]) < 1e-3
+    # Everything known keeps the margin to the grid's edge: no frontier is hidden by it.
+    rows, cols = np.nonzero(growing.observed != UNKNOWN)
+    margin = int(GROWTH.margin_m / grid.resolution_m) - 1
+    assert rows.min() >= margin and cols.min() >= margin
+    assert rows.max() < growing.frame.shape[0] - margin and cols.max() < growing.frame.shape[1] - margin
+
+
+def test_a_slam_corridor_beyond_the_frame_is_not_finished():
+    # A 30 m corridor in a SLAM map, the explorer's frame only 6 m of it (#33: finished at the frame's edge).
+    slam_frame = MapFrame((40, 300), 0.1, (0.0, 0.0))
+    corridor = np.full(slam_frame.shape, -1, np.int8)
+    corridor[15:25, 0:250] = 0
+    corridor[15, :250] = corridor[24, :250] = corridor[15:25, 0] = 100
+    message = OccupancyGridMessage.from_frame_grid(slam_frame, corridor)
+    pose = Pose2D(1.05, 2.05)
+    fixed = _explorer(MapFrame((40, 60), 0.1, (0.0, 0.0)))
+    assert fixed.step(Observation(0.0, pose, None, occupancy_grid=message)).finished  # the edge hides the rest
+    growing = _explorer(MapFrame((40, 60), 0.1, (0.0, 0.0)), growth=GROWTH)
+    command = growing.step(Observation(0.0, pose, None, occupancy_grid=message))
+    assert not command.finished and command.goal_xy[0] > 20.0  # the corridor's open end, 25 m away
+    assert growing.frame.shape[1] >= 250 + 20
+
+
+def test_goal_path_and_predictions_in_progress_move_with_the_grid():
+    frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
+    explorer = Explorer(frame, make_planner("nearest"), ObservedAsPrediction(),
+                        cfg=ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule("free"),
+                                           reuse=PredictionReuse(crop_margin_m=1.0)))
+    open_scan = LaserScan(0.0, 2 * np.pi / 360, 0.05, 2.0, np.full(360, np.inf, np.float32))
+    with explorer:
+        first = explorer.step(Observation(0.0, Pose2D(5.05, 5.05), open_scan))
+        assert explorer.frame.shape == (100, 100) and first.goal_xy is not None
+        # A step 2.5 m to the west: the grid grows to the left, by at least the chunk.
+        second = explorer.step(Observation(0.1, Pose2D(2.55, 5.05), open_scan))
+        assert explorer.frame.shape == (100, 100 + 15 + 30) and explorer.frame.origin_xy[0] == pytest.approx(-4.5)
+        assert second.goal_rc is not None and explorer.frame.centre_xy(second.goal_rc) == pytest.approx(
+            second.goal_xy)
+        assert second.path_xy[0] == pytest.approx(explorer.frame.centre_xy(explorer.frame.cell_of(2.55, 5.05)))
+        assert second.prediction is None or second.prediction.mean.shape == explorer.frame.shape
+        for t in range(2, 6):
+            command = explorer.step(Observation(0.1 * t, Pose2D(2.55, 5.05), open_scan))
+            assert command.prediction is None or command.prediction.mean.shape == explorer.frame.shape
+        assert explorer.reusing.runs >= 1
+
+
+def test_growth_past_the_map_size_limit_is_refused_before_anything_changes():
+    explorer = _explorer(MapFrame((100, 100), 0.1, (0.0, 0.0)), growth=GROWTH)
+    scan = LaserScan(0.0, 2 * np.pi / 8, 0.05, 2.0, np.full(8, np.inf, np.float32))
+    explorer.step(Observation(0.0, Pose2D(5.05, 5.05), scan))
+    before = explorer.mapper.log_odds.copy()
+    far = (max_map_cells() ** 0.5) * 0.1 * 2
+    with pytest.raises(ValueError, match="growing map"):
+        explorer.step(Observation(1.0, Pose2D(far, far), scan))
+    assert explorer.frame.shape == (100, 100) and np.array_equal(explorer.mapper.log_odds, before)
+
+
+def test_grown_frame_and_embed_on_hand_made_cases():
+    frame = MapFrame((10, 20), 0.5, (1.0, 2.0))  # x 1..11 m, y 2..7 m
+    assert grown_frame(frame, (3.0, 3.5, 8.0, 5.0), MapGrowth(margin_m=1.0, chunk_m=0.0)) is None
+    regrid = grown_frame(frame, (0.4, 3.5, 8.0, 5.0), MapGrowth(margin_m=1.0, chunk_m=1.0))
+    # needs x >= -0.6: 4 columns (to x = -1.0), plus 2 for the chunk; no other side grows
+    assert (regrid.top, regrid.left) == (0, 6) and regrid.frame.shape == (10, 26)
+    assert regrid.frame.origin_xy == pytest.approx((-2.0, 2.0))
+    assert regrid.frame.centre_xy(regrid.cell((3, 4))) == pytest.approx(frame.centre_xy((3, 4)))
+    up = grown_frame(frame, (3.0, 3.5, 8.0, 7.2), MapGrowth(margin_m=0.0, chunk_m=0.0))
+    assert (up.top, up.left, up.frame.shape) == (1, 0, (11, 20)) and up.frame.origin_xy == frame.origin_xy
+    array = np.arange(6, dtype=np.float32).reshape(2, 3)
+    out = embed(array, (4, 5), 1, 2, -1.0)
+    assert out.dtype == np.float32 and np.array_equal(out[1:3, 2:5], array) and (out == -1).sum() == 14
+    with pytest.raises(ValueError, match="does not fit"):
+        embed(array, (2, 3), 1, 0, 0.0)
+    scan = LaserScan(0.0, np.pi / 2, 0.1, 3.0, np.array([1.0, np.inf, np.nan, 0.05], np.float32))
+    x0, y0, x1, y1 = reach_of(Observation(0.0, Pose2D(5.0, 5.0), scan))
+    assert (x0, y0, x1, y1) == pytest.approx((5.0, 5.0, 6.0, 8.0))  # east return, north no-return to range_max
+    with pytest.raises(ValueError, match="MapGrowth.margin_m must be a finite number"):
+        MapGrowth(margin_m=-1.0)
