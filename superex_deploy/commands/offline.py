@@ -82,23 +82,6 @@ def frame_for(extent_xy, resolution_m: float, margin_m: float, lattice_xy=None):
     return MapFrame((rows, cols), resolution_m, (left, bottom))
 
 
-def _first_map(path: Path, reading):
-    """The first SLAM map of the bag (resolution and origin), or None."""
-    if reading.map_topic is None:
-        return None
-    from superex_deploy.recording.bags import _open
-
-    reader = _open(path)
-    try:
-        wanted = [c for c in reader.connections if c.topic == reading.map_topic]
-        for connection, _, raw in reader.messages(connections=wanted):
-            info = reader.deserialize(raw, connection.msgtype).info
-            return float(info.resolution), (float(info.origin.position.x), float(info.origin.position.y))
-    finally:
-        reader.close()
-    return None
-
-
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
@@ -118,9 +101,8 @@ def run(args: argparse.Namespace) -> int:
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
     out.mkdir(parents=True, exist_ok=True)
-    first_map = _first_map(args.bag, reading)
-    resolution = args.resolution or (first_map[0] if first_map else 0.1)
-    frame = frame_for(reading.extent_xy, resolution, args.margin_m, first_map[1] if first_map else None)
+    resolution = args.resolution or reading.map_resolution_m or 0.1
+    frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
     cfg = dataclasses.replace(PROFILES[profile_name].explorer_config("robot"), finish_after_s=float(args.finish_after))
     explorer = build_explorer(frame, planner, args.predictor, profile=profile_name, models=args.models, cfg=cfg)
     print(f"superex offline: {args.bag} -> {out}: scans {reading.scan_topic}, pose {reading.pose_source}, "

@@ -81,6 +81,8 @@ class BagReading:
         first_stamp_s: the first scan's header stamp (seconds since the epoch the bag uses).
         extent_xy: ``(x_min, y_min, x_max, y_max)`` (metres, map frame) of every sensor position and return (and
             SLAM map) of the bag: the area an explorer's frame must hold.
+        map_resolution_m, map_origin_xy: the first SLAM map's resolution (metres per cell) and origin (metres),
+            or None: an explorer's frame on that lattice takes the maps without resampling.
     """
 
     scan_topic: str
@@ -90,6 +92,8 @@ class BagReading:
     skipped: dict = field(default_factory=lambda: {"no_pose": 0, "backwards": 0})
     first_stamp_s: Optional[float] = None
     extent_xy: Optional[tuple[float, float, float, float]] = None
+    map_resolution_m: Optional[float] = None
+    map_origin_xy: Optional[tuple[float, float]] = None
 
 
 def _stamp(header) -> float:
@@ -321,6 +325,8 @@ def _measure_extent(reader, reading, topics, poses, tree) -> None:
         if connection.msgtype == OCCUPANCY_GRID:
             info = message.info
             x0, y0 = float(info.origin.position.x), float(info.origin.position.y)
+            if reading.map_resolution_m is None:
+                reading.map_resolution_m, reading.map_origin_xy = float(info.resolution), (x0, y0)
             xs += [x0, x0 + info.width * info.resolution]
             ys += [y0, y0 + info.height * info.resolution]
             continue
