@@ -21,6 +21,7 @@ LAYERS = (
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
+    ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),
