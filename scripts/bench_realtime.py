@@ -3,8 +3,8 @@
 Two measurements, each against the unskipped pipeline (``full``):
 
 * **error** (``--error eval|train``): every setting explores the 40 eval scenarios (or, to choose settings, 12
-  scenarios on the held-out train floors, ``scripts/ceiling_study.scenarios``) for ``--steps`` steps with the
-  deterministic prediction schedule, so the episodes do not depend on the machine; the first-half coverage AUC
+  scenarios on the held-out train floors, :func:`superex_deploy.evaluation.heldout_scenarios`) for ``--steps``
+  steps with the deterministic prediction schedule, so the episodes do not depend on the machine; the first-half coverage AUC
   and the map IoU at 10 / 20 / 30 % coverage are paired by scenario with ``full`` (mean difference, bootstrap
   95 % interval, ratio of means). Episodes are journaled per setting (``OUT/error_SPLIT/NAME.episodes.jsonl``):
   an interrupted run resumes.
@@ -45,7 +45,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
 from superex_deploy.onboard.prediction.inference import SessionConfig  # noqa: E402
@@ -130,11 +129,9 @@ def _episode(task: tuple) -> dict:
     evaluated, no timings kept; the simulated clock, the robot's for ``NAME@freeR``), ``paced`` (10 Hz, timings
     kept, the robot clock), ``loaded`` (``paced``, while another process holds a core: started by the caller) or
     ``wall`` (unpaced, wall time, the robot clock)."""
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.inference import available_cores
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
 
     map_name, start_index, start, name, steps, mode = task
     grid = load_map(map_name)
@@ -168,10 +165,8 @@ def _episode(task: tuple) -> dict:
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
         waits.clear()
-        return run_episode(grid, start, make_planner(planner),
-                           make_predictor(predictor_name, grid, profile=profile, cores=cores),
-                           steps=n_steps, seed=0, cfg=cfg, sensing=make_sensing(predictor_name, spad, 0, profile=profile),
-                           on_observation=after_step)
+        return run_benchmark_episode(grid, start, planner, predictor_name, steps=n_steps, seed=0, cfg=cfg,
+                                     profile=profile, spad=spad, cores=cores, on_observation=after_step).result
 
     if mode != "error":
         episode(3)  # compiled kernels, loaded sessions: the measured episode starts warm
@@ -194,13 +189,9 @@ def _episode(task: tuple) -> dict:
 
 
 def _error_scenarios(split: str) -> list[tuple[str, int, tuple[int, int]]]:
-    from superex_deploy.maps import list_maps, start_poses
+    from superex_deploy.evaluation import eval_scenarios, heldout_scenarios
 
-    if split == "eval":
-        return [(m, k, pose) for m in list_maps("eval") for k, pose in enumerate(start_poses(m))]
-    from ceiling_study import scenarios
-
-    return [(m, 0, tuple(int(v) for v in start)) for m, start in scenarios(12, 1, 40000, heldout=True)]
+    return eval_scenarios("map") if split == "eval" else heldout_scenarios(12)
 
 
 def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path, free_repeats: int = 0,
@@ -310,7 +301,8 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 
 def report(out: Path) -> None:
-    from superex_deploy.sim.suite import paired_summary, row_summary, scenario_key
+    from superex_deploy.evaluation import write_json, write_text
+    from superex_deploy.evaluation.metrics import paired_summary, row_summary, scenario_key
 
     timing = _timing_rows(out)
     error = {}
@@ -374,10 +366,9 @@ def report(out: Path) -> None:
                          f"({100 * auc['ratio']:+.1f} %) | " + " | ".join(f"{100 * r:+.1f} %" for r in ious)
                          + f" | {auc['better']} / {auc['worse']} / {auc['tied']} |")
     text = "\n".join(lines) + "\n"
-    (out / "realtime.md").write_text(text)
-    (out / "realtime.json").write_text(json.dumps({
-        "timing": timing, "error": error, "default": DEFAULT_PROFILE,
-        "settings": {n: p.to_json() for n, p in SETTINGS.items()}}, indent=1))
+    write_text(out / "realtime.md", text)
+    write_json(out / "realtime.json", {"timing": timing, "error": error, "default": DEFAULT_PROFILE,
+                                       "settings": {n: p.to_json() for n, p in SETTINGS.items()}})
     _pareto(out, timing, error)
     print(text)
 
@@ -417,12 +408,9 @@ def _pareto(out: Path, timing: dict, error: dict) -> None:
     (train: where the settings are chosen; eval: where they are reported); the default is a star."""
     if not error or not timing:
         return
-    import matplotlib
+    from superex_deploy.evaluation.reports import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = pyplot().subplots(figsize=(8, 5))
     for split, marker, colour in (("train", "o", "tab:blue"), ("eval", "s", "tab:orange")):
         if split not in error:
             continue
@@ -446,8 +434,7 @@ def _pareto(out: Path, timing: dict, error: dict) -> None:
     ax.set_title("SuperEx pipeline: run time against coverage (targets: p99 <= 100 ms, loss <= 1 %)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "pareto.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, out / "pareto.png", dpi=120)
 
 
 def main() -> int:

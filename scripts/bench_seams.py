@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -41,7 +40,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 EVAL_MAPS = ("50052750", "50010539", "50045230", "50015847", "50010535_PLAN1", "50052749")
 """Eval maps for reporting, in order (start 0 of each): the README's map first, then others of every size."""
@@ -96,12 +94,11 @@ def seam_band(labels: np.ndarray, band_cells: int) -> tuple[np.ndarray, tuple[np
 
 def _episode(task: tuple) -> dict:
     """One scenario in a worker: ``(map, start index, start cell, profile, steps, samples, feathers, ramps, band_m)``."""
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.reuse import ReusingPredictor
     from superex_deploy.onboard.types import UNKNOWN
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import PROFILES, make_predictor
 
     map_name, start_index, start, profile_name, steps, samples, feathers, ramps, band_m = task
     grid = load_map(map_name)
@@ -177,9 +174,9 @@ def _episode(task: tuple) -> dict:
         per_sample.append(row)
 
     clock = time.perf_counter()
-    run_episode(grid, start, make_planner("superex"), make_predictor("lama_bp", grid, profile=profile), steps=steps,
-                seed=0, cfg=profile.episode_config(iou_every=0), sensing=make_sensing("lama_bp", True, 0, profile=profile),
-                on_observation=on_observation)
+    run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
+                          cfg=profile.episode_config(iou_every=0), profile=profile, spad=True,
+                          on_observation=on_observation)
     return {"map": map_name, "start_index": start_index, "start": list(start), "profile": profile_name,
             "band_cells": band_cells, "counts": counts, "sums": sums,
             "blend_ms": {name: 1e3 * s / max(counts["requests"], 1) for name, s in blend_s.items()},
@@ -189,14 +186,9 @@ def _episode(task: tuple) -> dict:
 def scenarios(split: str, n: int) -> list[tuple[str, int, tuple[int, int]]]:
     """``(map, start index, start cell)``: the held-out train floors of ``bench_realtime.py --error train`` or
     start 0 of :data:`EVAL_MAPS`; the first ``n``."""
-    if split == "train":
-        from ceiling_study import scenarios as train_scenarios
+    from superex_deploy.evaluation import eval_scenarios, heldout_scenarios
 
-        places = [(m, 0, tuple(int(v) for v in s)) for m, s in train_scenarios(12, 1, 40000, heldout=True)]
-    else:
-        from superex_deploy.maps import start_poses
-
-        places = [(m, 0, tuple(int(v) for v in start_poses(m)[0])) for m in EVAL_MAPS]
+    places = heldout_scenarios(12) if split == "train" else eval_scenarios(starts=1, maps=EVAL_MAPS)
     return places[:n]
 
 
@@ -295,6 +287,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "seams")
     args = parser.parse_args()
 
+    from superex_deploy.evaluation import write_json, write_text
     from superex_deploy.onboard.prediction.reuse import RAMPS
     from superex_deploy.parallel import run_tasks
     from superex_deploy.pipeline import PROFILES
@@ -323,9 +316,9 @@ def main() -> None:
     data = {"split": args.split, "profile": args.profile, "steps": args.steps, "samples": list(samples),
             "feathers_m": feathers, "ramps": ramps, "band_cells": episodes[0]["band_cells"], "default": default,
             "summary": summary, "episodes": episodes}
-    (args.out / f"seams_{args.split}.json").write_text(json.dumps(data, indent=1))
+    write_json(args.out / f"seams_{args.split}.json", data)
     table = markdown(args.out)
-    (args.out / "seams.md").write_text(table)
+    write_text(args.out / "seams.md", table)
     print(table)
 
 

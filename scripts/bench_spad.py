@@ -34,8 +34,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.evaluation import run_benchmark_episode
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
@@ -130,8 +129,8 @@ def part_episodes(grids, steps):
             _, t_proc = _timed(process_scan, scan, NlosConfig(), state.observed != UNKNOWN, repeats=1)
             per_step.append((t_los * 1e3, t_spad * 1e3, t_proc * 1e3))
 
-        run_episode(grid, start_poses(grid.name)[0], make_planner("nearest"), ObservedAsPrediction(), steps,
-                    on_step=on_step)
+        run_benchmark_episode(grid, start_poses(grid.name)[0], "nearest", ObservedAsPrediction(), steps=steps,
+                              on_step=on_step)
         cache = scene.fan_cache(DEFAULT.n_secondary, DEFAULT.range_m / grid.resolution_m)
         los, spad, proc = np.median(np.array(per_step), axis=0)
         rows.append({"map": grid.name, "steps": len(per_step), "los_ms": los, "spad_ms": spad, "nlos_ms": proc,

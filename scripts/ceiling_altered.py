@@ -29,6 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
+                                       run_benchmark_episode, write_json, write_text)
+
 RUNS = {"mapex_observed": ("mapex", "observed"), "superex_oracle": ("superex", "oracle"),
         "superex_observed": ("superex", "observed")}
 """Row name -> (planner, predictor)."""
@@ -118,31 +121,27 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
 
 
 def _episode(task: dict) -> dict:
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.dead_ends import dead_end_entries
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import ExplorationConfig
 
     grid, dead_ends, _ = _load_floor(Path(task["floor"]), task["variant"])
     planner, predictor = RUNS[task["run"]]
     clock = time.perf_counter()
-    result = run_episode(grid, tuple(task["start"]), make_planner(planner), make_predictor(predictor, grid),
-                         steps=task["steps"], cfg=ExplorationConfig(iou_every=0))
-    coverage = list(result.coverage)
-    at = [coverage[min(s, len(coverage)) - 1] for s in range(1, task["steps"] + 1)]
+    result = run_benchmark_episode(grid, task["start"], planner, predictor, steps=task["steps"],
+                                   cfg=ExplorationConfig(iou_every=0)).result
+    at = coverage_curve(list(result.coverage), task["steps"])
     summary = {key: task[key] for key in ("map", "start", "variant", "run")}
-    summary.update(auc_first_half=float(np.mean(at[:max(task["steps"] // 2, 1)])), auc=float(np.mean(at)),
+    summary.update(auc_first_half=first_half_auc(at, task["steps"]), auc=coverage_auc(at, 1, task["steps"]),
                    final=float(at[-1]), path_m=float(result.path_length_m[-1]), seconds=time.perf_counter() - clock)
     if task["variant"] == "altered":
         summary["dead_ends"] = dead_end_entries(dead_ends, result.poses, result.path_length_m).to_json()
     return summary
 
 
-def _bootstrap(values: np.ndarray, statistic, resamples: int = 10000, seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap 95 % interval of ``statistic`` over ``values``."""
-    rng = np.random.default_rng(seed)
-    draws = statistic(values[rng.integers(0, len(values), (resamples, len(values)))], axis=1)
-    return float(np.quantile(draws, 0.025)), float(np.quantile(draws, 0.975))
+def _bootstrap(values: np.ndarray, statistic) -> tuple[float, float]:
+    """Percentile bootstrap 95 % interval of ``statistic`` over ``values`` (10,000 resamples, seed 0, quantiles
+    0.025 / 0.975 as committed)."""
+    return bootstrap_interval(values, statistic=statistic, levels=(0.025, 0.975))
 
 
 def summarise(results: list[dict], runs: list[str]) -> list[dict]:
@@ -292,12 +291,10 @@ def main() -> None:
             "kept_fraction": meta["kept_fraction"], "alterations": meta["alterations"]})
     table = markdown(rows, places, args.steps, gaps)
     print("\n" + table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "ceiling.md").write_text(table)
-    (args.out / "ceiling.json").write_text(json.dumps({"steps": args.steps, "baseline": BASELINE, "rows": rows,
-                                                       "gap_changes": gaps,
-                                                       "config": asdict(cfg),
-                                                       "scenarios": floors, "episodes": results}, indent=1))
+    write_text(args.out / "ceiling.md", table)
+    write_json(args.out / "ceiling.json", {"steps": args.steps, "baseline": BASELINE, "rows": rows,
+                                           "gap_changes": gaps, "config": asdict(cfg), "scenarios": floors,
+                                           "episodes": results})
     print(f"wrote {args.out}/ceiling.md and ceiling.json")
 
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, scenario_metrics
+from superex_deploy.evaluation import bootstrap_interval, scenario_metrics, write_json, write_text
+from superex_deploy.sim.suite import PAPER_ROWS
 
 BASELINES = ("mapex_lama_los", "mapex_observed")
 
@@ -111,8 +112,8 @@ def main() -> None:
     entries = compare(_rows(args.standard), _rows(args.altered), args.steps)
     text = markdown(entries, args.steps)
     print(text)
-    (args.altered / "side_by_side.md").write_text(text)
-    (args.altered / "side_by_side.json").write_text(json.dumps({"steps": args.steps, "entries": entries}, indent=1))
+    write_text(args.altered / "side_by_side.md", text)
+    write_json(args.altered / "side_by_side.json", {"steps": args.steps, "entries": entries})
 
 
 if __name__ == "__main__":

@@ -32,22 +32,21 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from superex_deploy.sim.episode import EpisodeState, run_episode  # noqa: E402
-from superex_deploy.sim.metrics import evaluation_area, map_iou  # noqa: E402
-from superex_deploy.onboard.planning.planners import make_planner  # noqa: E402
-from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction  # noqa: E402
-from superex_deploy.sim.sensing import SpadSensing  # noqa: E402
-from superex_deploy.onboard.types import OCCUPIED, UNKNOWN  # noqa: E402
-from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
+from superex_deploy.evaluation import run_benchmark_episode
+from superex_deploy.sim.episode import EpisodeState
+from superex_deploy.sim.metrics import evaluation_area, map_iou
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.sim.sensing import SpadSensing
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN
+from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,
                                       SessionConfig)
-from superex_deploy.maps import list_maps, load_map, map_building  # noqa: E402
-from superex_deploy.onboard.nlos import laplacian_filter  # noqa: E402
-from superex_deploy.parallel import process_pool  # noqa: E402
-from superex_train.datasets import ShardDataset  # noqa: E402
-from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start  # noqa: E402
+from superex_deploy.maps import list_maps, load_map, map_building
+from superex_deploy.onboard.nlos import laplacian_filter
+from superex_deploy.parallel import process_pool
+from superex_train.datasets import ShardDataset
+from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start
+
+ROOT = Path(__file__).resolve().parent.parent
 
 COVERAGE_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))
 SWEEP_THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
@@ -142,8 +141,8 @@ def _episode(args: tuple[str, int, str]) -> list[dict]:
             records.append(record)
 
     try:
-        run_episode(grid, start, make_planner(PLANNERS[index % len(PLANNERS)]), ObservedAsPrediction(),
-                    steps=400, seed=index, sensing=sensing, on_step=on_step)
+        run_benchmark_episode(grid, start, PLANNERS[index % len(PLANNERS)], ObservedAsPrediction(), steps=400,
+                              seed=index, sensing=sensing, on_step=on_step)
     except _Done:
         pass
     return records
