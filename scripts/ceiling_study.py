@@ -21,7 +21,7 @@ import numpy as np
 
 from superex_deploy.evaluation import HELDOUT_BUILDINGS  # noqa: F401 (tests/test_generate.py reads it here)
 from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
-                                       run_benchmark_episode, train_scenarios, write_json)
+                                       markdown_table, run_benchmark_episode, train_scenarios, write_json)
 from superex_deploy.parallel import process_pool
 from superex_deploy.sim.episode import ExplorationConfig
 
@@ -83,10 +83,7 @@ def main() -> None:
     with process_pool(args.jobs) as pool:
         results = list(pool.map(_episode, tasks))
     base = {(r["map"], tuple(r["start"])): r for r in results if (r["idea"], r["predictor"]) == baseline}
-    rows = []
-    print(f"\n| idea | predictor | first-half AUC | vs {baseline[0]} {baseline[1]} | paired mean [95 % interval] "
-          "| better / "
-          "worse | AUC whole | scoring ms / goal | goals |\n|---|---|---:|---:|---:|---|---:|---:|---:|")
+    rows, cells = [], []
     for idea, predictor in runs:
         mine = [r for r in results if (r["idea"], r["predictor"]) == (idea, predictor)]
         diff = np.array([r["auc_first_half"] - base[(r["map"], tuple(r["start"]))]["auc_first_half"] for r in mine])
@@ -100,9 +97,14 @@ def main() -> None:
                "scoring_ms_per_goal": float(np.median([r["scoring_ms_per_goal"] for r in mine])),
                "goals": float(np.mean([r["goals"] for r in mine]))}
         rows.append(row)
-        print(f"| {idea} | {predictor} | {100 * mean:.1f} | {ratio:+.1%} | {100 * row['paired_mean']:+.2f} "
-              f"[{100 * low:+.2f}, {100 * high:+.2f}] | {row['better']} / {row['worse']} | {100 * row['auc']:.1f} "
-              f"| {row['scoring_ms_per_goal']:.1f} | {row['goals']:.0f} |")
+        cells.append([idea, predictor, f"{100 * mean:.1f}", f"{ratio:+.1%}",
+                      f"{100 * row['paired_mean']:+.2f} [{100 * low:+.2f}, {100 * high:+.2f}]",
+                      f"{row['better']} / {row['worse']}", f"{100 * row['auc']:.1f}",
+                      f"{row['scoring_ms_per_goal']:.1f}", f"{row['goals']:.0f}"])
+    header = ["idea", "predictor", "first-half AUC", f"vs {baseline[0]} {baseline[1]}", "paired mean [95 % interval]",
+              "better / worse", "AUC whole", "scoring ms / goal", "goals"]
+    print("\n" + "\n".join(markdown_table(header, cells, ["-", "-", "---:", "---:", "---:", "-", "---:", "---:",
+                                                            "---:"])))
     if args.out is not None:
         write_json(args.out, {"scenarios": [[n, list(s)] for n, s in places], "steps": args.steps, "rows": rows,
                               "episodes": results})
