@@ -11,13 +11,12 @@ there), plus the whole-episode wall time (metric evaluation included). Prints a 
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import run_benchmark_episode
+from superex_deploy.evaluation import run_benchmark_episode, write_json
 from superex_deploy.sim.episode import STAGES
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
@@ -85,8 +84,8 @@ def main() -> None:
     print()
     print("\n".join(stage_lines))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
-                                    "steps": args.steps, "rows": rows}, indent=2))
+    write_json(args.out, {"machine": platform.platform(), "processor": platform.processor(), "steps": args.steps,
+                          "rows": rows}, indent=2)
     print(f"wrote {args.out}")
 
 

@@ -49,7 +49,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import tempfile
@@ -62,7 +61,7 @@ import numpy as np
 
 import torch
 
-from superex_deploy.evaluation import run_benchmark_episode
+from superex_deploy.evaluation import run_benchmark_episode, write_json
 from superex_deploy.sim.episode import ExplorationConfig
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,
@@ -488,7 +487,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         "models": rows, "ensembles": ensemble_rows, "fourier_unit": fourier_rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    write_json(args.out, report, newline=True)
     try:
         shown = args.out.resolve().relative_to(ROOT)
     except ValueError:

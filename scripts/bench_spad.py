@@ -26,7 +26,6 @@ Prints tables and writes JSON (``--out``).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -34,7 +33,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from superex_deploy.evaluation import run_benchmark_episode
+from superex_deploy.evaluation import run_benchmark_episode, write_json
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
@@ -242,7 +241,7 @@ def main() -> None:
     for r in tradeoff:
         print(f"| {r['variant']} | {r['spad_ms']:.1f} | {r['nlos_ms']:.1f} | {r['hist_l1']:.3f} | {r['carved']:.0f} | "
               f"{r['beyond_los']:.0f} | {r['bp_iou']:.3f} |")
-    args.out.write_text(json.dumps({
+    write_json(args.out, {
         "reference": {"n_rays": REFERENCE.n_rays, "n_secondary": REFERENCE.n_secondary,
                       "bin_path_m": REFERENCE.bin_path_m},
         "single_scans": {**{f"median_{k}": v for k, v in med.items()}, "median_ratios": ratios,
@@ -251,7 +250,7 @@ def main() -> None:
                          "per_scenario": single},
         "episodes": {"steps": args.steps, **{f"median_{k}": v for k, v in ep.items()},
                      "fans_traced": traced, "fans_reused": reused, "per_map": episodes},
-        "tradeoff": tradeoff}, indent=2))
+        "tradeoff": tradeoff}, indent=2)
     print(f"\nwrote {args.out}")
 
 

@@ -24,7 +24,6 @@ Prints markdown tables and writes JSON (``--out``, default ``benchmarks/eval_mod
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -32,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import run_benchmark_episode
+from superex_deploy.evaluation import run_benchmark_episode, write_json
 from superex_deploy.sim.episode import EpisodeState
 from superex_deploy.sim.metrics import evaluation_area, map_iou
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
@@ -209,7 +208,7 @@ def main(argv=None) -> int:
                 mean_p = np.mean([r[f"{method}_unknown_mean_probability"] for r in rows])
                 print(f"| {method} | {ious} | {walls:.3f} | {mean_p:.3f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1))
+    write_json(args.out, result)
     print(f"\nwrote {args.out}")
     return 0
 

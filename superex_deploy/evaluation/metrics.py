@@ -18,9 +18,8 @@ from superex_deploy.sim.suite import (IOU_LEVELS, bootstrap_interval, common_sce
                                       scenario_key, scenario_metrics)
 
 __all__ = ["coverage_at", "coverage_auc", "first_half_auc", "coverage_curve", "iou_at_coverage",
-           "bootstrap_interval", "mean_with_interval", "paired_differences",
-           "difference_counts", "scenario_key", "scenario_metrics", "row_summary", "paired_summary",
-           "common_scenarios", "IOU_LEVELS"]
+           "bootstrap_interval", "mean_with_interval", "difference_counts", "scenario_key", "scenario_metrics",
+           "row_summary", "paired_summary", "common_scenarios", "IOU_LEVELS"]
 
 
 def coverage_curve(series: Sequence[float], steps: int) -> list[float]:
@@ -48,10 +47,3 @@ def mean_with_interval(values: Sequence[float], rng: np.random.Generator, resamp
         return float("nan"), float("nan"), float("nan")
     low, high = bootstrap_interval(values, resamples=resamples, rng=rng, levels=(0.025, 0.975))
     return float(values.mean()), low, high
-
-
-def paired_differences(reference: dict, candidate: dict, metric) -> tuple[list, np.ndarray]:
-    """The scenarios both ``reference`` and ``candidate`` hold (dicts keyed by scenario, in ``candidate``'s order)
-    and float ``[n]`` ``metric(candidate[k]) - metric(reference[k])`` on each."""
-    keys = [k for k in candidate if k in reference]
-    return keys, np.array([metric(candidate[k]) - metric(reference[k]) for k in keys], float)
