@@ -38,6 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import (bootstrap_interval, first_half_auc, markdown_table, run_benchmark_episode,
+                                       train_scenarios, write_json, write_text)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 VARIANTS = {
@@ -77,8 +80,6 @@ episodes (the journal)."""
 
 def pick_scenarios(count: int) -> list[tuple[str, tuple[int, int]]]:
     """The first ``count`` of the 12 held-out train scenarios in :data:`SCENARIO_ORDER`."""
-    from superex_deploy.evaluation import train_scenarios
-
     places = train_scenarios(12, 1, 40000, heldout=True)
     return [places[i] for i in SCENARIO_ORDER[:max(count, 1)]]
 
@@ -113,7 +114,6 @@ def support_calibration(mean: np.ndarray, observed: np.ndarray, evidence, truth:
 
 def _episode(task: tuple) -> dict:
     """One episode in a worker: ``(map, start, variant, predictor, steps, min_scale)``."""
-    from superex_deploy.evaluation import first_half_auc, run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.inference import SessionConfig
     from superex_deploy.pipeline import RealtimeProfile
@@ -160,8 +160,6 @@ def summarise(episodes: list[dict], variants: list[str], predictors: list[str]) 
     """One row per (variant, predictor): mean first-half AUC, paired against the variant's planner as it ships on
     the observed map (mean difference, bootstrap 95 % interval, better / worse) and against the same planner as it
     ships with the same predictor; median scoring time per goal choice."""
-    from superex_deploy.evaluation import bootstrap_interval
-
     by_run: dict = {}
     for e in episodes:
         by_run.setdefault((e["variant"], e["predictor"]), {})[(e["map"], tuple(e["start"]))] = e
@@ -219,28 +217,29 @@ def table(rows: list[dict], setting: dict) -> str:
              f"{setting['steps']} steps, wall support min_scale {setting['min_scale']}. First-half AUC in % "
              "(NLOS-carved cells included; LOS only beside it); paired differences in points: mean [bootstrap 95 % "
              "interval] better/worse. Target (issue #26): every learned row >= -0.30 against the same planner, as "
-             "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", "",
-             "| variant | predictor | first-half AUC | LOS only | vs planner as shipped, observed map | target | "
-             "vs planner as shipped, same predictor | scoring ms / goal | goals |",
-             "|---|---|---:|---:|---|---|---|---:|---:|"]
+             "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", ""]
+    cells = []
     for r in rows:
         learned = r["predictor"] in ("lama_los", "lama_bp")
         ok = "" if not learned else ("met" if r["vs_observed"]["mean"] >= -0.003 else "**missed**")
         same = f" (= {r['same_run_as']})" if r["same_run_as"] else ""
-        lines.append(f"| {r['variant']} | {r['predictor']}{same} | {100 * r['auc_first_half']:.1f} | "
-                     f"{100 * r['los_auc_first_half']:.1f} | {_paired(r['vs_observed'])} | {ok} | "
-                     f"{_paired(r['vs_shipped_same_predictor'])} | {r['scoring_ms_per_goal']:.1f} | "
-                     f"{r['goals']:.1f} |")
+        cells.append([r["variant"], f"{r['predictor']}{same}", f"{100 * r['auc_first_half']:.1f}",
+                      f"{100 * r['los_auc_first_half']:.1f}", _paired(r["vs_observed"]), ok,
+                      _paired(r["vs_shipped_same_predictor"]), f"{r['scoring_ms_per_goal']:.1f}", f"{r['goals']:.1f}"])
+    lines += markdown_table(["variant", "predictor", "first-half AUC", "LOS only", "vs planner as shipped, observed map",
+                             "target", "vs planner as shipped, same predictor", "scoring ms / goal", "goals"], cells,
+                            ["-", "-", "---:", "---:", "-", "-", "-", "---:", "---:"])
     calibration = setting.get("support_calibration") or []
     if calibration:
         lines += ["", "Does the support tell true predicted walls from false ones? Unknown cells predicted walls "
                   "(mean >= 0.5) at the goal choices of the shipped planners' learned runs (one every "
                   f"{DIAGNOSTIC_EVERY} steps or more), by their WallSupport (min_scale {setting['min_scale']}): "
                   "`none` is scaled by min_scale, `full` kept. A group whose true-wall share is below its mean "
-                  "predicted probability is over-predicted (shrinking it is right); above, under-predicted.", "",
-                  "| predictor | support | cells | mean predicted p | true-wall share |", "|---|---|---:|---:|---:|"]
-        lines += [f"| {c['predictor']} | {c['support']} | {c['cells']} | {c['mean_predicted']:.3f} | "
-                  f"{c['true_wall_rate']:.3f} |" for c in calibration]
+                  "predicted probability is over-predicted (shrinking it is right); above, under-predicted.", ""]
+        lines += markdown_table(["predictor", "support", "cells", "mean predicted p", "true-wall share"],
+                                [[c["predictor"], c["support"], c["cells"], f"{c['mean_predicted']:.3f}",
+                                  f"{c['true_wall_rate']:.3f}"] for c in calibration],
+                                ["-", "-", "---:", "---:", "---:"])
     return "\n".join(lines) + "\n"
 
 
@@ -254,7 +253,6 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "expected_gain")
     args = parser.parse_args()
-    from superex_deploy.evaluation import write_json, write_text
     from superex_deploy.parallel import run_tasks
 
     variants = list(VARIANTS) if args.variants == "all" else [v.strip() for v in args.variants.split(",")]

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
-                                       run_benchmark_episode, write_json, write_text)
+                                       markdown_table, run_benchmark_episode, write_json, write_text)
 
 RUNS = {"mapex_observed": ("mapex", "observed"), "superex_oracle": ("superex", "oracle"),
         "superex_observed": ("superex", "observed")}
@@ -202,30 +202,31 @@ def gap_changes(results: list[dict], runs: list[str]) -> list[dict]:
 
 def markdown(rows: list[dict], scenario_list: list[dict], steps: int, gaps: list[dict]) -> str:
     """The rows as a markdown table (AUC in coverage points)."""
-    lines = [f"{len(scenario_list)} scenarios on {len({s['map'] for s in scenario_list})} train floors, {steps} steps; "
-             f"paired by scenario with MapEx on the observed map of the same floor variant.", "",
-             "| floor | row | first-half AUC | vs MapEx | paired mean [95 %] | paired median [95 %] | better / worse "
-             "| final | dead-end entries / scenario (scenarios entered) | m in before turning back / scenario "
-             "| m inside dead ends / scenario | reached the obstruction |",
-             "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    header = ["floor", "row", "first-half AUC", "vs MapEx", "paired mean [95 %]", "paired median [95 %]",
+              "better / worse", "final", "dead-end entries / scenario (scenarios entered)",
+              "m in before turning back / scenario", "m inside dead ends / scenario", "reached the obstruction"]
+    cells = []
     for row in rows:
         dead = row.get("dead_end")
-        cells = (f"{dead['entries_per_scenario']:.2f} ({dead['scenarios_entered']}) | "
-                 f"{dead['metres_in_per_scenario']:.1f} | {dead['metres_inside_per_scenario']:.1f} | "
-                 f"{dead['reached_end']}") if dead else "- | - | - | -"
+        dead_cells = [f"{dead['entries_per_scenario']:.2f} ({dead['scenarios_entered']})",
+                      f"{dead['metres_in_per_scenario']:.1f}", f"{dead['metres_inside_per_scenario']:.1f}",
+                      f"{dead['reached_end']}"] if dead else ["-"] * 4
         mean_low, mean_high = row["paired_mean_ci"]
         median_low, median_high = row["paired_median_ci"]
-        lines.append(f"| {row['variant']} | {row['run']} | {100 * row['auc_first_half']:.1f} | {row['ratio']:+.1%} | "
-                     f"{100 * row['paired_mean']:+.2f} [{100 * mean_low:+.2f}, {100 * mean_high:+.2f}] | "
-                     f"{100 * row['paired_median']:+.2f} [{100 * median_low:+.2f}, {100 * median_high:+.2f}] | "
-                     f"{row['better']} / {row['worse']} | {100 * row['final']:.1f} | {cells} |")
+        cells.append([row["variant"], row["run"], f"{100 * row['auc_first_half']:.1f}", f"{row['ratio']:+.1%}",
+                      f"{100 * row['paired_mean']:+.2f} [{100 * mean_low:+.2f}, {100 * mean_high:+.2f}]",
+                      f"{100 * row['paired_median']:+.2f} [{100 * median_low:+.2f}, {100 * median_high:+.2f}]",
+                      f"{row['better']} / {row['worse']}", f"{100 * row['final']:.1f}", *dead_cells])
+    lines = [f"{len(scenario_list)} scenarios on {len({s['map'] for s in scenario_list})} train floors, {steps} steps; "
+             f"paired by scenario with MapEx on the observed map of the same floor variant.", ""]
+    lines += markdown_table(header, cells, ["-", "-"] + ["---:"] * 4 + ["-"] + ["---:"] * 5)
     lines += ["", "The alteration's effect on each row's paired difference to MapEx (first-half AUC points, "
-              "per scenario: altered minus unaltered):", "",
-              "| row | mean [95 %] | median [95 %] | larger / smaller |", "|---|---:|---:|---|"]
-    for gap in gaps:
-        lines.append(f"| {gap['run']} | {100 * gap['mean']:+.2f} [{100 * gap['ci'][0]:+.2f}, {100 * gap['ci'][1]:+.2f}]"
-                     f" | {100 * gap['median']:+.2f} [{100 * gap['median_ci'][0]:+.2f}, "
-                     f"{100 * gap['median_ci'][1]:+.2f}] | {gap['larger']} / {gap['smaller']} |")
+              "per scenario: altered minus unaltered):", ""]
+    lines += markdown_table(
+        ["row", "mean [95 %]", "median [95 %]", "larger / smaller"],
+        [[gap["run"], f"{100 * gap['mean']:+.2f} [{100 * gap['ci'][0]:+.2f}, {100 * gap['ci'][1]:+.2f}]",
+          f"{100 * gap['median']:+.2f} [{100 * gap['median_ci'][0]:+.2f}, {100 * gap['median_ci'][1]:+.2f}]",
+          f"{gap['larger']} / {gap['smaller']}"] for gap in gaps], ["-", "---:", "---:", "-"])
     lines += ["", "Metres inside dead ends, paired with MapEx (altered floors; mean [95 %]):", ""]
     lines += [f"- {row['run']}: {row['dead_end_metres_inside_paired']['mean']:+.1f} m "
               f"[{row['dead_end_metres_inside_paired']['ci'][0]:+.1f}, "

@@ -132,6 +132,19 @@ def test_the_committed_expected_gain_rows_regenerate():
     assert json.dumps(rows) == json.dumps(data["rows"])  # NaN compares by its text
 
 
+def test_the_committed_reports_regenerate_from_their_json():
+    """The Markdown written by ceiling_altered.py (through markdown_table) and bench_expected_gain.py, from the
+    committed JSON: the same text."""
+    folder = BENCHMARKS / "altered_ceiling"
+    data = json.loads((folder / "ceiling.json").read_text())
+    text = _script("ceiling_altered").markdown(data["rows"], data["scenarios"], data["steps"], data["gap_changes"])
+    assert text == (folder / "ceiling.md").read_text()
+    folder = BENCHMARKS / "expected_gain"
+    data = json.loads((folder / "expected_gain.json").read_text())
+    assert _script("bench_expected_gain").table(data["rows"], data["setting"]) == (
+        folder / "expected_gain.md").read_text()
+
+
 # --- reports ---
 
 
