@@ -39,6 +39,9 @@ IDEAS = {
 MapEx's gain (the goal's view only); with rollouts; re-choosing once the goal's frontier is resolved; with tours."""
 
 BASELINE = ("mapex", "observed")
+scenarios = train_scenarios
+"""This study's scenario sets (:func:`superex_deploy.evaluation.train_scenarios`), under the name
+tests/test_generate.py checks beside :data:`HELDOUT_BUILDINGS`."""
 
 
 def _episode(task: tuple) -> dict:
