@@ -44,7 +44,7 @@ import numpy as np
 
 from superex_deploy import evaluation
 from superex_deploy.evaluation.metrics import first_half_auc, iou_at_coverage, mean_with_interval, scenario_key
-from superex_deploy.evaluation.reports import pyplot, save_figure
+from superex_deploy.evaluation.reports import markdown_table, pyplot, save_figure
 
 POSE_LEVELS = ((0.0, 0.0), (0.02, 0.5), (0.05, 1.0), (0.10, 2.0))
 SPAD_PRESETS = ("off", "realistic", "low")
@@ -140,24 +140,28 @@ def superex_gain(pipeline: list[dict], los: list[dict], level: float, rng) -> li
     return list(mean_with_interval(np.array(gains, float), rng))
 
 
+def _pose_text(row: dict) -> str:
+    return f"{row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg"
+
+
 def side_by_side(before: dict, rows: dict) -> list[str]:
     """Markdown lines: each setting's headline measures in a previous run (``before``: its robustness.json) and in
     this one."""
-    lines = ["", "## Before and after (the previous run's robustness.json given by --before)", "",
-             "| pose noise | SPAD | LiDAR | held free / 1000 seen | map IoU / noise-free | AUC vs noise-free | "
-             "collisions | walls carved | episodes |", "|---|---|---|---|---|---|---|---|---|"]
+    cells = []
     for name, row in rows.items():
         old = before.get("settings", {}).get(name)
         if old is None:
             continue
-        lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
-                     f"{row['lidar_m'] * 100:g} cm | {old['held_free_per_1000_seen']:.2f} -> "
-                     f"{row['held_free_per_1000_seen']:.2f} | {old['map_iou_vs_noise_free']:.3f} -> "
-                     f"{row['map_iou_vs_noise_free']:.3f} | {old['auc_vs_noise_free'][0] * 100:+.1f} % -> "
-                     f"{row['auc_vs_noise_free'][0] * 100:+.1f} % | {old['collisions']} -> {row['collisions']} | "
-                     f"{old['true_walls_carved']} -> {row['true_walls_carved']} | {old['episodes']} -> "
-                     f"{row['episodes']} |")
-    return lines
+        cells.append([_pose_text(row), row["spad"], f"{row['lidar_m'] * 100:g} cm",
+                      f"{old['held_free_per_1000_seen']:.2f} -> {row['held_free_per_1000_seen']:.2f}",
+                      f"{old['map_iou_vs_noise_free']:.3f} -> {row['map_iou_vs_noise_free']:.3f}",
+                      f"{old['auc_vs_noise_free'][0] * 100:+.1f} % -> {row['auc_vs_noise_free'][0] * 100:+.1f} %",
+                      f"{old['collisions']} -> {row['collisions']}",
+                      f"{old['true_walls_carved']} -> {row['true_walls_carved']}",
+                      f"{old['episodes']} -> {row['episodes']}"])
+    return ["", "## Before and after (the previous run's robustness.json given by --before)", ""] + markdown_table(
+        ["pose noise", "SPAD", "LiDAR", "held free / 1000 seen", "map IoU / noise-free", "AUC vs noise-free",
+         "collisions", "walls carved", "episodes"], cells)
 
 
 def report(out: Path, results: dict, steps: int, superex_settings: list, before: dict = None) -> dict:
@@ -191,31 +195,33 @@ def report(out: Path, results: dict, steps: int, superex_settings: list, before:
         gain["kept@10%"] = gain["iou_gain@10%"][0] / noise_free_gain if noise_free_gain > 0 else float("nan")
     summary = {"steps": steps, "settings": rows, "superex": gains, "first_half": FIRST_HALF}
     evaluation.write_json(out / "robustness.json", summary)
-    lines = [f"# Robustness: {steps} steps per episode, nearest frontier on the observed map with SPAD carving", "",
-             "| pose noise | SPAD | LiDAR | episodes | collisions | held free / 1000 seen | of them missing | "
-             "walls carved | map IoU | IoU / noise-free | IoU within a cell / noise-free | first-half AUC | "
-             "AUC vs noise-free [95 %] | AUC points vs noise-free [95 %] | targets missed |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|"]
+    cells = []
     for row in rows.values():
         mean, low, high = row["auc_vs_noise_free"]
         missed = ", ".join(k for k, ok in row["targets"].items() if not ok) or "-"
-        lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
-                     f"{row['lidar_m'] * 100:g} cm | {row['episodes']} | {row['collisions']} | "
-                     f"{row['held_free_per_1000_seen']:.2f} | {row['missing_per_1000_seen']:.2f} | "
-                     f"{row['true_walls_carved']} | {row['map_iou']:.3f} | "
-                     f"{row['map_iou_vs_noise_free']:.3f} | {row['map_iou_within_cell_vs_noise_free']:.3f} | "
-                     f"{row['first_half_auc'] * 100:.1f} | "
-                     f"{mean * 100:+.1f} % [{low * 100:+.1f}, {high * 100:+.1f}] | "
-                     "{:+.2f} [{:+.2f}, {:+.2f}] | ".format(*row["auc_points_vs_noise_free"]) + f"{missed} |")
+        cells.append([_pose_text(row), row["spad"], f"{row['lidar_m'] * 100:g} cm", row["episodes"], row["collisions"],
+                      f"{row['held_free_per_1000_seen']:.2f}",
+                      f"{row['missing_per_1000_seen']:.2f}", row["true_walls_carved"], f"{row['map_iou']:.3f}",
+                      f"{row['map_iou_vs_noise_free']:.3f}", f"{row['map_iou_within_cell_vs_noise_free']:.3f}",
+                      f"{row['first_half_auc'] * 100:.1f}",
+                      f"{mean * 100:+.1f} % [{low * 100:+.1f}, {high * 100:+.1f}]",
+                      "{:+.2f} [{:+.2f}, {:+.2f}]".format(*row["auc_points_vs_noise_free"]), missed])
+    lines = [f"# Robustness: {steps} steps per episode, nearest frontier on the observed map with SPAD carving", ""]
+    lines += markdown_table(["pose noise", "SPAD", "LiDAR", "episodes", "collisions", "held free / 1000 seen",
+                             "of them missing", "walls carved", "map IoU", "IoU / noise-free",
+                             "IoU within a cell / noise-free", "first-half AUC", "AUC vs noise-free [95 %]",
+                             "AUC points vs noise-free [95 %]", "targets missed"], cells,
+                            ["-"] * 3 + ["---:"] * 9 + ["-"] * 3)
     if gains:
-        lines += ["", "## The SuperEx pipeline against LaMa-LOS (superex planner), map IoU gain", "",
-                  "| setting | episodes | IoU gain @10 % [95 %] | IoU gain @20 % [95 %] | gain @10 % kept of noise-free "
-                  "| collisions | walls carved |",
-                  "|---|---:|---|---|---:|---:|---:|"]
-        for name, gain in gains.items():
-            cells = [f"{g[0]:+.3f} [{g[1]:+.3f}, {g[2]:+.3f}]" for g in (gain["iou_gain@10%"], gain["iou_gain@20%"])]
-            lines.append(f"| {name} | {gain['episodes']} | {cells[0]} | {cells[1]} | {gain['kept@10%']:.2f} | "
-                         f"{gain['collisions']} | {gain['true_walls_carved']} |")
+        lines += ["", "## The SuperEx pipeline against LaMa-LOS (superex planner), map IoU gain", ""]
+        lines += markdown_table(
+            ["setting", "episodes", "IoU gain @10 % [95 %]", "IoU gain @20 % [95 %]",
+             "gain @10 % kept of noise-free", "collisions", "walls carved"],
+            [[name, gain["episodes"], *(f"{g[0]:+.3f} [{g[1]:+.3f}, {g[2]:+.3f}]"
+                                        for g in (gain["iou_gain@10%"], gain["iou_gain@20%"])),
+              f"{gain['kept@10%']:.2f}", gain["collisions"], gain["true_walls_carved"]]
+             for name, gain in gains.items()],
+            ["-", "---:", "-", "-", "---:", "---:", "---:"])
     if before:
         lines += side_by_side(before, rows)
     evaluation.write_text(out / "robustness.md", "\n".join(lines) + "\n")
