@@ -197,7 +197,7 @@ def _summary(folder: Path) -> dict:
 
 
 def report(out: Path) -> None:
-    from superex_deploy.evaluation import write_json, write_text
+    from superex_deploy.evaluation import markdown_table, write_json, write_text
 
     data = {split: _summary(out / split) for split in ("train", "eval") if (out / split / "setting.json").is_file()}
     lines = []
@@ -208,25 +208,25 @@ def report(out: Path) -> None:
                   f"{WARM_FRAMES} frames of each episode not timed), the "
                   "skipping and the unskipped processor alternated first / second on the same frame "
                   "(2 shared cores: ratios, not absolute times). Exact skips differing from the unskipped "
-                  f"processing: {s['mismatching_frames']} frames.", "",
-                  "| setting | rays skipped | filter runs skipped | frames' evidence skipped | ms / frame | ratio "
-                  "to unskipped | median frame ratio | evidence MAE (mean, p90) | first-half AUC diff [95 %] | "
-                  "carved cells (end) |", "|---|---:|---:|---:|---:|---:|---:|---|---|---:|",
-                  f"| unskipped | - | - | - | {e['full_ms_mean']:.2f} | 1.00 | 1.00 | 0 | "
-                  f"{100 * s['full_auc_first_half']:.2f} % (level) | - |",
-                  f"| exact (rays_without_unknown, filter_same_input) | {100 * e['rays_skipped_share']:.2f} % | "
-                  f"{100 * e['filter_runs_skipped_share']:.2f} % | 0 | {e['exact_ms_mean']:.2f} | "
-                  f"{e['ratio_of_means']:.3f} | {e['median_frame_ratio']:.3f} | 0 (bit-identical) | 0 (same "
-                  "episodes) | 0 |"]
+                  f"processing: {s['mismatching_frames']} frames.", ""]
+        cells = [["unskipped", "-", "-", "-", f"{e['full_ms_mean']:.2f}", "1.00", "1.00", "0",
+                  f"{100 * s['full_auc_first_half']:.2f} % (level)", "-"],
+                 ["exact (rays_without_unknown, filter_same_input)", f"{100 * e['rays_skipped_share']:.2f} %",
+                  f"{100 * e['filter_runs_skipped_share']:.2f} %", "0", f"{e['exact_ms_mean']:.2f}",
+                  f"{e['ratio_of_means']:.3f}", f"{e['median_frame_ratio']:.3f}", "0 (bit-identical)",
+                  "0 (same episodes)", "0"]]
         for name, entry in s["inexact"].items():
             auc = entry.get("auc_first_half")
             auc_text = (f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
                         f"({auc['better']} / {auc['worse']} / {auc['tied']} better / worse / tied)") if auc else "-"
             carved = (f"{100 * entry['carved_cells_relative']:+.1f} %" if "carved_cells_relative" in entry else "-")
-            lines.append(f"| {name} (+ exact) | - | - | {100 * entry['frames_skipped_share']:.1f} % | "
-                         f"{entry['ms_mean']:.2f} | {entry['ratio_of_means']:.3f} | - | "
-                         f"{entry['evidence_mae_mean']:.4f}, {entry['evidence_mae_p90']:.4f} | {auc_text} | "
-                         f"{carved} |")
+            cells.append([f"{name} (+ exact)", "-", "-", f"{100 * entry['frames_skipped_share']:.1f} %",
+                          f"{entry['ms_mean']:.2f}", f"{entry['ratio_of_means']:.3f}", "-",
+                          f"{entry['evidence_mae_mean']:.4f}, {entry['evidence_mae_p90']:.4f}", auc_text, carved])
+        lines += markdown_table(["setting", "rays skipped", "filter runs skipped", "frames' evidence skipped",
+                                 "ms / frame", "ratio to unskipped", "median frame ratio", "evidence MAE (mean, p90)",
+                                 "first-half AUC diff [95 %]", "carved cells (end)"], cells,
+                                ["-"] + ["---:"] * 6 + ["-", "-", "---:"])
         lines.append("")
     lines += ["Notes: the exact skips fire rarely while exploring (the back-projection window is mostly unknown and "
               "the rings of late light are wide; the robot never repeats a cell, so the filter's input never "
