@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import (bootstrap_interval, coverage_at, coverage_auc, eval_scenarios,
+from superex_deploy.evaluation import (bootstrap_interval, coverage_at, coverage_auc, eval_scenarios, markdown_table,
                                        run_benchmark_episode, train_scenarios)
 from superex_deploy.evaluation.reports import pyplot, save_figure
 from superex_deploy.files import write_atomically
@@ -353,9 +353,7 @@ def back_projection_change(n_poses: int, dense: int = 256) -> tuple[dict, str]:
 def summarise(results: list[dict], names: list[str]) -> tuple[list[dict], str]:
     los = np.array([r["auc_first_half"]["los"] for r in results])
     los50 = np.array([r["at_step_50"]["los"] for r in results])
-    rows, lines = [], ["| carving | first-half AUC | vs line of sight | paired points [95 % interval] | at step 50 vs "
-                       "LOS | true walls carved | fans |", "|---|---:|---:|---:|---:|---:|---:|"]
-    lines.append(f"| line of sight | {100 * los.mean():.2f} | - | - | - | - | - |")
+    rows, cells = [], [["line of sight", f"{100 * los.mean():.2f}", "-", "-", "-", "-", "-"]]
     for v in names:
         auc = np.array([r["auc_first_half"][v] for r in results])
         at50 = np.array([r["at_step_50"][v] for r in results])
@@ -366,19 +364,22 @@ def summarise(results: list[dict], names: list[str]) -> tuple[list[dict], str]:
                "low": 100 * low, "high": 100 * high, "ratio_at_50": float(at50.mean() / los50.mean() - 1.0),
                "true_walls_carved": int(sum(r["true_walls_carved"][v] for r in results))}
         rows.append(row)
-        lines.append(f"| {v} | {100 * row['auc_first_half']:.2f} | {row['ratio_vs_los']:+.2%} | "
-                     f"{row['paired_points']:+.2f} [{row['low']:+.2f}, {row['high']:+.2f}] | "
-                     f"{row['ratio_at_50']:+.1%} | {row['true_walls_carved']} | {row['n_secondary'] or '-'} |")
+        cells.append([v, f"{100 * row['auc_first_half']:.2f}", f"{row['ratio_vs_los']:+.2%}",
+                      f"{row['paired_points']:+.2f} [{row['low']:+.2f}, {row['high']:+.2f}]",
+                      f"{row['ratio_at_50']:+.1%}", row["true_walls_carved"], row["n_secondary"] or "-"])
+    lines = markdown_table(["carving", "first-half AUC", "vs line of sight", "paired points [95 % interval]",
+                            "at step 50 vs LOS", "true walls carved", "fans"], cells, ["-"] + ["---:"] * 6)
     fans = sorted({int(k) for r in results for k in r["scan_ms_median"]})
-    lines += ["", "| secondary rays | simulator ms / scan (median of scenario medians) | mean | fans traced | "
-              "reused | cache restarts |", "|---:|---:|---:|---:|---:|---:|"]
+    fan_cells = []
     for k in fans:
         med = np.median([r["scan_ms_median"][str(k)] if str(k) in r["scan_ms_median"] else r["scan_ms_median"][k]
                          for r in results])
         mean = np.mean([r["scan_ms_mean"].get(str(k), r["scan_ms_mean"].get(k)) for r in results])
         cache = [r["fan_cache"].get(str(k), r["fan_cache"].get(k)) for r in results]
-        lines.append(f"| {k} | {med:.1f} | {mean:.1f} | {sum(c['traced'] for c in cache)} | "
-                     f"{sum(c['reused'] for c in cache)} | {sum(c['restarts'] for c in cache)} |")
+        fan_cells.append([k, f"{med:.1f}", f"{mean:.1f}", sum(c["traced"] for c in cache),
+                          sum(c["reused"] for c in cache), sum(c["restarts"] for c in cache)])
+    lines += [""] + markdown_table(["secondary rays", "simulator ms / scan (median of scenario medians)", "mean",
+                                    "fans traced", "reused", "cache restarts"], fan_cells, ["---:"] * 6)
     return rows, "\n".join(lines)
 
 

@@ -145,6 +145,19 @@ def test_the_committed_reports_regenerate_from_their_json():
         folder / "expected_gain.md").read_text()
 
 
+@pytest.mark.parametrize("split", ["eval", "train"])
+def test_the_committed_carving_benchmark_regenerates(split):
+    """bench_carving.py's rows (paired intervals) and tables from its committed per-scenario results, and its
+    scenario list from the evaluation's scenario sets (eval: start order; train: seeded train floors)."""
+    data = json.loads((BENCHMARKS / "carving" / f"{split}.json").read_text())
+    script = _script("bench_carving")
+    rows, text = script.summarise(data["scenarios"], [row["variant"] for row in data["rows"]])
+    assert rows == data["rows"]
+    assert text in (BENCHMARKS / "carving" / f"{split}.md").read_text()
+    places = script.scenarios(data["split"], len(data["scenarios"]))
+    assert [[name, list(start)] for name, start in places] == [[s["map"], s["start"]] for s in data["scenarios"]]
+
+
 # --- reports ---
 
 
