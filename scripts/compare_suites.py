@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import bootstrap_interval, scenario_metrics, write_json, write_text
+from superex_deploy.evaluation import bootstrap_interval, markdown_table, scenario_metrics, write_json, write_text
 from superex_deploy.sim.suite import PAPER_ROWS
 
 BASELINES = ("mapex_lama_los", "mapex_observed")
@@ -87,18 +87,17 @@ def markdown(entries: list[dict], steps: int) -> str:
         mine = [e for e in entries if e["baseline"] == baseline]
         if not mine:
             continue
-        lines += [f"Against {baseline} ({PAPER_ROWS[baseline].label}):", "",
-                  "| row | scenarios (with dead ends) | standard AUC | altered AUC | standard: row - baseline | "
-                  "altered: row - baseline | change (altered - standard) | change, scenarios with dead ends | "
-                  "m inside dead ends, row - baseline |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        cells = []
         for e in mine:
             dead = e.get("change_with_dead_ends")
             metres = e.get("metres_inside_paired")
-            lines.append(f"| {e['row']} | {e['scenarios']} ({e['with_dead_ends']}) | {100 * e['standard_auc']:.1f} | "
-                         f"{100 * e['altered_auc']:.1f} | {_cell(e['standard_paired'])} | {_cell(e['altered_paired'])}"
-                         f" | {_cell(e['change'])} | {_cell(dead) if dead else '-'} | "
-                         f"{_cell(metres, 1.0, 1) if metres else '-'} |")
+            cells.append([e["row"], f"{e['scenarios']} ({e['with_dead_ends']})", f"{100 * e['standard_auc']:.1f}",
+                          f"{100 * e['altered_auc']:.1f}", _cell(e["standard_paired"]), _cell(e["altered_paired"]),
+                          _cell(e["change"]), _cell(dead) if dead else "-", _cell(metres, 1.0, 1) if metres else "-"])
+        lines += [f"Against {baseline} ({PAPER_ROWS[baseline].label}):", ""] + markdown_table(
+            ["row", "scenarios (with dead ends)", "standard AUC", "altered AUC", "standard: row - baseline",
+             "altered: row - baseline", "change (altered - standard)", "change, scenarios with dead ends",
+             "m inside dead ends, row - baseline"], cells, ["-"] + ["---:"] * 8)
         lines.append("")
     return "\n".join(lines)
 

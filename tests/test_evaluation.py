@@ -158,6 +158,17 @@ def test_the_committed_carving_benchmark_regenerates(split):
     assert [[name, list(start)] for name, start in places] == [[s["map"], s["start"]] for s in data["scenarios"]]
 
 
+def test_the_committed_suite_comparison_regenerates():
+    """compare_suites.py pairs the committed paper and altered rows (scenario_metrics' first-half AUC, the bootstrap)
+    into the committed side_by_side.json and .md."""
+    folder = BENCHMARKS / "eval_altered"
+    data = json.loads((folder / "side_by_side.json").read_text())
+    script = _script("compare_suites")
+    entries = script.compare(script._rows(BENCHMARKS / "eval_paper"), script._rows(folder), data["steps"])
+    assert json.dumps(entries) == json.dumps(data["entries"])
+    assert script.markdown(data["entries"], data["steps"]) == (folder / "side_by_side.md").read_text()
+
+
 # --- reports ---
 
 
