@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import markdown_table
+
 ROOT = Path(__file__).resolve().parents[1]
 
 EVAL_MAPS = ("50052750", "50010539", "50045230", "50015847", "50010535_PLAN1", "50052749")
@@ -237,18 +239,19 @@ def markdown(out: Path) -> str:
         lines += [f"## {split} ({len(summary['episodes'])} episodes x {data['steps']} steps, profile "
                   f"`{data['profile']}`, {totals['samples']} samples, {totals['requests']} requests of which "
                   f"{totals['crops']} crops; band {data['band_cells']} cells; step of the whole-map prediction "
-                  f"{summary['step_whole']:.4f})", "",
-                  "| configuration | MAE | MAE seam band | step | band MAE vs hard, per episode: mean / worst "
-                  "| band MAE better than hard | blend ms |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+                  f"{summary['step_whole']:.4f})", ""]
         hard = np.asarray(summary["configs"][HARD]["mae_band_per_episode"])
+        cells = []
         for name, row in summary["configs"].items():
             band = np.asarray(row["mae_band_per_episode"])
             relative = band / np.maximum(hard, 1e-12) - 1.0
             mark = " (default)" if name == data.get("default") else ""
-            lines.append(f"| {name}{mark} | {row['mae']:.4f} | {row['mae_band']:.4f} | {row['step']:.4f} | "
-                         f"{100 * relative.mean():+.1f} % / {100 * relative.max():+.1f} % | "
-                         f"{int((band < hard).sum())}/{band.size} | {row['blend_ms']:.2f} |")
+            cells.append([f"{name}{mark}", f"{row['mae']:.4f}", f"{row['mae_band']:.4f}", f"{row['step']:.4f}",
+                          f"{100 * relative.mean():+.1f} % / {100 * relative.max():+.1f} %",
+                          f"{int((band < hard).sum())}/{band.size}", f"{row['blend_ms']:.2f}"])
+        lines += markdown_table(["configuration", "MAE", "MAE seam band", "step",
+                                 "band MAE vs hard, per episode: mean / worst", "band MAE better than hard",
+                                 "blend ms"], cells, ["-"] + ["---:"] * 6)
         if split == "train":
             lines += ["", f"Lowest band MAE on these floors (relative to `hard`, mean per episode): "
                           f"`{best_config(summary)}`: the width to choose."]

@@ -169,6 +169,18 @@ def test_the_committed_suite_comparison_regenerates():
     assert script.markdown(data["entries"], data["steps"]) == (folder / "side_by_side.md").read_text()
 
 
+def test_the_committed_seams_report_and_scenarios_regenerate():
+    """bench_seams.py's Markdown from its committed JSON, and its episodes' scenarios from the evaluation's sets
+    (train: the held-out scenarios; eval: start 0 of its maps)."""
+    folder = BENCHMARKS / "seams"
+    script = _script("bench_seams")
+    assert script.markdown(folder) == (folder / "seams.md").read_text()
+    for split in ("train", "eval"):
+        episodes = json.loads((folder / f"seams_{split}.json").read_text())["episodes"]
+        assert [tuple(s) for s in script.scenarios(split, len(episodes))] == [
+            (e["map"], e["start_index"], tuple(e["start"])) for e in episodes]
+
+
 # --- reports ---
 
 
