@@ -9,6 +9,7 @@ import time
 from typing import Callable, NamedTuple, Optional, Union
 
 from superex_deploy.maps import OccupancyGrid, load_map
+from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.pipeline import RealtimeProfile, make_predictor, make_sensing
 from superex_deploy.sim.episode import EpisodeResult, ExplorationConfig, run_episode
 
@@ -49,9 +50,10 @@ def run_benchmark_episode(floor: Union[str, OccupancyGrid], start_rc, planner, p
         sensing: the episode's SPAD sensing object, instead of making one.
         cores: the cores a named predictor's sessions get (:func:`~superex_deploy.pipeline.make_predictor`).
         on_step, on_observation: passed to ``run_episode``.
-    """
-    from superex_deploy.onboard.planning.planners import make_planner
 
+    Raises:
+        ValueError: ``spad`` with a predictor object and no ``sensing`` (the sensing is made for a predictor name).
+    """
     grid = load_map(floor) if isinstance(floor, str) else floor
     if isinstance(planner, str):
         planner = make_planner(planner, **(planner_options or {}))
