@@ -22,6 +22,7 @@ LAYERS = (
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
     ("gym env", ("superex_deploy.sim.gym_env",)),  # builds its explorer with pipeline.build_explorer
+    ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),
