@@ -68,7 +68,7 @@ def eval_scenarios(count: int) -> list[tuple[str, int, tuple[int, int]]]:
 
 
 def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
-    from superex_deploy.benchmarking import ScenarioTask
+    from superex_deploy.evaluation.tasks import ScenarioTask
 
     (map_name, start_index, start_rc), (pose, spad, lidar) = scenario, setting
     return ScenarioTask(map_name=map_name, start_index=start_index, start_rc=tuple(start_rc), planner=planner,
@@ -80,7 +80,7 @@ def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
 
 def run_episode_task(task) -> dict:
     """Worker: one episode's summary, trimmed to what the tables read."""
-    from superex_deploy.benchmarking import run_scenario
+    from superex_deploy.evaluation.tasks import run_scenario
 
     summary = run_scenario(task)
     keep = ("map", "planner", "predictor", "start_index", "steps", "coverage", "iou", "collisions",

@@ -38,7 +38,7 @@ VARIANTS = {
 
 
 def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar: float = 0.02) -> dict:
-    from superex_deploy.benchmarking import with_noise, with_spad_noise
+    from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
     from superex_deploy.evaluation import first_half_auc, run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig

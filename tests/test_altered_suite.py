@@ -7,7 +7,7 @@ import zlib
 import numpy as np
 import pytest
 
-from superex_deploy.benchmarking import ScenarioTask, run_scenario
+from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.cli import main
 from superex_deploy.commands.paper_benchmark import _table
 from superex_deploy.maps import start_poses

@@ -20,7 +20,7 @@ LAYERS = (
     ("onboard", ("superex_deploy.onboard",)),
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
-    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
+    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
     ("gym env", ("superex_deploy.sim.gym_env",)),  # builds its explorer with pipeline.build_explorer
     ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),

@@ -4,6 +4,8 @@ rows and metrics are :mod:`superex_deploy.sim.suite`'s.
 
 * :mod:`~superex_deploy.evaluation.scenarios`: the eval, held-out train and altered-floor scenario sets;
 * :mod:`~superex_deploy.evaluation.episodes`: :func:`run_benchmark_episode`;
+* :mod:`~superex_deploy.evaluation.tasks`: one benchmark episode by names, picklable for worker processes and Ray
+  (:class:`~superex_deploy.evaluation.tasks.ScenarioTask`, what ``superex benchmark`` runs);
 * :mod:`~superex_deploy.evaluation.metrics`: first-half AUC, IoU at coverage levels, bootstrap intervals;
 * :mod:`~superex_deploy.evaluation.reports`: Markdown tables, atomic JSON / text / figure writers.
 """
