@@ -13,7 +13,7 @@ from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig
 
 N_POSES = 2000
-SIGMA_XY_M = 0.05  # the declared sigma: what a good SLAM system delivers (issue #24)
+SIGMA_XY_M = 0.05  # the declared sigma: what a good SLAM system delivers
 SIGMA_YAW_RAD = np.deg2rad(1.0)
 # Fewer primaries than the default keep 2,000 scans fast; the fan (the part soundness depends on) is default.
 PROPERTY_CONFIG = SpadConfig(n_rays=360)

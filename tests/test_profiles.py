@@ -1,4 +1,4 @@
-"""The real-time profiles (#16): the default the CLI runs, its checks, and the reproducibility of its deterministic
+"""The real-time profiles: the default the CLI runs, its checks, and the reproducibility of its deterministic
 asynchronous mode end to end."""
 
 import json
