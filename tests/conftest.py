@@ -26,13 +26,20 @@ DETERMINISTIC = ("map", "start_index", "planner", "coverage", "coverage_with_car
                  "steps", "finished")
 
 
-def _walled_box(rows: int = 20, cols: int = 20, walls=(), name: str = "box") -> OccupancyGrid:
-    """A ``rows`` x ``cols`` grid at 0.1 m a cell, walled on its border, with each of ``walls`` (an index into a
-    2-D array: a cell or slices) walled too; every other cell is free."""
+def _box_walls(rows: int, cols: int, walls=()) -> np.ndarray:
+    """The wall cells (bool, ``rows`` x ``cols``) of a box walled on its border, with each of ``walls`` (an index into
+    a 2-D array: a cell or slices) walled too."""
     occupied = np.zeros((rows, cols), bool)
     occupied[0, :] = occupied[-1, :] = occupied[:, 0] = occupied[:, -1] = True
     for cell in walls:
         occupied[cell] = True
+    return occupied
+
+
+def _walled_box(rows: int = 20, cols: int = 20, walls=(), name: str = "box") -> OccupancyGrid:
+    """A ``rows`` x ``cols`` grid at 0.1 m a cell, walled on its border and at ``walls`` (see :func:`_box_walls`);
+    every other cell is free. The grid's arrays are read-only: build on ``.occupied.copy()``."""
+    occupied = _box_walls(rows, cols, walls)
     return OccupancyGrid(occupied, ~occupied, 0.1, name)
 
 
@@ -47,7 +54,7 @@ def two_rooms():
     """``two_rooms()``: a 30 x 40 box split by a wall (column 20) with a 0.6 m door (rows 12-17): most of the right
     room is hidden from cell (5, 5)."""
     def build() -> OccupancyGrid:
-        occupied = _walled_box(30, 40, walls=[(slice(None), 20)]).occupied
+        occupied = _box_walls(30, 40, walls=[(slice(None), 20)])
         occupied[12:18, 20] = False
         return OccupancyGrid(occupied, ~occupied, 0.1, "two rooms")
     return build

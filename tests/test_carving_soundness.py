@@ -95,7 +95,7 @@ def test_carving_is_sound_over_random_poses_on_the_training_maps():
 def test_thin_wall_edge_pointing_at_the_wall_point_is_never_carved(walled_box, n_secondary):
     """A one-cell-thick wall end pointing straight at the wall point, far enough to slip between secondary rays:
     the angular-sampling cap must keep it out of the carved region."""
-    walls = walled_box(80, 80).occupied
+    walls = walled_box(80, 80).occupied.copy()
     walls[10:70, 40] = True  # the far wall the robot looks at is column 40's west face ... (a divider)
     walls[39, 5:25] = True  # thin wall pointing east, its end at column 24
     grid = OccupancyGrid(walls, ~walls, 0.1, "edge")
@@ -113,7 +113,7 @@ def test_a_denser_fan_carves_beyond_the_sparse_fans_cap(walled_box, nlos_cfg):
     carves a wall."""
     from scipy import ndimage
 
-    walls = walled_box(120, 120).occupied
+    walls = walled_box(120, 120).occupied.copy()
     grid = OccupancyGrid(walls, ~walls, 0.1, "empty room")
     clearance = ndimage.distance_transform_edt(~walls)  # cells from the nearest wall cell's centre
     cap_64 = carve_radius_cap_m(64, 0.1) / 0.1
@@ -128,7 +128,7 @@ def test_a_denser_fan_carves_beyond_the_sparse_fans_cap(walled_box, nlos_cfg):
 
 
 def test_pillar_between_secondary_rays_and_wall_at_the_carve_boundary(walled_box):
-    walls = walled_box(70, 70).occupied
+    walls = walled_box(70, 70).occupied.copy()
     walls[20:50, 45] = True
     for r, c in [(30, 30), (34, 22), (26, 36), (40, 28)]:
         walls[r, c] = True  # single-cell pillars
