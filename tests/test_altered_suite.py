@@ -98,6 +98,7 @@ def test_a_row_on_fewer_scenarios_is_paired_on_the_ones_it_shares(flat_log):
     assert "| scenarios |" in text
 
 
+@pytest.mark.slow
 def test_the_floors_are_cached_and_the_same_seed_gives_the_same_floor(tmp_path):
     start = start_poses(MAP)[1]
     summary = make_floor(MAP, start, tmp_path)
@@ -114,6 +115,7 @@ def test_the_floors_are_cached_and_the_same_seed_gives_the_same_floor(tmp_path):
     assert other["seed"] == summary["seed"] + 1
 
 
+@pytest.mark.slow
 def test_alteration_off_is_the_standard_suite(tmp_path):
     """The standard suite's episodes stay bit-identical: a short run reproduces the committed paper rows' first
     steps, and carries no alteration."""
@@ -128,6 +130,7 @@ def test_alteration_off_is_the_standard_suite(tmp_path):
     assert "dead_ends" not in summary and "alteration" not in summary
 
 
+@pytest.mark.slow
 def test_altered_suite_end_to_end(tmp_path, capsys):
     out = tmp_path / "altered"
     argv = ["benchmark", "--suite", "altered", "--rows", "superex_oracle", "--maps", MAP, "--steps", "20",

@@ -43,6 +43,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigterm_stops_every_worker_and_resume_finishes_with_identical_results(deterministic_episodes, tmp_path,
                                                                               capsys):

@@ -65,6 +65,7 @@ def test_dense_fan_carving_is_sound_over_random_poses_on_the_training_maps():
     assert beyond_los > 120
 
 
+@pytest.mark.slow
 def test_carving_is_sound_over_random_poses_on_the_training_maps():
     rng = np.random.default_rng(2026)
     names = list_maps("train")

@@ -31,6 +31,7 @@ def test_explore_writes_metrics_plot_and_gif(tmp_path):
     assert (out / "episode.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
 
 
+@pytest.mark.slow
 def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
     out = tmp_path / "bench"
     assert main(["benchmark", "--maps", "50052750", "--planners", "nearest,mapex", "--steps", "20", "--jobs", "2",
@@ -60,6 +61,7 @@ def test_planner_options_are_parsed_and_checked():
         planner_options(["distance"])
 
 
+@pytest.mark.slow
 def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
     out = tmp_path / "bench"
     assert main(["benchmark", "--maps", "50052750", "--planners", "mapex", "--predictor", "lama_bp", "--spad",
@@ -73,6 +75,7 @@ def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
     assert (out / "results.md").read_text().startswith("Predictor: lama_bp, SPAD sensing, profile full;")
 
 
+@pytest.mark.slow
 def test_explore_with_spad_reports_carved_coverage(tmp_path):
     out = tmp_path / "spad"
     assert main(["explore", "--map", "50052750", "--start", "2", "--steps", "25", "--spad", "--out", str(out)]) == 0
@@ -121,6 +124,7 @@ def test_explore_with_the_oracle_logs_everything_the_benchmark_needs(tmp_path):
     assert (out / "final.png").stat().st_size > 5_000
 
 
+@pytest.mark.slow
 def test_explore_runs_are_reproducible_and_the_seed_matters(tmp_path):
     # UPEN on the LaMa-LOS ensemble grows its random tree from the episode's generator (on the observed map it
     # would fall back to the nearest frontier and never draw a number): the same seed must give the same episode,
@@ -134,6 +138,7 @@ def test_explore_runs_are_reproducible_and_the_seed_matters(tmp_path):
     assert logs[0]["goals"] != logs[2]["goals"]
 
 
+@pytest.mark.slow
 def test_explore_with_the_learned_ensembles(tmp_path, capsys):
     out = tmp_path / "lama"
     assert main(["explore", "--map", "50052750", "--start", "1", "--planner", "mapex", "--predictor", "lama_bp",

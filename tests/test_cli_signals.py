@@ -146,6 +146,7 @@ def _one_stop_line(err: str, command: str, signum) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_an_explore_recording_stopped_by_a_signal_is_valid_and_replays(tmp_path, capsys, signum):
@@ -180,6 +181,7 @@ def test_an_explore_recording_stopped_by_a_signal_is_valid_and_replays(tmp_path,
     assert [s for s in replay["goals"]["steps"] if s < metrics["steps"]] == metrics["goals"]["steps"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_benchmark_stopped_by_a_signal_leaks_nothing_and_keeps_its_journal(tmp_path, signum):

@@ -46,6 +46,7 @@ def _cross():
     return mean, observed
 
 
+@pytest.mark.slow
 def test_single_ray_corridor_is_exact_against_brute_force():
     mean, observed = _corridor()
     exact = brute_force_expected_visible(mean, observed, (2, 0), N_RAYS, RANGE_CELLS)

@@ -48,6 +48,7 @@ def _drive(world, explorer, steps, observe=None, after=None):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planner,spad", [("nearest", False), ("mapex", True)])
 def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner, spad):
     grid = load_map(MAP)
@@ -96,6 +97,7 @@ def test_a_slam_map_on_another_lattice_or_resolution_is_refused_and_may_cover_an
     assert command.goal_rc is not None
 
 
+@pytest.mark.slow
 def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goals(tmp_path):
     from superex_deploy.cli import main
 

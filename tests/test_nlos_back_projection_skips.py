@@ -75,6 +75,7 @@ def test_the_readable_ring_bounds_hold_every_ring_an_unknown_cell_in_front_lies_
     assert checked > 100 and empty > 10
 
 
+@pytest.mark.slow
 def test_a_kept_ray_is_one_whose_rings_span_meets_the_bounds_and_every_ray_that_votes_on_a_readable_ring_is_kept():
     cfg = NlosConfig(window_m=2.0)
     skipped = kept = 0
@@ -99,6 +100,7 @@ def test_a_kept_ray_is_one_whose_rings_span_meets_the_bounds_and_every_ray_that_
     assert kept > 100 and skipped > 100
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sensor, window_m, n", [(SHORT, 8.0, 30), (SHORT, 2.0, 15), (SpadConfig(), 8.0, 12)])
 def test_skipping_the_rays_that_reach_no_unknown_cell_gives_the_same_back_projection_to_the_last_bit(sensor,
                                                                                                        window_m, n):

@@ -61,6 +61,7 @@ def test_carving_with_a_noisy_pose_and_its_covariance_never_carves_a_true_wall()
     assert carved_total / N_POSES > 300
 
 
+@pytest.mark.slow
 def test_without_the_margins_a_noisy_pose_carves_true_walls():
     """The margins are needed: the same beliefs placed as if exact carve true walls (measured: 64 of 2,000 poses;
     here 5 or more of 250)."""

@@ -28,6 +28,7 @@ TRAIN_FLOOR = list_maps("train")[0]
 LEGACY = json.loads((ROOT / "tests" / "data" / "legacy_episodes.json").read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", LEGACY["episodes"], ids=lambda e: f"{e['planner']}-{e['predictor']}"
                                                               f"{'-spad' if e['spad'] else ''}")
 def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(case):
@@ -260,6 +261,7 @@ def test_a_command_holds_the_path_in_metres_and_cells():
     assert set(command.timings_s) == {"scan", "map_update", "frontiers", "prediction", "scoring", "path"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planner,predictor,spad", [("nearest", "observed", False), ("upen", "lama_los", False),
                                                      ("mapex", "observed", True), ("superex", "evidence", True)])
 def test_a_replay_of_a_recording_chooses_the_recorded_goals(tmp_path, planner, predictor, spad):

@@ -313,6 +313,7 @@ def test_bad_noise_flags_fail_with_a_clear_message(tmp_path, capsys, argv, messa
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_explore_and_benchmark_run_with_noise(tmp_path, capsys):
     out = tmp_path / "explore"
     assert main(["explore", "--map", "50052750", "--steps", "50", "--pose-noise", "0.05,1", "--lidar-noise", "0.02",

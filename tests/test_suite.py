@@ -60,6 +60,7 @@ def test_the_evidence_predictor_reads_the_evidence_only_on_unknown_cells():
         EvidenceAsPrediction().predict(observed, np.zeros((3, 3), np.float32))
 
 
+@pytest.mark.slow
 def test_paper_suite_runs_rows_resumes_and_refuses_other_settings(tmp_path, capsys):
     out = tmp_path / "paper"
     argv = ["benchmark", "--suite", "paper", "--rows", "nearest,superex_oracle", "--maps", "50052750",
