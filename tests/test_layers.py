@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("superex_deploy", "superex_train")
 
@@ -147,6 +149,7 @@ def test_superex_deploy_never_imports_torch_in_its_source():
     assert not offenders, offenders
 
 
+@pytest.mark.slow
 def test_superex_deploy_never_imports_torch_at_run_time():
     """Import every module of superex_deploy in turn in a fresh interpreter (torch installed and importable):
     none loads torch or superex_train."""

@@ -32,6 +32,7 @@ def test_the_scripts_are_found():
     assert len(SCRIPTS) >= 8 and ROOT / "scripts" / "bench_explore.py" in SCRIPTS
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda path: path.stem)
 def test_a_script_imports_without_running_and_answers_help(script):
     if _needs_torch(script) and importlib.util.find_spec("torch") is None:
