@@ -100,9 +100,8 @@ def _shadow_sensing(seed: int, bp_filter):
             return carved_f, self._evidence
 
     class ShadowSensing(SpadSensing):
-        def processing(self):
-            self._processing = ShadowProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter)
-            return self._processing
+        def make_processing(self):
+            return ShadowProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter)
 
     return ShadowSensing(seed=seed, bp_filter=bp_filter)
 
@@ -125,7 +124,7 @@ def _episode(task: tuple) -> dict:
     clock = time.perf_counter()
     result = run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
                                    cfg=profile.episode_config(iou_every=0), profile=profile, sensing=sensing).result
-    processing = sensing._processing
+    processing = sensing.current_processing
     out = {"map": map_name, "start_index": start_index, "setting": setting, "wall_s": time.perf_counter() - clock,
            "coverage": result.coverage.tolist(), "coverage_with_carving": result.coverage_with_carving.tolist(),
            "iou": {"steps": [], "iou": [], "coverage": []}, "carved_cells": int(result.final_carved.sum()),
