@@ -20,19 +20,20 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import zlib
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import (bootstrap_interval, coverage_at, coverage_auc, eval_scenarios, markdown_table,
+                                       run_benchmark_episode, train_scenarios)
+from superex_deploy.evaluation.reports import pyplot, save_figure
 from superex_deploy.files import write_atomically
-from superex_deploy.maps import list_maps, load_map, random_start, start_poses
+from superex_deploy.maps import list_maps, load_map
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
 from superex_deploy.onboard.nlos.carving import carve_sectors
 from superex_deploy.parallel import process_pool
 from superex_deploy.sim.metrics import coverage as coverage_of
-from superex_deploy.sim.suite import bootstrap_interval
 from superex_deploy.spad_types import SpadConfig
 
 VARIANTS = {
@@ -91,14 +92,8 @@ def scenarios(split: str, n: int) -> list[tuple[str, tuple[int, int]]]:
     """Eval: the benchmark's start poses, one per floor first (then the second of each, ...); train: the floors
     of at least 40,000 valid cells, evenly spaced, one start each drawn from a generator seeded with the name."""
     if split == "eval":
-        names = list_maps("eval")
-        starts = {name: start_poses(name) for name in names}
-        order = [(name, starts[name][k]) for k in range(max(len(s) for s in starts.values()))
-                 for name in names if k < len(starts[name])]
-        return order[:n]
-    names = [m for m in list_maps("train") if int(load_map(m).valid.sum()) >= 40000]
-    names = names[::max(1, len(names) // n)][:n]
-    return [(m, random_start(load_map(m), np.random.default_rng(zlib.crc32(m.encode())), 0.5)) for m in names]
+        return [(s.map_name, s.start_rc) for s in eval_scenarios("start")][:n]
+    return train_scenarios(n, 1, 40000)
 
 
 def ideal_carving(scan) -> np.ndarray:
@@ -138,9 +133,7 @@ def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np
 
 
 def _scenario(task: tuple) -> dict:
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import ExplorationConfig
     from superex_deploy.sim.spad import simulate_scan
     from superex_deploy.sim.spad.scene import prepare_scene
 
@@ -175,18 +168,17 @@ def _scenario(task: tuple) -> dict:
             coverage[v].append(coverage_of(known | carved[v], grid.valid))
 
     clock = time.perf_counter()
-    run_episode(grid, start, make_planner("mapex"), make_predictor("observed", grid), steps=steps,
-                cfg=ExplorationConfig(iou_every=0), on_step=on_step)
+    run_benchmark_episode(grid, start, "mapex", "observed", steps=steps, cfg=ExplorationConfig(iou_every=0),
+                          on_step=on_step)
     for v in carved:
         walls[v] = int(np.count_nonzero(carved[v] & grid.occupied))
     caches = prepare_scene(grid).fan_caches
     cache = {k: {"traced": c.traced, "reused": c.reused, "restarts": c.restarts}
              for (k, _), c in caches.items()}
-    # A finished episode stops early: its coverage stays where it ended.
-    curves = {v: np.pad(c, (0, steps - len(c)), mode="edge") for v, c in coverage.items()}
+    # A finished episode stops early: its coverage stays where it ended (coverage_at). The run is the first half.
     return {"map": name, "start": list(start), "steps": steps, "seconds": time.perf_counter() - clock,
-            "auc_first_half": {v: float(np.mean(c)) for v, c in curves.items()},
-            "at_step_50": {v: float(c[min(49, steps - 1)]) for v, c in curves.items()},
+            "auc_first_half": {v: coverage_auc(c, 1, steps) for v, c in coverage.items()},
+            "at_step_50": {v: coverage_at(c, min(50, steps)) for v, c in coverage.items()},
             "true_walls_carved": walls, "scan_ms_median": {k: 1000 * float(np.median(s)) for k, s in scan_s.items()},
             "scan_ms_mean": {k: 1000 * float(np.mean(s)) for k, s in scan_s.items()}, "fan_cache": cache}
 
@@ -361,9 +353,7 @@ def back_projection_change(n_poses: int, dense: int = 256) -> tuple[dict, str]:
 def summarise(results: list[dict], names: list[str]) -> tuple[list[dict], str]:
     los = np.array([r["auc_first_half"]["los"] for r in results])
     los50 = np.array([r["at_step_50"]["los"] for r in results])
-    rows, lines = [], ["| carving | first-half AUC | vs line of sight | paired points [95 % interval] | at step 50 vs "
-                       "LOS | true walls carved | fans |", "|---|---:|---:|---:|---:|---:|---:|"]
-    lines.append(f"| line of sight | {100 * los.mean():.2f} | - | - | - | - | - |")
+    rows, cells = [], [["line of sight", f"{100 * los.mean():.2f}", "-", "-", "-", "-", "-"]]
     for v in names:
         auc = np.array([r["auc_first_half"][v] for r in results])
         at50 = np.array([r["at_step_50"][v] for r in results])
@@ -374,30 +364,28 @@ def summarise(results: list[dict], names: list[str]) -> tuple[list[dict], str]:
                "low": 100 * low, "high": 100 * high, "ratio_at_50": float(at50.mean() / los50.mean() - 1.0),
                "true_walls_carved": int(sum(r["true_walls_carved"][v] for r in results))}
         rows.append(row)
-        lines.append(f"| {v} | {100 * row['auc_first_half']:.2f} | {row['ratio_vs_los']:+.2%} | "
-                     f"{row['paired_points']:+.2f} [{row['low']:+.2f}, {row['high']:+.2f}] | "
-                     f"{row['ratio_at_50']:+.1%} | {row['true_walls_carved']} | {row['n_secondary'] or '-'} |")
+        cells.append([v, f"{100 * row['auc_first_half']:.2f}", f"{row['ratio_vs_los']:+.2%}",
+                      f"{row['paired_points']:+.2f} [{row['low']:+.2f}, {row['high']:+.2f}]",
+                      f"{row['ratio_at_50']:+.1%}", row["true_walls_carved"], row["n_secondary"] or "-"])
+    lines = markdown_table(["carving", "first-half AUC", "vs line of sight", "paired points [95 % interval]",
+                            "at step 50 vs LOS", "true walls carved", "fans"], cells, ["-"] + ["---:"] * 6)
     fans = sorted({int(k) for r in results for k in r["scan_ms_median"]})
-    lines += ["", "| secondary rays | simulator ms / scan (median of scenario medians) | mean | fans traced | "
-              "reused | cache restarts |", "|---:|---:|---:|---:|---:|---:|"]
+    fan_cells = []
     for k in fans:
         med = np.median([r["scan_ms_median"][str(k)] if str(k) in r["scan_ms_median"] else r["scan_ms_median"][k]
                          for r in results])
         mean = np.mean([r["scan_ms_mean"].get(str(k), r["scan_ms_mean"].get(k)) for r in results])
         cache = [r["fan_cache"].get(str(k), r["fan_cache"].get(k)) for r in results]
-        lines.append(f"| {k} | {med:.1f} | {mean:.1f} | {sum(c['traced'] for c in cache)} | "
-                     f"{sum(c['reused'] for c in cache)} | {sum(c['restarts'] for c in cache)} |")
+        fan_cells.append([k, f"{med:.1f}", f"{mean:.1f}", sum(c["traced"] for c in cache),
+                          sum(c["reused"] for c in cache), sum(c["restarts"] for c in cache)])
+    lines += [""] + markdown_table(["secondary rays", "simulator ms / scan (median of scenario medians)", "mean",
+                                    "fans traced", "reused", "cache restarts"], fan_cells, ["---:"] * 6)
     return rows, "\n".join(lines)
 
 
 def plot(rows: list[dict], title: str, path: Path) -> None:
     """Bar chart of each variant's paired first-half coverage gain over line of sight (points, 95 % interval)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 0.35 * len(rows) + 1.2))
+    fig, ax = pyplot().subplots(figsize=(8, 0.35 * len(rows) + 1.2))
     y = np.arange(len(rows))[::-1]
     gain = np.array([r["paired_points"] for r in rows])
     err = np.array([[r["paired_points"] - r["low"], r["high"] - r["paired_points"]] for r in rows]).T
@@ -407,8 +395,7 @@ def plot(rows: list[dict], title: str, path: Path) -> None:
     ax.set_xlabel("first-half coverage gain over line of sight (points; red: carved a true wall)")
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ than that, paired mean >= -0.3 points). The variants (:data:`VARIANTS`):
 
 A support variant on the observed map is the expected variant's run (the observed prediction holds no wall on an
 unknown cell, so there is nothing to scale): it is not run twice. Only train floors are used, never ``eval/``: the
-12 scenarios of ``scripts/ceiling_study.py``'s ``scenarios(12, 1, 40000, heldout=True)`` (one start on each of 12
+12 scenarios of :func:`superex_deploy.evaluation.heldout_scenarios` (one start on each of 12
 floors of the buildings the learned models never trained on, the held-out set ``bench_realtime.py`` and
 ``bench_seams.py`` use), or ``--scenarios N`` of them (:data:`SCENARIO_ORDER`). The pipeline is the paper table's ``full``
 profile (the whole ensemble on the whole map, inside the step that asks) with one ONNX Runtime thread and no
@@ -33,15 +33,15 @@ Episodes are journaled (``OUT/episodes.jsonl``: a rerun resumes); writes ``OUT/e
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import (bootstrap_interval, first_half_auc, markdown_table, run_benchmark_episode,
+                                       train_scenarios, write_json, write_text)
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 VARIANTS = {
     "superex": ("superex", {}),
@@ -74,14 +74,13 @@ def run_of(variant: str, predictor: str) -> tuple[str, str]:
 
 SCENARIO_ORDER = (0, 6, 3, 9, 1, 7, 4, 10, 2, 8, 5, 11)
 """The order in which ``--scenarios N`` takes the 12 held-out scenarios: any first N are spread over the list (which
-``ceiling_study.scenarios`` sorts by floor name), and a larger N keeps the smaller one's episodes (the journal)."""
+:func:`superex_deploy.evaluation.heldout_scenarios` sorts by floor name), and a larger N keeps the smaller one's
+episodes (the journal)."""
 
 
 def pick_scenarios(count: int) -> list[tuple[str, tuple[int, int]]]:
     """The first ``count`` of the 12 held-out train scenarios in :data:`SCENARIO_ORDER`."""
-    from ceiling_study import scenarios
-
-    places = scenarios(12, 1, 40000, heldout=True)
+    places = train_scenarios(12, 1, 40000, heldout=True)
     return [places[i] for i in SCENARIO_ORDER[:max(count, 1)]]
 
 
@@ -117,9 +116,7 @@ def _episode(task: tuple) -> dict:
     """One episode in a worker: ``(map, start, variant, predictor, steps, min_scale)``."""
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.inference import SessionConfig
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import RealtimeProfile, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import RealtimeProfile
 
     name, start, variant, predictor, steps, min_scale = task
     planner_name, options = VARIANTS[variant]
@@ -143,16 +140,12 @@ def _episode(task: tuple) -> dict:
 
     learned = predictor in ("lama_los", "lama_bp") and not options
     clock = time.perf_counter()
-    result = run_episode(grid, tuple(start), make_planner(planner_name, **options),
-                         make_predictor(predictor, grid, profile=profile), steps=steps,
-                         cfg=profile.episode_config(iou_every=0),
-                         sensing=make_sensing(predictor, predictor in SPAD, 0, profile=profile),
-                         on_observation=diagnose if learned else None)
-    half = max(steps // 2, 1)
+    result = run_benchmark_episode(grid, start, planner_name, predictor, planner_options=options, steps=steps,
+                                   cfg=profile.episode_config(iou_every=0), profile=profile,
+                                   spad=predictor in SPAD, on_observation=diagnose if learned else None).result
 
     def auc(series) -> float:
-        series = list(series) or [0.0]
-        return float(np.mean([series[min(s, len(series)) - 1] for s in range(1, half + 1)]))
+        return first_half_auc(series, steps)
 
     goals = max(len(result.goals), 1)
     return {"map": name, "start": list(start), "variant": variant, "predictor": predictor,
@@ -167,8 +160,6 @@ def summarise(episodes: list[dict], variants: list[str], predictors: list[str]) 
     """One row per (variant, predictor): mean first-half AUC, paired against the variant's planner as it ships on
     the observed map (mean difference, bootstrap 95 % interval, better / worse) and against the same planner as it
     ships with the same predictor; median scoring time per goal choice."""
-    from superex_deploy.sim.suite import bootstrap_interval
-
     by_run: dict = {}
     for e in episodes:
         by_run.setdefault((e["variant"], e["predictor"]), {})[(e["map"], tuple(e["start"]))] = e
@@ -226,28 +217,29 @@ def table(rows: list[dict], setting: dict) -> str:
              f"{setting['steps']} steps, wall support min_scale {setting['min_scale']}. First-half AUC in % "
              "(NLOS-carved cells included; LOS only beside it); paired differences in points: mean [bootstrap 95 % "
              "interval] better/worse. Target (issue #26): every learned row >= -0.30 against the same planner, as "
-             "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", "",
-             "| variant | predictor | first-half AUC | LOS only | vs planner as shipped, observed map | target | "
-             "vs planner as shipped, same predictor | scoring ms / goal | goals |",
-             "|---|---|---:|---:|---|---|---|---:|---:|"]
+             "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", ""]
+    cells = []
     for r in rows:
         learned = r["predictor"] in ("lama_los", "lama_bp")
         ok = "" if not learned else ("met" if r["vs_observed"]["mean"] >= -0.003 else "**missed**")
         same = f" (= {r['same_run_as']})" if r["same_run_as"] else ""
-        lines.append(f"| {r['variant']} | {r['predictor']}{same} | {100 * r['auc_first_half']:.1f} | "
-                     f"{100 * r['los_auc_first_half']:.1f} | {_paired(r['vs_observed'])} | {ok} | "
-                     f"{_paired(r['vs_shipped_same_predictor'])} | {r['scoring_ms_per_goal']:.1f} | "
-                     f"{r['goals']:.1f} |")
+        cells.append([r["variant"], f"{r['predictor']}{same}", f"{100 * r['auc_first_half']:.1f}",
+                      f"{100 * r['los_auc_first_half']:.1f}", _paired(r["vs_observed"]), ok,
+                      _paired(r["vs_shipped_same_predictor"]), f"{r['scoring_ms_per_goal']:.1f}", f"{r['goals']:.1f}"])
+    lines += markdown_table(["variant", "predictor", "first-half AUC", "LOS only", "vs planner as shipped, observed map",
+                             "target", "vs planner as shipped, same predictor", "scoring ms / goal", "goals"], cells,
+                            ["-", "-", "---:", "---:", "-", "-", "-", "---:", "---:"])
     calibration = setting.get("support_calibration") or []
     if calibration:
         lines += ["", "Does the support tell true predicted walls from false ones? Unknown cells predicted walls "
                   "(mean >= 0.5) at the goal choices of the shipped planners' learned runs (one every "
                   f"{DIAGNOSTIC_EVERY} steps or more), by their WallSupport (min_scale {setting['min_scale']}): "
                   "`none` is scaled by min_scale, `full` kept. A group whose true-wall share is below its mean "
-                  "predicted probability is over-predicted (shrinking it is right); above, under-predicted.", "",
-                  "| predictor | support | cells | mean predicted p | true-wall share |", "|---|---|---:|---:|---:|"]
-        lines += [f"| {c['predictor']} | {c['support']} | {c['cells']} | {c['mean_predicted']:.3f} | "
-                  f"{c['true_wall_rate']:.3f} |" for c in calibration]
+                  "predicted probability is over-predicted (shrinking it is right); above, under-predicted.", ""]
+        lines += markdown_table(["predictor", "support", "cells", "mean predicted p", "true-wall share"],
+                                [[c["predictor"], c["support"], c["cells"], f"{c['mean_predicted']:.3f}",
+                                  f"{c['true_wall_rate']:.3f}"] for c in calibration],
+                                ["-", "-", "---:", "---:", "---:"])
     return "\n".join(lines) + "\n"
 
 
@@ -285,10 +277,9 @@ def main() -> None:
                "predictors": predictors, "profile": "full, one ONNX Runtime thread, no spinning",
                "episode_seconds": float(sum(e["seconds"] for e in episodes)),
                "support_calibration": calibration_rows(episodes)}
-    (args.out / "expected_gain.json").write_text(json.dumps({"setting": setting, "rows": rows,
-                                                             "episodes": episodes}, indent=1))
+    write_json(args.out / "expected_gain.json", {"setting": setting, "rows": rows, "episodes": episodes})
     text = table(rows, setting)
-    (args.out / "expected_gain.md").write_text(text)
+    write_text(args.out / "expected_gain.md", text)
     print("\n" + text)
 
 

@@ -11,14 +11,13 @@ there), plus the whole-episode wall time (metric evaluation included). Prints a 
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import time
 from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.sim.episode import STAGES, run_episode
+from superex_deploy.evaluation import run_benchmark_episode, write_json
+from superex_deploy.sim.episode import STAGES
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.maps import load_map, start_poses
@@ -44,16 +43,14 @@ def main() -> None:
     # Load every compiled kernel once, so the first timed episode does not pay for it.
     warm = load_map("50052749")
     for name in planners:
-        run_episode(warm, start_poses(warm.name)[0], make_planner(name), ObservedAsPrediction(), steps=3)
+        run_benchmark_episode(warm, start_poses(warm.name)[0], name, ObservedAsPrediction(), steps=3)
 
     rows = []
     for map_name in maps:
         grid = load_map(map_name)
         for name in planners:
-            started = time.perf_counter()
-            result = run_episode(grid, start_poses(map_name)[0], planner_objects[name], ObservedAsPrediction(),
-                                 steps=args.steps, seed=0)
-            wall = time.perf_counter() - started
+            result, _, wall = run_benchmark_episode(grid, start_poses(map_name)[0], planner_objects[name],
+                                                    ObservedAsPrediction(), steps=args.steps, seed=0)
             per_step = sum(result.timings_s[s] for s in STAGES)
             rows.append({
                 "map": map_name, "shape": list(grid.shape), "planner": name, "steps": result.steps,
@@ -87,8 +84,8 @@ def main() -> None:
     print()
     print("\n".join(stage_lines))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
-                                    "steps": args.steps, "rows": rows}, indent=2))
+    write_json(args.out, {"machine": platform.platform(), "processor": platform.processor(), "steps": args.steps,
+                          "rows": rows}, indent=2)
     print(f"wrote {args.out}")
 
 

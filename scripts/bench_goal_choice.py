@@ -2,7 +2,7 @@
 
 Two stages:
 
-* ``--record``: explore train floors (``scripts/ceiling_study.scenarios``, held-out buildings) with each planner
+* ``--record``: explore train floors (:func:`superex_deploy.evaluation.train_scenarios`, held-out buildings) with each planner
   and its predictor (``superex``: LaMa-BP + SPAD, realtime profile; ``mapex``: LaMa-LOS, the ``full`` profile it
   resolves to; ``nearest``: observed), and save the explorer's inputs at every goal choice (the planning map's
   inputs, each ``choose_goal`` call's frontiers and the prediction it read) under ``--contexts`` (not committed).
@@ -33,9 +33,9 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.evaluation import write_json, write_text
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-sys.path.insert(0, str(ROOT))
 
 PLANNERS = {"superex": ("lama_bp", True, "realtime"), "mapex": ("lama_los", False, "full"),
             "nearest": ("observed", False, "realtime")}
@@ -80,13 +80,12 @@ class _Recorder:
 def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
     """Explore ``n_maps`` held-out train floors for ``steps`` steps with each planner, saving every goal choice's
     inputs under ``folder/PLANNER/``."""
-    from ceiling_study import scenarios
+    from superex_deploy.evaluation import train_scenarios
 
-    from superex_deploy.maps import load_map
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.types import Planner
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import PROFILES
 
     Planner.register(_Recorder)
     for name in planners:
@@ -94,13 +93,11 @@ def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
         profile = PROFILES[profile_name]
         out = folder / name
         out.mkdir(parents=True, exist_ok=True)
-        for map_name, start in scenarios(n_maps, 1, 40000, heldout=True):
+        for map_name, start in train_scenarios(n_maps, 1, 40000, heldout=True):
             clock = time.perf_counter()
-            grid = load_map(map_name)
             recorder = _Recorder(make_planner(name), out, map_name, name != "nearest")
-            run_episode(grid, start, recorder, make_predictor(predictor_name, grid, profile=profile), steps=steps,
-                        seed=0, cfg=profile.episode_config(iou_every=0),
-                        sensing=make_sensing(predictor_name, spad, 0, profile=profile))
+            run_benchmark_episode(map_name, start, recorder, predictor_name, steps=steps, seed=0,
+                                  cfg=profile.episode_config(iou_every=0), profile=profile, spad=spad)
             print(f"recorded {name} {map_name}: {recorder.calls} calls, {time.perf_counter() - clock:.0f} s",
                   flush=True)
 
@@ -128,12 +125,23 @@ def goal_choices(folder: Path) -> list[list[dict]]:
     return list(choices.values())
 
 
+def _load_naive():
+    """``tests/naive.py`` (the slow twins of the kernels), loaded from its file: the repository's tests are no
+    package of the install."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("superex_tests_naive", ROOT / "tests" / "naive.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 class _Reference:
     """Within it, the planners score with the code before the speed-ups (``tests/naive.py``)."""
 
     def __enter__(self):
         from superex_deploy.onboard.planning.planners import hector, mapex, superex
-        from tests import naive
+        naive = _load_naive()
 
         self.saved = [(superex.SuperexPlanner, "gains", superex.SuperexPlanner.gains),
                       (mapex, "visible_gains", mapex.visible_gains), (hector, "visible_gains", hector.visible_gains)]
@@ -232,8 +240,7 @@ def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
             "load_average_1_5_15": [round(v, 2) for v in load], "repeats": repeats,
             "numba_threads": os.environ.get("NUMBA_NUM_THREADS", "default"),
             "note": "each goal choice's time is the fastest of its repeats, before / after alternated"}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "goal_choice.json").write_text(json.dumps({"meta": meta, "planners": rows}, indent=1))
+    write_json(out / "goal_choice.json", {"meta": meta, "planners": rows})
     lines = ["| planner | goal choices | frontiers (median) | stage | before ms: median / p90 / max | "
              "after ms: median / p90 / max | speed-up: median / max | same goal |",
              "|---|---:|---:|---|---:|---:|---:|---:|"]
@@ -254,7 +261,7 @@ def bench(planners: list[str], folder: Path, repeats: int, out: Path) -> None:
                   for name, row in rows.items()) + ".",
               "", "Goal choices whose goal (after) is the one the recorded episode chose: " + ", ".join(
                   f"{name} {100 * row['same_as_recorded']:.0f} %" for name, row in rows.items()) + "."]
-    (out / "goal_choice.md").write_text("\n".join(header + lines + footer) + "\n")
+    write_text(out / "goal_choice.md", "\n".join(header + lines + footer) + "\n")
     print("\n".join(lines))
 
 

@@ -49,7 +49,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import tempfile
@@ -60,24 +59,22 @@ from typing import Callable, Optional
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import torch
 
-import torch  # noqa: E402
-
-from superex_deploy.sim.episode import ExplorationConfig, run_episode  # noqa: E402
-from superex_deploy.onboard.planning.planners import make_planner  # noqa: E402
-from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction  # noqa: E402
-from superex_deploy.onboard.prediction.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,  # noqa: E402
+from superex_deploy.evaluation import run_benchmark_episode, write_json
+from superex_deploy.sim.episode import ExplorationConfig
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.prediction.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,
                                       ModelKind, SessionConfig, crop_window, encode_bp_windows, encode_map,
                                       make_session, read_manifest)
-from superex_deploy.maps import list_maps, load_map, start_poses  # noqa: E402
-from superex_deploy.onboard.nlos import process_scan  # noqa: E402
-from superex_deploy.sim.spad import simulate_scan  # noqa: E402
-from superex_train.calibration import LogitCalibration  # noqa: E402
-from superex_train.export import ExportConfig, Exporter, WallProbabilityModel, export_generator  # noqa: E402
-from superex_train.training import build_generator, load_checkpoint  # noqa: E402
+from superex_deploy.maps import list_maps, load_map, start_poses
+from superex_deploy.onboard.nlos import process_scan
+from superex_deploy.sim.spad import simulate_scan
+from superex_train.calibration import LogitCalibration
+from superex_train.export import ExportConfig, Exporter, WallProbabilityModel, export_generator
+from superex_train.training import build_generator, load_checkpoint
+
+ROOT = Path(__file__).resolve().parent.parent
 
 THREADS = 2
 """torch threads and ONNX Runtime intra-op threads."""
@@ -273,8 +270,8 @@ def observe(map_name: str, steps: int) -> Observation:
     """A real observation of ``map_name`` (see :class:`Observation`): ``steps`` nearest-frontier steps from
     start pose 0 with the observed map as the prediction, then one SPAD scan at the last pose."""
     grid = load_map(map_name)
-    result = run_episode(grid, start_poses(map_name)[0], make_planner("nearest"), ObservedAsPrediction(),
-                         steps=steps, cfg=ExplorationConfig(iou_every=0))
+    result = run_benchmark_episode(grid, start_poses(map_name)[0], "nearest", ObservedAsPrediction(), steps=steps,
+                                   cfg=ExplorationConfig(iou_every=0)).result
     scan = simulate_scan(grid, tuple(int(v) for v in result.poses[-1]))
     return Observation(map_name=map_name, observed=result.final_observed,
                        evidence=process_scan(scan).bp_filtered.astype(np.float32), steps=len(result.poses))
@@ -490,7 +487,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         "models": rows, "ensembles": ensemble_rows, "fourier_unit": fourier_rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    write_json(args.out, report, newline=True)
     try:
         shown = args.out.resolve().relative_to(ROOT)
     except ValueError:

@@ -43,11 +43,11 @@ WARM_FRAMES = 3
 def _scenarios(split: str, limit: int, starts: int = 0) -> list[tuple[str, int, tuple[int, int]]]:
     """The split's scenarios ``(map, start index, start cell)``: eval, the maps' start poses (the first ``starts``
     of each map; 0: all); train, one seeded start on every 7th floor; the first ``limit`` (0: all)."""
-    from superex_deploy.maps import list_maps, load_map, random_start, start_poses
+    from superex_deploy.evaluation import eval_scenarios
+    from superex_deploy.maps import list_maps, load_map, random_start
 
     if split == "eval":
-        places = [(m, k, tuple(int(v) for v in pose)) for m in list_maps("eval")
-                  for k, pose in enumerate(start_poses(m)) if not starts or k < starts]
+        places = eval_scenarios("map", starts=starts)
     else:  # train floors, one seeded start each
         places = []
         for m in list_maps("train")[::7]:
@@ -100,9 +100,8 @@ def _shadow_sensing(seed: int, bp_filter):
             return carved_f, self._evidence
 
     class ShadowSensing(SpadSensing):
-        def processing(self):
-            self._processing = ShadowProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter)
-            return self._processing
+        def make_processing(self):
+            return ShadowProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter)
 
     return ShadowSensing(seed=seed, bp_filter=bp_filter)
 
@@ -111,10 +110,9 @@ def _episode(task: tuple) -> dict:
     """``(map, start index, start cell, setting, steps)``; setting ``shadow`` or a key of :data:`INEXACT`."""
     from dataclasses import replace
 
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import PROFILES, make_sensing
 
     map_name, start_index, start, setting, steps = task
     grid = load_map(map_name)
@@ -124,9 +122,9 @@ def _episode(task: tuple) -> dict:
     else:
         sensing = make_sensing("lama_bp", True, 0, profile=replace(profile, nlos_skips=INEXACT[setting]))
     clock = time.perf_counter()
-    result = run_episode(grid, start, make_planner("superex"), make_predictor("lama_bp", grid, profile=profile),
-                         steps=steps, seed=0, cfg=profile.episode_config(iou_every=0), sensing=sensing)
-    processing = sensing._processing
+    result = run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
+                                   cfg=profile.episode_config(iou_every=0), profile=profile, sensing=sensing).result
+    processing = sensing.current_processing
     out = {"map": map_name, "start_index": start_index, "setting": setting, "wall_s": time.perf_counter() - clock,
            "coverage": result.coverage.tolist(), "coverage_with_carving": result.coverage_with_carving.tolist(),
            "iou": {"steps": [], "iou": [], "coverage": []}, "carved_cells": int(result.final_carved.sum()),
@@ -153,7 +151,7 @@ def run(split: str, steps: int, limit: int, starts: int, jobs: int, out: Path) -
 
 def _summary(folder: Path) -> dict:
     from superex_deploy.parallel import read_journal
-    from superex_deploy.sim.suite import paired_summary, row_summary
+    from superex_deploy.evaluation.metrics import paired_summary, row_summary
 
     setting = json.loads((folder / "setting.json").read_text())
     steps, keys = setting["steps"], setting["scenarios"]
@@ -198,6 +196,8 @@ def _summary(folder: Path) -> dict:
 
 
 def report(out: Path) -> None:
+    from superex_deploy.evaluation import markdown_table, write_json, write_text
+
     data = {split: _summary(out / split) for split in ("train", "eval") if (out / split / "setting.json").is_file()}
     lines = []
     for split, s in data.items():
@@ -207,25 +207,25 @@ def report(out: Path) -> None:
                   f"{WARM_FRAMES} frames of each episode not timed), the "
                   "skipping and the unskipped processor alternated first / second on the same frame "
                   "(2 shared cores: ratios, not absolute times). Exact skips differing from the unskipped "
-                  f"processing: {s['mismatching_frames']} frames.", "",
-                  "| setting | rays skipped | filter runs skipped | frames' evidence skipped | ms / frame | ratio "
-                  "to unskipped | median frame ratio | evidence MAE (mean, p90) | first-half AUC diff [95 %] | "
-                  "carved cells (end) |", "|---|---:|---:|---:|---:|---:|---:|---|---|---:|",
-                  f"| unskipped | - | - | - | {e['full_ms_mean']:.2f} | 1.00 | 1.00 | 0 | "
-                  f"{100 * s['full_auc_first_half']:.2f} % (level) | - |",
-                  f"| exact (rays_without_unknown, filter_same_input) | {100 * e['rays_skipped_share']:.2f} % | "
-                  f"{100 * e['filter_runs_skipped_share']:.2f} % | 0 | {e['exact_ms_mean']:.2f} | "
-                  f"{e['ratio_of_means']:.3f} | {e['median_frame_ratio']:.3f} | 0 (bit-identical) | 0 (same "
-                  "episodes) | 0 |"]
+                  f"processing: {s['mismatching_frames']} frames.", ""]
+        cells = [["unskipped", "-", "-", "-", f"{e['full_ms_mean']:.2f}", "1.00", "1.00", "0",
+                  f"{100 * s['full_auc_first_half']:.2f} % (level)", "-"],
+                 ["exact (rays_without_unknown, filter_same_input)", f"{100 * e['rays_skipped_share']:.2f} %",
+                  f"{100 * e['filter_runs_skipped_share']:.2f} %", "0", f"{e['exact_ms_mean']:.2f}",
+                  f"{e['ratio_of_means']:.3f}", f"{e['median_frame_ratio']:.3f}", "0 (bit-identical)",
+                  "0 (same episodes)", "0"]]
         for name, entry in s["inexact"].items():
             auc = entry.get("auc_first_half")
             auc_text = (f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
                         f"({auc['better']} / {auc['worse']} / {auc['tied']} better / worse / tied)") if auc else "-"
             carved = (f"{100 * entry['carved_cells_relative']:+.1f} %" if "carved_cells_relative" in entry else "-")
-            lines.append(f"| {name} (+ exact) | - | - | {100 * entry['frames_skipped_share']:.1f} % | "
-                         f"{entry['ms_mean']:.2f} | {entry['ratio_of_means']:.3f} | - | "
-                         f"{entry['evidence_mae_mean']:.4f}, {entry['evidence_mae_p90']:.4f} | {auc_text} | "
-                         f"{carved} |")
+            cells.append([f"{name} (+ exact)", "-", "-", f"{100 * entry['frames_skipped_share']:.1f} %",
+                          f"{entry['ms_mean']:.2f}", f"{entry['ratio_of_means']:.3f}", "-",
+                          f"{entry['evidence_mae_mean']:.4f}, {entry['evidence_mae_p90']:.4f}", auc_text, carved])
+        lines += markdown_table(["setting", "rays skipped", "filter runs skipped", "frames' evidence skipped",
+                                 "ms / frame", "ratio to unskipped", "median frame ratio", "evidence MAE (mean, p90)",
+                                 "first-half AUC diff [95 %]", "carved cells (end)"], cells,
+                                ["-"] + ["---:"] * 6 + ["-", "-", "---:"])
         lines.append("")
     lines += ["Notes: the exact skips fire rarely while exploring (the back-projection window is mostly unknown and "
               "the rings of late light are wide; the robot never repeats a cell, so the filter's input never "
@@ -236,8 +236,8 @@ def report(out: Path) -> None:
               "closed-loop episodes (first half of the steps). Carved cells: closed-loop episodes' final carved "
               "cells over the unskipped episodes' (carving itself is never skipped).", ""]
     text = "\n".join(lines) + "\n"
-    (out / "nlos_skips.md").write_text(text)
-    (out / "nlos_skips.json").write_text(json.dumps(data, indent=1))
+    write_text(out / "nlos_skips.md", text)
+    write_json(out / "nlos_skips.json", data)
     print(text)
 
 

@@ -15,7 +15,6 @@ Writes ``OUT/precision.md`` and ``OUT/precision.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -23,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import write_json, write_text
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 
 def _variants(source: Path, folder: Path) -> dict[str, Path]:
@@ -41,18 +41,15 @@ def _variants(source: Path, folder: Path) -> dict[str, Path]:
 
 def _inputs() -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(name, observed int8 [H, W], encoded float32 [1, 3, H', W'] padded) of the held-out train floors."""
-    from ceiling_study import scenarios
-    from superex_deploy.maps import load_map
+    from superex_deploy.evaluation import run_benchmark_episode, train_scenarios
     from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, ModelKind, encode_map
-    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import ExplorationConfig
 
     out = []
-    for name, start in scenarios(4, 1, 40000, heldout=True):
-        grid = load_map(name)
-        result = run_episode(grid, start, make_planner("nearest"), ObservedAsPrediction(), steps=200,
-                             cfg=ExplorationConfig(iou_every=0))
+    for name, start in train_scenarios(4, 1, 40000, heldout=True):
+        result = run_benchmark_episode(name, start, "nearest", ObservedAsPrediction(), steps=200,
+                                       cfg=ExplorationConfig(iou_every=0)).result
         observed = result.final_observed
         r, c = (int(v) for v in result.poses[-1])
         top, left = max(0, min(r - 128, observed.shape[0] - 256)), max(0, min(c - 128, observed.shape[1] - 256))
@@ -115,9 +112,8 @@ def main() -> int:
         lines.append(f"| {key} | {row['median_ms']:.1f} | {row['time_ratio']:.2f} | {row['mean_abs_error']:.4f} | "
                      f"{100 * row['flipped_share']:.2f} % |")
     text = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "precision.md").write_text(text)
-    (args.out / "precision.json").write_text(json.dumps({"rows": rows, "inputs": [l for l, *_ in inputs]}, indent=1))
+    write_text(args.out / "precision.md", text)
+    write_json(args.out / "precision.json", {"rows": rows, "inputs": [l for l, *_ in inputs]})
     print(text)
     return 0
 

@@ -3,10 +3,10 @@
 Two measurements, each against the unskipped pipeline (``full``):
 
 * **error** (``--error eval|train``): every setting explores the 40 eval scenarios (or, to choose settings, 12
-  scenarios on the held-out train floors, ``scripts/ceiling_study.scenarios``) for ``--steps`` steps with the
-  deterministic prediction schedule, so the episodes do not depend on the machine; the first-half coverage AUC
-  and the map IoU at 10 / 20 / 30 % coverage are paired by scenario with ``full`` (mean difference, bootstrap
-  95 % interval, ratio of means). Episodes are journaled per setting (``OUT/error_SPLIT/NAME.episodes.jsonl``):
+  scenarios on the held-out train floors, :func:`superex_deploy.evaluation.heldout_scenarios`) for ``--steps``
+  steps with the deterministic prediction schedule, so the episodes do not depend on the machine; the first-half
+  coverage AUC and the map IoU at 10 / 20 / 30 % coverage are paired by scenario with ``full`` (mean difference,
+  bootstrap 95 % interval, ratio of means). Episodes are journaled per setting (``OUT/error_SPLIT/NAME.episodes.jsonl``):
   an interrupted run resumes.
   The default's free-running mode is measured against its simulated clock: ``--free-repeats`` repeats of its
   error episodes on the robot clock (``realtime@freeR``: predictions land when this machine finishes them),
@@ -44,8 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import markdown_table
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
 from superex_deploy.onboard.prediction.inference import SessionConfig  # noqa: E402
@@ -130,11 +131,9 @@ def _episode(task: tuple) -> dict:
     evaluated, no timings kept; the simulated clock, the robot's for ``NAME@freeR``), ``paced`` (10 Hz, timings
     kept, the robot clock), ``loaded`` (``paced``, while another process holds a core: started by the caller) or
     ``wall`` (unpaced, wall time, the robot clock)."""
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.inference import available_cores
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
 
     map_name, start_index, start, name, steps, mode = task
     grid = load_map(map_name)
@@ -168,10 +167,8 @@ def _episode(task: tuple) -> dict:
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
         waits.clear()
-        return run_episode(grid, start, make_planner(planner),
-                           make_predictor(predictor_name, grid, profile=profile, cores=cores),
-                           steps=n_steps, seed=0, cfg=cfg, sensing=make_sensing(predictor_name, spad, 0, profile=profile),
-                           on_observation=after_step)
+        return run_benchmark_episode(grid, start, planner, predictor_name, steps=n_steps, seed=0, cfg=cfg,
+                                     profile=profile, spad=spad, cores=cores, on_observation=after_step).result
 
     if mode != "error":
         episode(3)  # compiled kernels, loaded sessions: the measured episode starts warm
@@ -194,13 +191,9 @@ def _episode(task: tuple) -> dict:
 
 
 def _error_scenarios(split: str) -> list[tuple[str, int, tuple[int, int]]]:
-    from superex_deploy.maps import list_maps, start_poses
+    from superex_deploy.evaluation import eval_scenarios, heldout_scenarios
 
-    if split == "eval":
-        return [(m, k, pose) for m in list_maps("eval") for k, pose in enumerate(start_poses(m))]
-    from ceiling_study import scenarios
-
-    return [(m, 0, tuple(int(v) for v in start)) for m, start in scenarios(12, 1, 40000, heldout=True)]
+    return eval_scenarios("map") if split == "eval" else heldout_scenarios(12)
 
 
 def run_error(split: str, names: list[str], steps: int, jobs: int, out: Path, free_repeats: int = 0,
@@ -310,7 +303,8 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 
 def report(out: Path) -> None:
-    from superex_deploy.sim.suite import paired_summary, row_summary, scenario_key
+    from superex_deploy.evaluation import write_json, write_text
+    from superex_deploy.evaluation.metrics import paired_summary, row_summary, scenario_key
 
     timing = _timing_rows(out)
     error = {}
@@ -336,20 +330,17 @@ def report(out: Path) -> None:
                   f"{PACE_HZ:.0f} Hz, 2 cores, alternated, each profile on its robot clock (`realtime`: never waits); "
                   "step = what the control loop waits (ms); prediction wait = what it waited for the predictor "
                   "after the first step (blocked on the worker, or predicting inline); `(1 core held)`: while a "
-                  "busy-loop process holds one core; ratios to `full` in the same run. Episode wall: unpaced.", "",
-                  "| setting | p50 | p90 | p99 | max | mean | first step | p99 / full | mean / full | map update | "
-                  "prediction | prediction wait p99 (max) | episode wall s |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-        for name, row in timing.items():
-            if "p99_ms" not in row:
-                continue
-            lines.append(f"| {name} | {_fmt(row['p50_ms'])} | {_fmt(row['p90_ms'])} | {_fmt(row['p99_ms'])} | "
-                         f"{_fmt(row['max_ms'], 0)} | {_fmt(row['mean_ms'])} | {_fmt(row['first_step_ms'])} | "
-                         f"{_fmt(row['p99_ms'] / full_t.get('p99_ms', np.nan), 2)} | "
-                         f"{_fmt(row['mean_ms'] / full_t.get('mean_ms', np.nan), 2)} | "
-                         f"{_fmt(row['stages_mean_ms']['map_update'])} | {_fmt(row['stages_mean_ms']['prediction'])} "
-                         f"| {_fmt(row.get('wait_p99_ms', np.nan), 2)} ({_fmt(row.get('wait_max_ms', np.nan), 1)}) "
-                         f"| {_fmt(row.get('episode_wall_s', np.nan), 0)} |")
+                  "busy-loop process holds one core; ratios to `full` in the same run. Episode wall: unpaced.", ""]
+        lines += markdown_table(
+            ["setting", "p50", "p90", "p99", "max", "mean", "first step", "p99 / full", "mean / full", "map update",
+             "prediction", "prediction wait p99 (max)", "episode wall s"],
+            [[name, _fmt(row["p50_ms"]), _fmt(row["p90_ms"]), _fmt(row["p99_ms"]), _fmt(row["max_ms"], 0),
+              _fmt(row["mean_ms"]), _fmt(row["first_step_ms"]), _fmt(row["p99_ms"] / full_t.get("p99_ms", np.nan), 2),
+              _fmt(row["mean_ms"] / full_t.get("mean_ms", np.nan), 2), _fmt(row["stages_mean_ms"]["map_update"]),
+              _fmt(row["stages_mean_ms"]["prediction"]),
+              f"{_fmt(row.get('wait_p99_ms', np.nan), 2)} ({_fmt(row.get('wait_max_ms', np.nan), 1)})",
+              _fmt(row.get("episode_wall_s", np.nan), 0)] for name, row in timing.items() if "p99_ms" in row],
+            ["-"] + ["---:"] * 12)
         walls = {n: r["episode_wall_s"] for n, r in timing.items() if "episode_wall_s" in r}
         if MAPEX in walls:
             lines += ["", "Episode wall time, unpaced, over MapEx on the observed map: " + ", ".join(
@@ -358,28 +349,33 @@ def report(out: Path) -> None:
         lines += _free_lines(split, data)
     for split, data in error.items():
         lines += ["", f"**Error** ({split}: {data['scenarios']} scenarios, {data['steps']} steps, deterministic): paired "
-                  "with `full`, mean difference [bootstrap 95 %] (ratio of means - 1).", "",
-                  "| setting | first-half AUC | AUC points | IoU@10% | IoU@20% | IoU@30% | better / worse / tied |",
-                  "|---|---:|---|---:|---:|---:|---|"]
+                  "with `full`, mean difference [bootstrap 95 %] (ratio of means - 1).", ""]
         full_row = data["summary"]["full"]
-        lines.append(f"| full | {100 * full_row['auc_first_half']:.1f} | - | {full_row['iou@0.10']:.3f} | "
-                     f"{full_row['iou@0.20']:.3f} | {full_row['iou@0.30']:.3f} | - |")
-        for name, paired in data["paired"].items():
-            if FREE in name:
-                continue
-            auc = paired["auc_first_half"]
-            ious = [paired.get(f"iou@{lv:.2f}", {}).get("ratio", np.nan) for lv in (0.1, 0.2, 0.3)]
-            lines.append(f"| {name} | {100 * data['summary'][name]['auc_first_half']:.1f} | "
-                         f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
-                         f"({100 * auc['ratio']:+.1f} %) | " + " | ".join(f"{100 * r:+.1f} %" for r in ious)
-                         + f" | {auc['better']} / {auc['worse']} / {auc['tied']} |")
+        cells = [["full", f"{100 * full_row['auc_first_half']:.1f}", "-", f"{full_row['iou@0.10']:.3f}",
+                  f"{full_row['iou@0.20']:.3f}", f"{full_row['iou@0.30']:.3f}", "-"]]
+        cells += [_paired_cells(name, data, paired) for name, paired in data["paired"].items() if FREE not in name]
+        lines += markdown_table(["setting", *PAIRED_COLUMNS], cells, PAIRED_ALIGN)
     text = "\n".join(lines) + "\n"
-    (out / "realtime.md").write_text(text)
-    (out / "realtime.json").write_text(json.dumps({
-        "timing": timing, "error": error, "default": DEFAULT_PROFILE,
-        "settings": {n: p.to_json() for n, p in SETTINGS.items()}}, indent=1))
+    write_text(out / "realtime.md", text)
+    write_json(out / "realtime.json", {"timing": timing, "error": error, "default": DEFAULT_PROFILE,
+                                       "settings": {n: p.to_json() for n, p in SETTINGS.items()}})
     _pareto(out, timing, error)
     print(text)
+
+
+PAIRED_COLUMNS = ("first-half AUC", "AUC points", "IoU@10%", "IoU@20%", "IoU@30%", "better / worse / tied")
+PAIRED_ALIGN = ("-", "---:", "-", "---:", "---:", "---:", "-")
+
+
+def _paired_cells(name: str, data: dict, paired: dict) -> list[str]:
+    """A row paired with its reference (:func:`~superex_deploy.evaluation.metrics.paired_summary`): its first-half
+    AUC, the paired AUC difference in points [95 %] (ratio), the IoU ratios at 10 / 20 / 30 % coverage, the counts."""
+    auc = paired["auc_first_half"]
+    ious = [paired.get(f"iou@{level:.2f}", {}).get("ratio", np.nan) for level in (0.1, 0.2, 0.3)]
+    return [name, f"{100 * data['summary'][name]['auc_first_half']:.1f}",
+            f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
+            f"({100 * auc['ratio']:+.1f} %)",
+            *(f"{100 * r:+.1f} %" for r in ious), f"{auc['better']} / {auc['worse']} / {auc['tied']}"]
 
 
 def _free_lines(split: str, data: dict) -> list[str]:
@@ -393,17 +389,9 @@ def _free_lines(split: str, data: dict) -> list[str]:
     lines = ["", f"**Free-running vs simulated clock** ({split}: {data['scenarios']} scenarios, {data['steps']} "
              f"steps): `{CHOSEN}` on the robot clock (never waits: predictions land when this machine finished them) "
              f"paired with the same profile on the simulated clock (every 2 steps, applied 2 later); mean difference "
-             "(ratio of means - 1).", "",
-             "| run | first-half AUC | AUC points | IoU@10% | IoU@20% | IoU@30% | better / worse / tied |",
-             "|---|---:|---|---:|---:|---:|---|"]
-    for name in free:
-        paired = data["free_paired"][name]
-        auc = paired["auc_first_half"]
-        ious = [paired.get(m, {}).get("ratio", np.nan) for m in metrics[1:]]
-        lines.append(f"| {name} | {100 * data['summary'][name]['auc_first_half']:.1f} | "
-                     f"{100 * auc['mean']:+.2f} [{100 * auc['low']:+.2f}, {100 * auc['high']:+.2f}] "
-                     f"({100 * auc['ratio']:+.1f} %) | " + " | ".join(f"{100 * r:+.1f} %" for r in ious)
-                     + f" | {auc['better']} / {auc['worse']} / {auc['tied']} |")
+             "(ratio of means - 1).", ""]
+    lines += markdown_table(["run", *PAIRED_COLUMNS], [_paired_cells(name, data, data["free_paired"][name])
+                                                       for name in free], PAIRED_ALIGN)
     spread = {m: np.std([data["summary"][n][m] for n in free], ddof=1) if len(free) > 1 else np.nan
               for m in metrics}
     lines += ["", f"Spread of the free-running means over {len(free)} repeats (standard deviation): first-half AUC "
@@ -417,12 +405,9 @@ def _pareto(out: Path, timing: dict, error: dict) -> None:
     (train: where the settings are chosen; eval: where they are reported); the default is a star."""
     if not error or not timing:
         return
-    import matplotlib
+    from superex_deploy.evaluation.reports import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = pyplot().subplots(figsize=(8, 5))
     for split, marker, colour in (("train", "o", "tab:blue"), ("eval", "s", "tab:orange")):
         if split not in error:
             continue
@@ -446,8 +431,7 @@ def _pareto(out: Path, timing: dict, error: dict) -> None:
     ax.set_title("SuperEx pipeline: run time against coverage (targets: p99 <= 100 ms, loss <= 1 %)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "pareto.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, out / "pareto.png", dpi=120)
 
 
 def main() -> int:

@@ -42,14 +42,16 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.sim.suite import scenario_key
+from superex_deploy import evaluation
+from superex_deploy.evaluation.metrics import first_half_auc, iou_at_coverage, mean_with_interval, scenario_key
+from superex_deploy.evaluation.reports import markdown_table, pyplot, save_figure
 
 POSE_LEVELS = ((0.0, 0.0), (0.02, 0.5), (0.05, 1.0), (0.10, 2.0))
 SPAD_PRESETS = ("off", "realistic", "low")
 LIDAR_LEVELS = (0.0, 0.02)
 LIDAR_DROPOUT, LIDAR_SPURIOUS = 0.01, 0.001
 TARGET_POSE = (0.05, 1.0)  # the targets hold up to this pose noise, LiDAR 2 cm and the realistic preset
-FIRST_HALF = 0.5
+FIRST_HALF = 0.5  # the AUC's share of the run (evaluation.first_half_auc: steps // 2), recorded in the JSON
 
 
 def setting_name(pose, spad: str, lidar: float) -> str:
@@ -62,15 +64,11 @@ def all_settings() -> list[tuple[tuple[float, float], str, float]]:
 
 def eval_scenarios(count: int) -> list[tuple[str, int, tuple[int, int]]]:
     """``count`` of the 40 eval scenarios, spread over the maps: first every map's start 0, then start 1, ..."""
-    from superex_deploy.maps import list_maps, start_poses
-
-    maps = list_maps("eval")
-    ordered = [(name, k, start_poses(name)[k]) for k in range(4) for name in maps]
-    return ordered[:count]
+    return evaluation.eval_scenarios("start")[:count]
 
 
 def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
-    from superex_deploy.benchmarking import ScenarioTask
+    from superex_deploy.evaluation.tasks import ScenarioTask
 
     (map_name, start_index, start_rc), (pose, spad, lidar) = scenario, setting
     return ScenarioTask(map_name=map_name, start_index=start_index, start_rc=tuple(start_rc), planner=planner,
@@ -82,37 +80,13 @@ def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
 
 def run_episode_task(task) -> dict:
     """Worker: one episode's summary, trimmed to what the tables read."""
-    from superex_deploy.benchmarking import run_scenario
+    from superex_deploy.evaluation.tasks import run_scenario
 
     summary = run_scenario(task)
     keep = ("map", "planner", "predictor", "start_index", "steps", "coverage", "iou", "collisions",
             "true_walls_held_free", "true_walls_carved", "map_iou", "true_walls_seen", "true_walls_missing",
             "map_iou_within_cell", "final_coverage")
     return {key: summary[key] for key in keep}
-
-
-def first_half_auc(coverage: list[float], steps: int) -> float:
-    half = int(steps * FIRST_HALF)
-    values = [coverage[min(s, len(coverage)) - 1] for s in range(1, half + 1)] if coverage else [0.0]
-    return float(np.mean(values))
-
-
-def iou_at_coverage(episode: dict, level: float) -> float:
-    """The prediction's map IoU when the episode's coverage first reached ``level`` (linear between the logged
-    evaluations), nan if it never did."""
-    coverage, iou = np.asarray(episode["iou"]["coverage"], float), np.asarray(episode["iou"]["iou"], float)
-    if coverage.size == 0 or coverage.max() < level:
-        return float("nan")
-    return float(np.interp(level, np.maximum.accumulate(coverage), iou))
-
-
-def bootstrap_mean(values: np.ndarray, rng: np.random.Generator, n: int = 2000) -> tuple[float, float, float]:
-    values = np.asarray(values, float)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return float("nan"), float("nan"), float("nan")
-    means = rng.choice(values, size=(n, values.size), replace=True).mean(axis=1)
-    return float(values.mean()), float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
 def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> dict:
@@ -131,7 +105,7 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
         iou_ratio.append(episode["map_iou"] / reference["map_iou"] if reference["map_iou"] > 0 else np.nan)
         tolerant = episode.get("map_iou_within_cell", np.nan), reference.get("map_iou_within_cell", np.nan)
         tolerant_ratio.append(tolerant[0] / tolerant[1] if tolerant[1] > 0 else np.nan)
-    auc_mean, auc_low, auc_high = bootstrap_mean(np.array(auc_rel), rng)
+    auc_mean, auc_low, auc_high = mean_with_interval(np.array(auc_rel), rng)
     return {
         "episodes": len(episodes),
         "collisions": int(sum(e["collisions"] for e in episodes)),
@@ -144,7 +118,7 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
                                               if np.isfinite(tolerant_ratio).any() else float("nan")),
         "first_half_auc": float(np.mean([first_half_auc(e["coverage"], steps) for e in episodes])),
         "auc_vs_noise_free": [auc_mean, auc_low, auc_high],
-        "auc_points_vs_noise_free": list(bootstrap_mean(np.array(auc_points), rng)),
+        "auc_points_vs_noise_free": list(mean_with_interval(np.array(auc_points), rng)),
         "final_coverage": float(np.mean([e["final_coverage"] for e in episodes])),
     }
 
@@ -163,27 +137,31 @@ def superex_gain(pipeline: list[dict], los: list[dict], level: float, rng) -> li
     by_scenario = {scenario_key(e): e for e in los}
     gains = [iou_at_coverage(e, level) - iou_at_coverage(by_scenario[scenario_key(e)], level)
              for e in pipeline if scenario_key(e) in by_scenario]
-    return list(bootstrap_mean(np.array(gains, float), rng))
+    return list(mean_with_interval(np.array(gains, float), rng))
+
+
+def _pose_text(row: dict) -> str:
+    return f"{row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg"
 
 
 def side_by_side(before: dict, rows: dict) -> list[str]:
     """Markdown lines: each setting's headline measures in a previous run (``before``: its robustness.json) and in
     this one."""
-    lines = ["", "## Before and after (the previous run's robustness.json given by --before)", "",
-             "| pose noise | SPAD | LiDAR | held free / 1000 seen | map IoU / noise-free | AUC vs noise-free | "
-             "collisions | walls carved | episodes |", "|---|---|---|---|---|---|---|---|---|"]
+    cells = []
     for name, row in rows.items():
         old = before.get("settings", {}).get(name)
         if old is None:
             continue
-        lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
-                     f"{row['lidar_m'] * 100:g} cm | {old['held_free_per_1000_seen']:.2f} -> "
-                     f"{row['held_free_per_1000_seen']:.2f} | {old['map_iou_vs_noise_free']:.3f} -> "
-                     f"{row['map_iou_vs_noise_free']:.3f} | {old['auc_vs_noise_free'][0] * 100:+.1f} % -> "
-                     f"{row['auc_vs_noise_free'][0] * 100:+.1f} % | {old['collisions']} -> {row['collisions']} | "
-                     f"{old['true_walls_carved']} -> {row['true_walls_carved']} | {old['episodes']} -> "
-                     f"{row['episodes']} |")
-    return lines
+        cells.append([_pose_text(row), row["spad"], f"{row['lidar_m'] * 100:g} cm",
+                      f"{old['held_free_per_1000_seen']:.2f} -> {row['held_free_per_1000_seen']:.2f}",
+                      f"{old['map_iou_vs_noise_free']:.3f} -> {row['map_iou_vs_noise_free']:.3f}",
+                      f"{old['auc_vs_noise_free'][0] * 100:+.1f} % -> {row['auc_vs_noise_free'][0] * 100:+.1f} %",
+                      f"{old['collisions']} -> {row['collisions']}",
+                      f"{old['true_walls_carved']} -> {row['true_walls_carved']}",
+                      f"{old['episodes']} -> {row['episodes']}"])
+    return ["", "## Before and after (the previous run's robustness.json given by --before)", ""] + markdown_table(
+        ["pose noise", "SPAD", "LiDAR", "held free / 1000 seen", "map IoU / noise-free", "AUC vs noise-free",
+         "collisions", "walls carved", "episodes"], cells)
 
 
 def report(out: Path, results: dict, steps: int, superex_settings: list, before: dict = None) -> dict:
@@ -216,45 +194,43 @@ def report(out: Path, results: dict, steps: int, superex_settings: list, before:
         # #24's target: at least half of the noise-free gain at 10 % coverage kept under noise.
         gain["kept@10%"] = gain["iou_gain@10%"][0] / noise_free_gain if noise_free_gain > 0 else float("nan")
     summary = {"steps": steps, "settings": rows, "superex": gains, "first_half": FIRST_HALF}
-    (out / "robustness.json").write_text(json.dumps(summary, indent=1))
-    lines = [f"# Robustness: {steps} steps per episode, nearest frontier on the observed map with SPAD carving", "",
-             "| pose noise | SPAD | LiDAR | episodes | collisions | held free / 1000 seen | of them missing | "
-             "walls carved | map IoU | IoU / noise-free | IoU within a cell / noise-free | first-half AUC | "
-             "AUC vs noise-free [95 %] | AUC points vs noise-free [95 %] | targets missed |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|"]
+    evaluation.write_json(out / "robustness.json", summary)
+    cells = []
     for row in rows.values():
         mean, low, high = row["auc_vs_noise_free"]
         missed = ", ".join(k for k, ok in row["targets"].items() if not ok) or "-"
-        lines.append(f"| {row['pose'][0] * 100:g} cm / {row['pose'][1]:g} deg | {row['spad']} | "
-                     f"{row['lidar_m'] * 100:g} cm | {row['episodes']} | {row['collisions']} | "
-                     f"{row['held_free_per_1000_seen']:.2f} | {row['missing_per_1000_seen']:.2f} | "
-                     f"{row['true_walls_carved']} | {row['map_iou']:.3f} | "
-                     f"{row['map_iou_vs_noise_free']:.3f} | {row['map_iou_within_cell_vs_noise_free']:.3f} | "
-                     f"{row['first_half_auc'] * 100:.1f} | "
-                     f"{mean * 100:+.1f} % [{low * 100:+.1f}, {high * 100:+.1f}] | "
-                     "{:+.2f} [{:+.2f}, {:+.2f}] | ".format(*row["auc_points_vs_noise_free"]) + f"{missed} |")
+        cells.append([_pose_text(row), row["spad"], f"{row['lidar_m'] * 100:g} cm", row["episodes"], row["collisions"],
+                      f"{row['held_free_per_1000_seen']:.2f}",
+                      f"{row['missing_per_1000_seen']:.2f}", row["true_walls_carved"], f"{row['map_iou']:.3f}",
+                      f"{row['map_iou_vs_noise_free']:.3f}", f"{row['map_iou_within_cell_vs_noise_free']:.3f}",
+                      f"{row['first_half_auc'] * 100:.1f}",
+                      f"{mean * 100:+.1f} % [{low * 100:+.1f}, {high * 100:+.1f}]",
+                      "{:+.2f} [{:+.2f}, {:+.2f}]".format(*row["auc_points_vs_noise_free"]), missed])
+    lines = [f"# Robustness: {steps} steps per episode, nearest frontier on the observed map with SPAD carving", ""]
+    lines += markdown_table(["pose noise", "SPAD", "LiDAR", "episodes", "collisions", "held free / 1000 seen",
+                             "of them missing", "walls carved", "map IoU", "IoU / noise-free",
+                             "IoU within a cell / noise-free", "first-half AUC", "AUC vs noise-free [95 %]",
+                             "AUC points vs noise-free [95 %]", "targets missed"], cells,
+                            ["-"] * 3 + ["---:"] * 9 + ["-"] * 3)
     if gains:
-        lines += ["", "## The SuperEx pipeline against LaMa-LOS (superex planner), map IoU gain", "",
-                  "| setting | episodes | IoU gain @10 % [95 %] | IoU gain @20 % [95 %] | gain @10 % kept of noise-free "
-                  "| collisions | walls carved |",
-                  "|---|---:|---|---|---:|---:|---:|"]
-        for name, gain in gains.items():
-            cells = [f"{g[0]:+.3f} [{g[1]:+.3f}, {g[2]:+.3f}]" for g in (gain["iou_gain@10%"], gain["iou_gain@20%"])]
-            lines.append(f"| {name} | {gain['episodes']} | {cells[0]} | {cells[1]} | {gain['kept@10%']:.2f} | "
-                         f"{gain['collisions']} | {gain['true_walls_carved']} |")
+        lines += ["", "## The SuperEx pipeline against LaMa-LOS (superex planner), map IoU gain", ""]
+        lines += markdown_table(
+            ["setting", "episodes", "IoU gain @10 % [95 %]", "IoU gain @20 % [95 %]",
+             "gain @10 % kept of noise-free", "collisions", "walls carved"],
+            [[name, gain["episodes"], *(f"{g[0]:+.3f} [{g[1]:+.3f}, {g[2]:+.3f}]"
+                                        for g in (gain["iou_gain@10%"], gain["iou_gain@20%"])),
+              f"{gain['kept@10%']:.2f}", gain["collisions"], gain["true_walls_carved"]]
+             for name, gain in gains.items()],
+            ["-", "---:", "-", "-", "---:", "---:", "---:"])
     if before:
         lines += side_by_side(before, rows)
-    (out / "robustness.md").write_text("\n".join(lines) + "\n")
+    evaluation.write_text(out / "robustness.md", "\n".join(lines) + "\n")
     plot(out, rows)
     return summary
 
 
 def plot(out: Path, rows: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     measures = {"collisions": "collisions", "held_free_per_1000_seen": "true walls held free / 1000 seen",
                 "missing_per_1000_seen": "true walls missing (no map wall within a cell) / 1000 seen",
                 "true_walls_carved": "true wall cells carved", "map_iou_vs_noise_free": "map IoU / noise-free",
@@ -272,8 +248,7 @@ def plot(out: Path, rows: dict) -> None:
         ax.set_ylabel(label)
         ax.legend(fontsize=6)
         fig.tight_layout()
-        fig.savefig(out / f"{key}.png", dpi=90)
-        plt.close(fig)
+        save_figure(fig, out / f"{key}.png", dpi=90)
 
 
 def parse_setting(text: str):

@@ -33,15 +33,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import markdown_table
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
 EVAL_MAPS = ("50052750", "50010539", "50045230", "50015847", "50010535_PLAN1", "50052749")
 """Eval maps for reporting, in order (start 0 of each): the README's map first, then others of every size."""
@@ -96,12 +96,11 @@ def seam_band(labels: np.ndarray, band_cells: int) -> tuple[np.ndarray, tuple[np
 
 def _episode(task: tuple) -> dict:
     """One scenario in a worker: ``(map, start index, start cell, profile, steps, samples, feathers, ramps, band_m)``."""
+    from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.reuse import ReusingPredictor
     from superex_deploy.onboard.types import UNKNOWN
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import PROFILES, make_predictor
 
     map_name, start_index, start, profile_name, steps, samples, feathers, ramps, band_m = task
     grid = load_map(map_name)
@@ -177,9 +176,9 @@ def _episode(task: tuple) -> dict:
         per_sample.append(row)
 
     clock = time.perf_counter()
-    run_episode(grid, start, make_planner("superex"), make_predictor("lama_bp", grid, profile=profile), steps=steps,
-                seed=0, cfg=profile.episode_config(iou_every=0), sensing=make_sensing("lama_bp", True, 0, profile=profile),
-                on_observation=on_observation)
+    run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
+                          cfg=profile.episode_config(iou_every=0), profile=profile, spad=True,
+                          on_observation=on_observation)
     return {"map": map_name, "start_index": start_index, "start": list(start), "profile": profile_name,
             "band_cells": band_cells, "counts": counts, "sums": sums,
             "blend_ms": {name: 1e3 * s / max(counts["requests"], 1) for name, s in blend_s.items()},
@@ -189,14 +188,9 @@ def _episode(task: tuple) -> dict:
 def scenarios(split: str, n: int) -> list[tuple[str, int, tuple[int, int]]]:
     """``(map, start index, start cell)``: the held-out train floors of ``bench_realtime.py --error train`` or
     start 0 of :data:`EVAL_MAPS`; the first ``n``."""
-    if split == "train":
-        from ceiling_study import scenarios as train_scenarios
+    from superex_deploy.evaluation import eval_scenarios, heldout_scenarios
 
-        places = [(m, 0, tuple(int(v) for v in s)) for m, s in train_scenarios(12, 1, 40000, heldout=True)]
-    else:
-        from superex_deploy.maps import start_poses
-
-        places = [(m, 0, tuple(int(v) for v in start_poses(m)[0])) for m in EVAL_MAPS]
+    places = heldout_scenarios(12) if split == "train" else eval_scenarios(starts=1, maps=EVAL_MAPS)
     return places[:n]
 
 
@@ -245,18 +239,19 @@ def markdown(out: Path) -> str:
         lines += [f"## {split} ({len(summary['episodes'])} episodes x {data['steps']} steps, profile "
                   f"`{data['profile']}`, {totals['samples']} samples, {totals['requests']} requests of which "
                   f"{totals['crops']} crops; band {data['band_cells']} cells; step of the whole-map prediction "
-                  f"{summary['step_whole']:.4f})", "",
-                  "| configuration | MAE | MAE seam band | step | band MAE vs hard, per episode: mean / worst "
-                  "| band MAE better than hard | blend ms |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+                  f"{summary['step_whole']:.4f})", ""]
         hard = np.asarray(summary["configs"][HARD]["mae_band_per_episode"])
+        cells = []
         for name, row in summary["configs"].items():
             band = np.asarray(row["mae_band_per_episode"])
             relative = band / np.maximum(hard, 1e-12) - 1.0
             mark = " (default)" if name == data.get("default") else ""
-            lines.append(f"| {name}{mark} | {row['mae']:.4f} | {row['mae_band']:.4f} | {row['step']:.4f} | "
-                         f"{100 * relative.mean():+.1f} % / {100 * relative.max():+.1f} % | "
-                         f"{int((band < hard).sum())}/{band.size} | {row['blend_ms']:.2f} |")
+            cells.append([f"{name}{mark}", f"{row['mae']:.4f}", f"{row['mae_band']:.4f}", f"{row['step']:.4f}",
+                          f"{100 * relative.mean():+.1f} % / {100 * relative.max():+.1f} %",
+                          f"{int((band < hard).sum())}/{band.size}", f"{row['blend_ms']:.2f}"])
+        lines += markdown_table(["configuration", "MAE", "MAE seam band", "step",
+                                 "band MAE vs hard, per episode: mean / worst", "band MAE better than hard",
+                                 "blend ms"], cells, ["-"] + ["---:"] * 6)
         if split == "train":
             lines += ["", f"Lowest band MAE on these floors (relative to `hard`, mean per episode): "
                           f"`{best_config(summary)}`: the width to choose."]
@@ -295,6 +290,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "seams")
     args = parser.parse_args()
 
+    from superex_deploy.evaluation import write_json, write_text
     from superex_deploy.onboard.prediction.reuse import RAMPS
     from superex_deploy.parallel import run_tasks
     from superex_deploy.pipeline import PROFILES
@@ -323,9 +319,9 @@ def main() -> None:
     data = {"split": args.split, "profile": args.profile, "steps": args.steps, "samples": list(samples),
             "feathers_m": feathers, "ramps": ramps, "band_cells": episodes[0]["band_cells"], "default": default,
             "summary": summary, "episodes": episodes}
-    (args.out / f"seams_{args.split}.json").write_text(json.dumps(data, indent=1))
+    write_json(args.out / f"seams_{args.split}.json", data)
     table = markdown(args.out)
-    (args.out / "seams.md").write_text(table)
+    write_text(args.out / "seams.md", table)
     print(table)
 
 

@@ -26,7 +26,6 @@ Prints tables and writes JSON (``--out``).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -34,8 +33,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from superex_deploy.sim.episode import run_episode
-from superex_deploy.onboard.planning.planners import make_planner
+from superex_deploy.evaluation import run_benchmark_episode, write_json
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
@@ -130,8 +128,8 @@ def part_episodes(grids, steps):
             _, t_proc = _timed(process_scan, scan, NlosConfig(), state.observed != UNKNOWN, repeats=1)
             per_step.append((t_los * 1e3, t_spad * 1e3, t_proc * 1e3))
 
-        run_episode(grid, start_poses(grid.name)[0], make_planner("nearest"), ObservedAsPrediction(), steps,
-                    on_step=on_step)
+        run_benchmark_episode(grid, start_poses(grid.name)[0], "nearest", ObservedAsPrediction(), steps=steps,
+                              on_step=on_step)
         cache = scene.fan_cache(DEFAULT.n_secondary, DEFAULT.range_m / grid.resolution_m)
         los, spad, proc = np.median(np.array(per_step), axis=0)
         rows.append({"map": grid.name, "steps": len(per_step), "los_ms": los, "spad_ms": spad, "nlos_ms": proc,
@@ -243,7 +241,7 @@ def main() -> None:
     for r in tradeoff:
         print(f"| {r['variant']} | {r['spad_ms']:.1f} | {r['nlos_ms']:.1f} | {r['hist_l1']:.3f} | {r['carved']:.0f} | "
               f"{r['beyond_los']:.0f} | {r['bp_iou']:.3f} |")
-    args.out.write_text(json.dumps({
+    write_json(args.out, {
         "reference": {"n_rays": REFERENCE.n_rays, "n_secondary": REFERENCE.n_secondary,
                       "bin_path_m": REFERENCE.bin_path_m},
         "single_scans": {**{f"median_{k}": v for k, v in med.items()}, "median_ratios": ratios,
@@ -252,7 +250,7 @@ def main() -> None:
                          "per_scenario": single},
         "episodes": {"steps": args.steps, **{f"median_{k}": v for k, v in ep.items()},
                      "fans_traced": traced, "fans_reused": reused, "per_map": episodes},
-        "tradeoff": tradeoff}, indent=2))
+        "tradeoff": tradeoff}, indent=2)
     print(f"\nwrote {args.out}")
 
 

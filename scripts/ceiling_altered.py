@@ -29,6 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
+                                       markdown_table, run_benchmark_episode, write_json, write_text)
+
 RUNS = {"mapex_observed": ("mapex", "observed"), "superex_oracle": ("superex", "oracle"),
         "superex_observed": ("superex", "observed")}
 """Row name -> (planner, predictor)."""
@@ -118,31 +121,27 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
 
 
 def _episode(task: dict) -> dict:
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor
     from superex_deploy.sim.dead_ends import dead_end_entries
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.sim.episode import ExplorationConfig
 
     grid, dead_ends, _ = _load_floor(Path(task["floor"]), task["variant"])
     planner, predictor = RUNS[task["run"]]
     clock = time.perf_counter()
-    result = run_episode(grid, tuple(task["start"]), make_planner(planner), make_predictor(predictor, grid),
-                         steps=task["steps"], cfg=ExplorationConfig(iou_every=0))
-    coverage = list(result.coverage)
-    at = [coverage[min(s, len(coverage)) - 1] for s in range(1, task["steps"] + 1)]
+    result = run_benchmark_episode(grid, task["start"], planner, predictor, steps=task["steps"],
+                                   cfg=ExplorationConfig(iou_every=0)).result
+    at = coverage_curve(list(result.coverage), task["steps"])
     summary = {key: task[key] for key in ("map", "start", "variant", "run")}
-    summary.update(auc_first_half=float(np.mean(at[:max(task["steps"] // 2, 1)])), auc=float(np.mean(at)),
+    summary.update(auc_first_half=first_half_auc(at, task["steps"]), auc=coverage_auc(at, 1, task["steps"]),
                    final=float(at[-1]), path_m=float(result.path_length_m[-1]), seconds=time.perf_counter() - clock)
     if task["variant"] == "altered":
         summary["dead_ends"] = dead_end_entries(dead_ends, result.poses, result.path_length_m).to_json()
     return summary
 
 
-def _bootstrap(values: np.ndarray, statistic, resamples: int = 10000, seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap 95 % interval of ``statistic`` over ``values``."""
-    rng = np.random.default_rng(seed)
-    draws = statistic(values[rng.integers(0, len(values), (resamples, len(values)))], axis=1)
-    return float(np.quantile(draws, 0.025)), float(np.quantile(draws, 0.975))
+def _bootstrap(values: np.ndarray, statistic) -> tuple[float, float]:
+    """Percentile bootstrap 95 % interval of ``statistic`` over ``values`` (10,000 resamples, seed 0, quantiles
+    0.025 / 0.975 as committed)."""
+    return bootstrap_interval(values, statistic=statistic, levels=(0.025, 0.975))
 
 
 def summarise(results: list[dict], runs: list[str]) -> list[dict]:
@@ -203,30 +202,31 @@ def gap_changes(results: list[dict], runs: list[str]) -> list[dict]:
 
 def markdown(rows: list[dict], scenario_list: list[dict], steps: int, gaps: list[dict]) -> str:
     """The rows as a markdown table (AUC in coverage points)."""
-    lines = [f"{len(scenario_list)} scenarios on {len({s['map'] for s in scenario_list})} train floors, {steps} steps; "
-             f"paired by scenario with MapEx on the observed map of the same floor variant.", "",
-             "| floor | row | first-half AUC | vs MapEx | paired mean [95 %] | paired median [95 %] | better / worse "
-             "| final | dead-end entries / scenario (scenarios entered) | m in before turning back / scenario "
-             "| m inside dead ends / scenario | reached the obstruction |",
-             "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
+    header = ["floor", "row", "first-half AUC", "vs MapEx", "paired mean [95 %]", "paired median [95 %]",
+              "better / worse", "final", "dead-end entries / scenario (scenarios entered)",
+              "m in before turning back / scenario", "m inside dead ends / scenario", "reached the obstruction"]
+    cells = []
     for row in rows:
         dead = row.get("dead_end")
-        cells = (f"{dead['entries_per_scenario']:.2f} ({dead['scenarios_entered']}) | "
-                 f"{dead['metres_in_per_scenario']:.1f} | {dead['metres_inside_per_scenario']:.1f} | "
-                 f"{dead['reached_end']}") if dead else "- | - | - | -"
+        dead_cells = [f"{dead['entries_per_scenario']:.2f} ({dead['scenarios_entered']})",
+                      f"{dead['metres_in_per_scenario']:.1f}", f"{dead['metres_inside_per_scenario']:.1f}",
+                      f"{dead['reached_end']}"] if dead else ["-"] * 4
         mean_low, mean_high = row["paired_mean_ci"]
         median_low, median_high = row["paired_median_ci"]
-        lines.append(f"| {row['variant']} | {row['run']} | {100 * row['auc_first_half']:.1f} | {row['ratio']:+.1%} | "
-                     f"{100 * row['paired_mean']:+.2f} [{100 * mean_low:+.2f}, {100 * mean_high:+.2f}] | "
-                     f"{100 * row['paired_median']:+.2f} [{100 * median_low:+.2f}, {100 * median_high:+.2f}] | "
-                     f"{row['better']} / {row['worse']} | {100 * row['final']:.1f} | {cells} |")
+        cells.append([row["variant"], row["run"], f"{100 * row['auc_first_half']:.1f}", f"{row['ratio']:+.1%}",
+                      f"{100 * row['paired_mean']:+.2f} [{100 * mean_low:+.2f}, {100 * mean_high:+.2f}]",
+                      f"{100 * row['paired_median']:+.2f} [{100 * median_low:+.2f}, {100 * median_high:+.2f}]",
+                      f"{row['better']} / {row['worse']}", f"{100 * row['final']:.1f}", *dead_cells])
+    lines = [f"{len(scenario_list)} scenarios on {len({s['map'] for s in scenario_list})} train floors, {steps} steps; "
+             f"paired by scenario with MapEx on the observed map of the same floor variant.", ""]
+    lines += markdown_table(header, cells, ["-", "-"] + ["---:"] * 4 + ["-"] + ["---:"] * 5)
     lines += ["", "The alteration's effect on each row's paired difference to MapEx (first-half AUC points, "
-              "per scenario: altered minus unaltered):", "",
-              "| row | mean [95 %] | median [95 %] | larger / smaller |", "|---|---:|---:|---|"]
-    for gap in gaps:
-        lines.append(f"| {gap['run']} | {100 * gap['mean']:+.2f} [{100 * gap['ci'][0]:+.2f}, {100 * gap['ci'][1]:+.2f}]"
-                     f" | {100 * gap['median']:+.2f} [{100 * gap['median_ci'][0]:+.2f}, "
-                     f"{100 * gap['median_ci'][1]:+.2f}] | {gap['larger']} / {gap['smaller']} |")
+              "per scenario: altered minus unaltered):", ""]
+    lines += markdown_table(
+        ["row", "mean [95 %]", "median [95 %]", "larger / smaller"],
+        [[gap["run"], f"{100 * gap['mean']:+.2f} [{100 * gap['ci'][0]:+.2f}, {100 * gap['ci'][1]:+.2f}]",
+          f"{100 * gap['median']:+.2f} [{100 * gap['median_ci'][0]:+.2f}, {100 * gap['median_ci'][1]:+.2f}]",
+          f"{gap['larger']} / {gap['smaller']}"] for gap in gaps], ["-", "---:", "---:", "-"])
     lines += ["", "Metres inside dead ends, paired with MapEx (altered floors; mean [95 %]):", ""]
     lines += [f"- {row['run']}: {row['dead_end_metres_inside_paired']['mean']:+.1f} m "
               f"[{row['dead_end_metres_inside_paired']['ci'][0]:+.1f}, "
@@ -292,12 +292,10 @@ def main() -> None:
             "kept_fraction": meta["kept_fraction"], "alterations": meta["alterations"]})
     table = markdown(rows, places, args.steps, gaps)
     print("\n" + table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "ceiling.md").write_text(table)
-    (args.out / "ceiling.json").write_text(json.dumps({"steps": args.steps, "baseline": BASELINE, "rows": rows,
-                                                       "gap_changes": gaps,
-                                                       "config": asdict(cfg),
-                                                       "scenarios": floors, "episodes": results}, indent=1))
+    write_text(args.out / "ceiling.md", table)
+    write_json(args.out / "ceiling.json", {"steps": args.steps, "baseline": BASELINE, "rows": rows,
+                                           "gap_changes": gaps, "config": asdict(cfg), "scenarios": floors,
+                                           "episodes": results})
     print(f"wrote {args.out}/ceiling.md and ceiling.json")
 
 

@@ -5,8 +5,8 @@ A planner idea can turn predictions into speed only if its oracle run is clearly
 and than MapEx. Only train floors are used (``eval/`` is for reporting): the maps of at least
 ``--min-area`` valid cells (the eval floors have 85k-450k), every k-th of them to take ``--maps``, and
 ``--starts`` start cells each, drawn by :func:`superex_deploy.maps.random_start` from a generator seeded with
-the map's name. Prints a table and writes JSON; the first-half coverage AUC is the mean coverage over steps
-1..steps/2.
+the map's name (:func:`superex_deploy.evaluation.train_scenarios`). Prints a table and writes JSON; the first-half
+coverage AUC is the mean coverage over steps 1..steps/2.
 
     .venv/bin/python scripts/ceiling_study.py --maps 12 --steps 500 --out benchmarks/ceiling_study.json
 """
@@ -14,16 +14,16 @@ the map's name. Prints a table and writes JSON; the first-half coverage AUC is t
 from __future__ import annotations
 
 import argparse
-import json
 import time
-import zlib
 from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.sim.suite import bootstrap_interval
-from superex_deploy.maps import list_maps, load_map, map_building, random_start
+from superex_deploy.evaluation import HELDOUT_BUILDINGS  # noqa: F401 (tests/test_generate.py reads it here)
+from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
+                                       markdown_table, run_benchmark_episode, train_scenarios, write_json)
 from superex_deploy.parallel import process_pool
+from superex_deploy.sim.episode import ExplorationConfig
 
 IDEAS = {
     "mapex": ("mapex", {}),
@@ -38,40 +38,19 @@ MapEx's gain (the goal's view only); re-choosing once the goal's frontier is res
 choices were retired: docs/benchmarks/better-map.md keeps their measurement)."""
 
 BASELINE = ("mapex", "observed")
-HELDOUT_BUILDINGS = (10, 20, 21, 28, 30)
-"""``superex_train.generate.heldout_buildings()`` (asserted in the tests; the deploy side does not import
-superex_train)."""
-
-
-def scenarios(n_maps: int, starts: int, min_area: int, heldout: bool = False) -> list[tuple[str, tuple[int, int]]]:
-    """(map, start cell) pairs on the train floors (see the module docstring); ``heldout``: only the floors of
-    the buildings the learned models never trained on (``superex_train.generate.heldout_buildings``)."""
-    names = [n for n in list_maps("train") if int(load_map(n).valid.sum()) >= min_area]
-    if heldout:
-        names = [n for n in names if map_building(n) in HELDOUT_BUILDINGS]
-    names = names[::max(1, len(names) // n_maps)][:n_maps]
-    out = []
-    for name in names:
-        grid = load_map(name)
-        rng = np.random.default_rng(zlib.crc32(name.encode()))
-        out += [(name, random_start(grid, rng, 0.5)) for _ in range(starts)]
-    return out
+scenarios = train_scenarios
+"""This study's scenario sets (:func:`superex_deploy.evaluation.train_scenarios`), under the name
+tests/test_generate.py checks beside :data:`HELDOUT_BUILDINGS`."""
 
 
 def _episode(task: tuple) -> dict:
-    from superex_deploy.pipeline import make_predictor
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
-    from superex_deploy.onboard.planning.planners import make_planner
-
     name, start, idea, planner, options, predictor, steps = task
-    grid = load_map(name)
     clock = time.perf_counter()
-    result = run_episode(grid, start, make_planner(planner, **options), make_predictor(predictor, grid),
-                         steps=steps, cfg=ExplorationConfig(iou_every=0))
-    coverage = list(result.coverage)
-    at = [coverage[min(s, len(coverage)) - 1] for s in range(1, steps + 1)]
+    result = run_benchmark_episode(name, start, planner, predictor, planner_options=options, steps=steps,
+                                   cfg=ExplorationConfig(iou_every=0)).result
+    at = coverage_curve(list(result.coverage), steps)
     return {"map": name, "start": list(start), "idea": idea, "predictor": predictor,
-            "auc_first_half": float(np.mean(at[:max(steps // 2, 1)])), "auc": float(np.mean(at)),
+            "auc_first_half": first_half_auc(at, steps), "auc": coverage_auc(at, 1, steps),
             "final": float(at[-1]), "goals": len(result.goals),
             "scoring_ms_per_goal": 1000 * float(result.timings_s["scoring"].sum()) / max(len(result.goals), 1),
             "seconds": time.perf_counter() - clock}
@@ -95,7 +74,7 @@ def main() -> None:
     ideas = list(IDEAS) if args.ideas == "all" else [i.strip() for i in args.ideas.split(",")]
     if any(i not in IDEAS for i in ideas):
         raise SystemExit(f"unknown idea(s); choose from {list(IDEAS)}")
-    places = scenarios(args.maps, args.starts, args.min_area, args.heldout)
+    places = train_scenarios(args.maps, args.starts, args.min_area, args.heldout)
     baseline = tuple(args.baseline.split(":"))
     predictors = [p.strip() for p in args.predictors.split(",") if p.strip()]
     runs = [baseline] + [(i, p) for i in ideas for p in predictors if (i, p) != baseline]
@@ -106,10 +85,7 @@ def main() -> None:
     with process_pool(args.jobs) as pool:
         results = list(pool.map(_episode, tasks))
     base = {(r["map"], tuple(r["start"])): r for r in results if (r["idea"], r["predictor"]) == baseline}
-    rows = []
-    print(f"\n| idea | predictor | first-half AUC | vs {baseline[0]} {baseline[1]} | paired mean [95 % interval] "
-          "| better / "
-          "worse | AUC whole | scoring ms / goal | goals |\n|---|---|---:|---:|---:|---|---:|---:|---:|")
+    rows, cells = [], []
     for idea, predictor in runs:
         mine = [r for r in results if (r["idea"], r["predictor"]) == (idea, predictor)]
         diff = np.array([r["auc_first_half"] - base[(r["map"], tuple(r["start"]))]["auc_first_half"] for r in mine])
@@ -123,13 +99,17 @@ def main() -> None:
                "scoring_ms_per_goal": float(np.median([r["scoring_ms_per_goal"] for r in mine])),
                "goals": float(np.mean([r["goals"] for r in mine]))}
         rows.append(row)
-        print(f"| {idea} | {predictor} | {100 * mean:.1f} | {ratio:+.1%} | {100 * row['paired_mean']:+.2f} "
-              f"[{100 * low:+.2f}, {100 * high:+.2f}] | {row['better']} / {row['worse']} | {100 * row['auc']:.1f} "
-              f"| {row['scoring_ms_per_goal']:.1f} | {row['goals']:.0f} |")
+        cells.append([idea, predictor, f"{100 * mean:.1f}", f"{ratio:+.1%}",
+                      f"{100 * row['paired_mean']:+.2f} [{100 * low:+.2f}, {100 * high:+.2f}]",
+                      f"{row['better']} / {row['worse']}", f"{100 * row['auc']:.1f}",
+                      f"{row['scoring_ms_per_goal']:.1f}", f"{row['goals']:.0f}"])
+    header = ["idea", "predictor", "first-half AUC", f"vs {baseline[0]} {baseline[1]}", "paired mean [95 % interval]",
+              "better / worse", "AUC whole", "scoring ms / goal", "goals"]
+    print("\n" + "\n".join(markdown_table(header, cells, ["-", "-", "---:", "---:", "---:", "-", "---:", "---:",
+                                                            "---:"])))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"scenarios": [[n, list(s)] for n, s in places], "steps": args.steps,
-                                        "rows": rows, "episodes": results}, indent=1))
+        write_json(args.out, {"scenarios": [[n, list(s)] for n, s in places], "steps": args.steps, "rows": rows,
+                              "episodes": results})
         print(f"\nwrote {args.out}")
 
 

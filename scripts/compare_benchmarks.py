@@ -14,6 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
+from superex_deploy.evaluation import write_json
 from superex_deploy.sim.metrics import paired_differences
 
 
@@ -47,9 +48,9 @@ def main() -> None:
               f"| {row['better']} / {row['worse']} / {row['tied']} |")
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"baseline": str(args.baseline), "candidate": str(args.candidate),
-                                        "baseline_series": args.baseline_series,
-                                        "candidate_series": args.candidate_series, "paired": paired}, indent=1))
+        write_json(args.out, {"baseline": str(args.baseline), "candidate": str(args.candidate),
+                              "baseline_series": args.baseline_series, "candidate_series": args.candidate_series,
+                              "paired": paired})
         print(f"\nwrote {args.out}")
 
 

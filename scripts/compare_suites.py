@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, scenario_metrics
+from superex_deploy.evaluation import bootstrap_interval, markdown_table, scenario_metrics, write_json, write_text
+from superex_deploy.sim.suite import PAPER_ROWS
 
 BASELINES = ("mapex_lama_los", "mapex_observed")
 
@@ -86,18 +87,17 @@ def markdown(entries: list[dict], steps: int) -> str:
         mine = [e for e in entries if e["baseline"] == baseline]
         if not mine:
             continue
-        lines += [f"Against {baseline} ({PAPER_ROWS[baseline].label}):", "",
-                  "| row | scenarios (with dead ends) | standard AUC | altered AUC | standard: row - baseline | "
-                  "altered: row - baseline | change (altered - standard) | change, scenarios with dead ends | "
-                  "m inside dead ends, row - baseline |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        cells = []
         for e in mine:
             dead = e.get("change_with_dead_ends")
             metres = e.get("metres_inside_paired")
-            lines.append(f"| {e['row']} | {e['scenarios']} ({e['with_dead_ends']}) | {100 * e['standard_auc']:.1f} | "
-                         f"{100 * e['altered_auc']:.1f} | {_cell(e['standard_paired'])} | {_cell(e['altered_paired'])}"
-                         f" | {_cell(e['change'])} | {_cell(dead) if dead else '-'} | "
-                         f"{_cell(metres, 1.0, 1) if metres else '-'} |")
+            cells.append([e["row"], f"{e['scenarios']} ({e['with_dead_ends']})", f"{100 * e['standard_auc']:.1f}",
+                          f"{100 * e['altered_auc']:.1f}", _cell(e["standard_paired"]), _cell(e["altered_paired"]),
+                          _cell(e["change"]), _cell(dead) if dead else "-", _cell(metres, 1.0, 1) if metres else "-"])
+        lines += [f"Against {baseline} ({PAPER_ROWS[baseline].label}):", ""] + markdown_table(
+            ["row", "scenarios (with dead ends)", "standard AUC", "altered AUC", "standard: row - baseline",
+             "altered: row - baseline", "change (altered - standard)", "change, scenarios with dead ends",
+             "m inside dead ends, row - baseline"], cells, ["-"] + ["---:"] * 8)
         lines.append("")
     return "\n".join(lines)
 
@@ -111,8 +111,8 @@ def main() -> None:
     entries = compare(_rows(args.standard), _rows(args.altered), args.steps)
     text = markdown(entries, args.steps)
     print(text)
-    (args.altered / "side_by_side.md").write_text(text)
-    (args.altered / "side_by_side.json").write_text(json.dumps({"steps": args.steps, "entries": entries}, indent=1))
+    write_text(args.altered / "side_by_side.md", text)
+    write_json(args.altered / "side_by_side.json", {"steps": args.steps, "entries": entries})
 
 
 if __name__ == "__main__":

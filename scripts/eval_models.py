@@ -24,7 +24,6 @@ Prints markdown tables and writes JSON (``--out``, default ``benchmarks/eval_mod
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -32,22 +31,21 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from superex_deploy.sim.episode import EpisodeState, run_episode  # noqa: E402
-from superex_deploy.sim.metrics import evaluation_area, map_iou  # noqa: E402
-from superex_deploy.onboard.planning.planners import make_planner  # noqa: E402
-from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction  # noqa: E402
-from superex_deploy.sim.sensing import SpadSensing  # noqa: E402
-from superex_deploy.onboard.types import OCCUPIED, UNKNOWN  # noqa: E402
-from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,  # noqa: E402
+from superex_deploy.evaluation import run_benchmark_episode, write_json
+from superex_deploy.sim.episode import EpisodeState
+from superex_deploy.sim.metrics import evaluation_area, map_iou
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.sim.sensing import SpadSensing
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN
+from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,
                                       SessionConfig)
-from superex_deploy.maps import list_maps, load_map, map_building  # noqa: E402
-from superex_deploy.onboard.nlos import laplacian_filter  # noqa: E402
-from superex_deploy.parallel import process_pool  # noqa: E402
-from superex_train.datasets import ShardDataset  # noqa: E402
-from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start  # noqa: E402
+from superex_deploy.maps import list_maps, load_map, map_building
+from superex_deploy.onboard.nlos import laplacian_filter
+from superex_deploy.parallel import process_pool
+from superex_train.datasets import ShardDataset
+from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start
+
+ROOT = Path(__file__).resolve().parent.parent
 
 COVERAGE_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))
 SWEEP_THRESHOLDS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
@@ -142,8 +140,8 @@ def _episode(args: tuple[str, int, str]) -> list[dict]:
             records.append(record)
 
     try:
-        run_episode(grid, start, make_planner(PLANNERS[index % len(PLANNERS)]), ObservedAsPrediction(),
-                    steps=400, seed=index, sensing=sensing, on_step=on_step)
+        run_benchmark_episode(grid, start, PLANNERS[index % len(PLANNERS)], ObservedAsPrediction(), steps=400,
+                              seed=index, sensing=sensing, on_step=on_step)
     except _Done:
         pass
     return records
@@ -210,7 +208,7 @@ def main(argv=None) -> int:
                 mean_p = np.mean([r[f"{method}_unknown_mean_probability"] for r in rows])
                 print(f"| {method} | {ious} | {walls:.3f} | {mean_p:.3f} |")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1))
+    write_json(args.out, result)
     print(f"\nwrote {args.out}")
     return 0
 

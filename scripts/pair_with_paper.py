@@ -18,9 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.files import write_atomically
 from superex_deploy.parallel import read_journal
-from superex_deploy.sim.suite import bootstrap_interval, scenario_key, scenario_metrics
+from superex_deploy.evaluation import bootstrap_interval, scenario_key, scenario_metrics, write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = ("auc_first_half", "iou@0.10", "iou@0.20", "iou@0.30")
@@ -87,8 +86,8 @@ def main(argv=None) -> int:
         lines.append(f"| {name} | {result['scenarios']} | {100 * auc['new']:.2f} | {100 * auc['old']:.2f} | "
                      + " | ".join(cells) + " |")
     args.out.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.out / "pairing.json", json.dumps(results, indent=1))
-    write_atomically(args.out / "pairing.md", "\n".join(lines) + "\n")
+    write_json(args.out / "pairing.json", results)
+    write_text(args.out / "pairing.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 

@@ -38,12 +38,11 @@ VARIANTS = {
 
 
 def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar: float = 0.02) -> dict:
-    from superex_deploy.benchmarking import with_noise, with_spad_noise
+    from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
+    from superex_deploy.evaluation import first_half_auc, run_benchmark_episode
     from superex_deploy.maps import load_map
-    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
-    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.pipeline import PROFILES, make_sensing
 
     profile = PROFILES["full"]
     grid = load_map(map_name)
@@ -59,8 +58,8 @@ def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar
         estimates.append((p.x, p.y, p.yaw))
         accepted.append(explorer.scan_match is not None and explorer.scan_match.accepted)
 
-    result = run_episode(grid, start, make_planner("nearest"), make_predictor("observed", grid, profile=profile),
-                         steps=steps, seed=seed, cfg=cfg, sensing=sensing, on_observation=on_observation)
+    result = run_benchmark_episode(grid, start, "nearest", "observed", steps=steps, seed=seed, cfg=cfg,
+                                   profile=profile, sensing=sensing, on_observation=on_observation).result
     n = len(result.true_poses)
     truth, belief, est = result.true_poses, result.believed_poses, np.asarray(estimates)[:n]
 
@@ -72,12 +71,9 @@ def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar
         yaw = np.degrees(np.abs(np.remainder(poses[:, 2] - truth[:, 2] + math.pi, 2 * math.pi) - math.pi))
         return float(xy.mean()), float(yaw.mean()), float(np.hypot(*offset.mean(axis=0)))
 
-    cov = np.zeros(steps)
-    cov[:n] = result.coverage
-    cov[n:] = result.coverage[-1] if n else 0.0
     return dict(held=int(result.true_walls_held_free), seen=int(result.true_walls_seen),
                 collisions=int(result.collisions), carved=int(result.true_walls_carved),
-                auc=float(cov[: steps // 2].mean()), accepted=float(np.mean(accepted)) if accepted else 0.0,
+                auc=first_half_auc(result.coverage, steps), accepted=float(np.mean(accepted)) if accepted else 0.0,
                 raw=errors(belief), matched=errors(est))
 
 

@@ -125,7 +125,7 @@ latency as 2 steps, as the deterministic thread mode the profile was measured in
 
 DEFAULT_PROFILE = "realtime"
 """The profile every entry point uses unless told otherwise: :func:`build_explorer`, ``superex explore`` and
-``superex benchmark``, :class:`~superex_deploy.benchmarking.ScenarioTask` and the Gymnasium environment (each
+``superex benchmark``, :class:`~superex_deploy.evaluation.tasks.ScenarioTask` and the Gymnasium environment (each
 through :func:`resolve_profile`). The paper suite names ``full``, the pipeline its table measured."""
 
 

@@ -669,7 +669,7 @@ def brute_force_expected_visible(mean, observed, viewpoint, n_rays, max_t):
     return expected / total
 
 
-# --- goal choice references (issue #25 item 3: the code before the batched kernels, kept callable) ---
+# --- goal choice references (the code before the batched kernels, kept callable) ---
 
 
 def naive_descend(travel_cost, goal_rc):

@@ -144,6 +144,7 @@ def test_a_block_in_sight_of_the_entrance_is_never_made():
     np.testing.assert_array_equal(record.grid.occupied, straight_floor().occupied)
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_floor_and_other_seeds_other_floors():
     for grid, start in (( ring_floor(), RING_START), _train_scenario(TRAIN_FLOORS[0])):
         first, again = alter_floor(grid, start, 3), alter_floor(grid, start, 3)

@@ -7,7 +7,7 @@ import zlib
 import numpy as np
 import pytest
 
-from superex_deploy.benchmarking import ScenarioTask, run_scenario
+from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.cli import main
 from superex_deploy.commands.paper_benchmark import _table
 from superex_deploy.maps import start_poses
@@ -59,22 +59,20 @@ def test_dead_end_entries_on_a_hand_built_path():
     assert entries.deepest_m == pytest.approx(2.0)
 
 
-def _episode(start, auc, dead_ends=None):
-    episode = {"map": "m", "start_index": start, "coverage": [auc] * 4, "coverage_with_carving": [auc] * 4,
-               "iou": {"steps": [0], "iou": [0.1], "coverage": [0.01]}}
-    if dead_ends is not None:
-        episode["dead_ends"] = {"entries": dead_ends[0], "metres_in": dead_ends[1], "metres_inside": dead_ends[2],
-                                "deepest_m": 0.0, "reached_end": dead_ends[3]}
-    return episode
+@pytest.fixture
+def flat_log(episode_log):
+    """``flat_log(start, auc, dead_ends=None)``: a four-step episode log at the constant coverage ``auc``."""
+    return lambda start, auc, dead_ends=None: episode_log([auc] * 4, iou=((0, 0.1, 0.01),), start=start,
+                                                          dead_ends=dead_ends)
 
 
-def test_dead_end_columns_are_computed_and_paired():
-    reference = [_episode(0, 0.2, (2, 10.0, 12.0, 1)), _episode(1, 0.3, (0, 0.0, 0.0, 0))]
-    candidate = [_episode(0, 0.25, (1, 4.0, 5.0, 0)), _episode(1, 0.3, (1, 2.0, 3.0, 0))]
+def test_dead_end_columns_are_computed_and_paired(flat_log):
+    reference = [flat_log(0, 0.2, (2, 10.0, 12.0, 1)), flat_log(1, 0.3, (0, 0.0, 0.0, 0))]
+    candidate = [flat_log(0, 0.25, (1, 4.0, 5.0, 0)), flat_log(1, 0.3, (1, 2.0, 3.0, 0))]
     metrics = scenario_metrics(candidate[0], steps=4)
     assert metrics["dead_end_entries"] == 1 and metrics["dead_end_metres_in"] == 4.0
     assert metrics["dead_end_metres_inside"] == 5.0 and metrics["dead_end_reached"] == 0
-    assert "dead_end_entries" not in scenario_metrics(_episode(0, 0.2), steps=4), "standard episodes: no columns"
+    assert "dead_end_entries" not in scenario_metrics(flat_log(0, 0.2), steps=4), "standard episodes: no columns"
     summary = row_summary(reference, steps=4)
     assert summary["dead_end_metres_in"] == 5.0 and summary["dead_end_entries"] == 1.0
     paired = paired_summary(reference, candidate, steps=4)
@@ -85,13 +83,13 @@ def test_dead_end_columns_are_computed_and_paired():
     assert "dead end metres in / scenario" in text and "| dead_end_metres_in |" in text
     assert set(numbers["paired"]) == {"mapex_lama_los", "mapex_observed"}
     assert numbers["paired"]["mapex_observed"]["superex_oracle"]["dead_end_metres_in"]["mean"] == pytest.approx(-2.0)
-    standard, _ = _table({"mapex_lama_los": [_episode(0, 0.2)], "nearest": [_episode(0, 0.1)]}, 4)
+    standard, _ = _table({"mapex_lama_los": [flat_log(0, 0.2)], "nearest": [flat_log(0, 0.1)]}, 4)
     assert "dead end" not in standard
 
 
-def test_a_row_on_fewer_scenarios_is_paired_on_the_ones_it_shares():
-    reference = [_episode(k, 0.2) for k in range(4)]
-    candidate = [_episode(k, 0.3) for k in (1, 3)]
+def test_a_row_on_fewer_scenarios_is_paired_on_the_ones_it_shares(flat_log):
+    reference = [flat_log(k, 0.2) for k in range(4)]
+    candidate = [flat_log(k, 0.3) for k in (1, 3)]
     ref, cand = common_scenarios(reference, candidate)
     assert [e["start_index"] for e in ref] == [1, 3] and cand == candidate
     text, numbers = _table({"mapex_lama_los": reference, "superex": candidate}, 4)
@@ -100,6 +98,7 @@ def test_a_row_on_fewer_scenarios_is_paired_on_the_ones_it_shares():
     assert "| scenarios |" in text
 
 
+@pytest.mark.slow
 def test_the_floors_are_cached_and_the_same_seed_gives_the_same_floor(tmp_path):
     start = start_poses(MAP)[1]
     summary = make_floor(MAP, start, tmp_path)
@@ -116,6 +115,7 @@ def test_the_floors_are_cached_and_the_same_seed_gives_the_same_floor(tmp_path):
     assert other["seed"] == summary["seed"] + 1
 
 
+@pytest.mark.slow
 def test_alteration_off_is_the_standard_suite(tmp_path):
     """The standard suite's episodes stay bit-identical: a short run reproduces the committed paper rows' first
     steps, and carries no alteration."""
@@ -130,6 +130,7 @@ def test_alteration_off_is_the_standard_suite(tmp_path):
     assert "dead_ends" not in summary and "alteration" not in summary
 
 
+@pytest.mark.slow
 def test_altered_suite_end_to_end(tmp_path, capsys):
     out = tmp_path / "altered"
     argv = ["benchmark", "--suite", "altered", "--rows", "superex_oracle", "--maps", MAP, "--steps", "20",

@@ -1,7 +1,6 @@
 """A benchmark killed mid-run leaves no process behind and a journal that --resume finishes, with the results of
 an uninterrupted run."""
 
-import json
 import os
 import signal
 import subprocess
@@ -16,8 +15,6 @@ from superex_deploy.parallel import read_journal
 
 ROOT = Path(__file__).resolve().parents[1]
 ARGS = ["benchmark", "--maps", "50052750", "--planners", "nearest,mapex", "--steps", "250", "--jobs", "2"]
-DETERMINISTIC = ("map", "start_index", "planner", "coverage", "coverage_with_carving", "path_length_m", "goals", "iou",
-                 "steps", "finished")
 
 
 def _descendants(pid: int) -> set[int]:
@@ -46,12 +43,10 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def _episodes(out: Path) -> list:
-    return [{k: e[k] for k in DETERMINISTIC} for e in json.loads((out / "results.json").read_text())["episodes"]]
-
-
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_sigterm_stops_every_worker_and_resume_finishes_with_identical_results(tmp_path, capsys):
+def test_sigterm_stops_every_worker_and_resume_finishes_with_identical_results(deterministic_episodes, tmp_path,
+                                                                              capsys):
     reference = tmp_path / "reference"
     assert main(ARGS + ["--out", str(reference)]) == 0
     out = tmp_path / "killed"
@@ -76,7 +71,7 @@ def test_sigterm_stops_every_worker_and_resume_finishes_with_identical_results(t
     assert "pass --resume" in capsys.readouterr().err
     assert main(ARGS + ["--out", str(out), "--resume"]) == 0
     assert len(read_journal(journal)) == 8
-    assert _episodes(out) == _episodes(reference)
+    assert deterministic_episodes(out) == deterministic_episodes(reference)
     assert main(["benchmark", "--maps", "50052750", "--planners", "nearest", "--steps", "100", "--out", str(out),
                  "--resume"]) == 2
     assert "other settings" in capsys.readouterr().err

@@ -80,6 +80,7 @@ def test_calibration_maps_are_training_buildings_only():
             calibration_maps(CalibrationConfig(maps=(refused,)))
 
 
+@pytest.mark.slow
 def test_export_applies_the_calibration_in_the_graph(tmp_path):
     generator = untrained_generator(ModelKind.LAMA_LOS, SMALL_LAMA, seed=3)
     fit = LogitCalibration(logit_scale=0.6, logit_offset=-1.5)

@@ -12,7 +12,7 @@ from superex_deploy.sim.spad import simulate_scan
 N_POSES = 2000
 # Fewer primaries than the default keep 2,000 scans fast; the fan (the part soundness depends on) is default.
 PROPERTY_CONFIG = SpadConfig(n_rays=360)
-# The dense-fan carving measured in benchmarks/carving/ (issue #26): 256 secondary rays (carve radius cap 8.1 m
+# The dense-fan carving measured in benchmarks/carving/: 256 secondary rays (carve radius cap 8.1 m
 # instead of 2.0 m) and the sector narrowed by 20 degrees instead of 35.
 DENSE_FAN_CONFIG = SpadConfig(n_rays=360, n_secondary=256)
 DENSE_FAN_NLOS = NlosConfig(sector_margin_deg=20.0)
@@ -65,6 +65,7 @@ def test_dense_fan_carving_is_sound_over_random_poses_on_the_training_maps():
     assert beyond_los > 120
 
 
+@pytest.mark.slow
 def test_carving_is_sound_over_random_poses_on_the_training_maps():
     rng = np.random.default_rng(2026)
     names = list_maps("train")
@@ -91,17 +92,11 @@ def test_carving_is_sound_over_random_poses_on_the_training_maps():
     assert beyond_los_total / N_POSES > 40
 
 
-def _room(height=60, width=60):
-    walls = np.zeros((height, width), bool)
-    walls[[0, -1], :] = walls[:, [0, -1]] = True
-    return walls
-
-
 @pytest.mark.parametrize("n_secondary", [16, 64, 256])
-def test_thin_wall_edge_pointing_at_the_wall_point_is_never_carved(n_secondary):
+def test_thin_wall_edge_pointing_at_the_wall_point_is_never_carved(walled_box, n_secondary):
     """A one-cell-thick wall end pointing straight at the wall point, far enough to slip between secondary rays:
     the angular-sampling cap must keep it out of the carved region."""
-    walls = _room(80, 80)
+    walls = walled_box(80, 80).occupied.copy()
     walls[10:70, 40] = True  # the far wall the robot looks at is column 40's west face ... (a divider)
     walls[39, 5:25] = True  # thin wall pointing east, its end at column 24
     grid = OccupancyGrid(walls, ~walls, 0.1, "edge")
@@ -113,13 +108,13 @@ def test_thin_wall_edge_pointing_at_the_wall_point_is_never_carved(n_secondary):
 
 
 @pytest.mark.parametrize("nlos_cfg", [NlosConfig(), DENSE_FAN_NLOS])
-def test_a_denser_fan_carves_beyond_the_sparse_fans_cap(nlos_cfg):
+def test_a_denser_fan_carves_beyond_the_sparse_fans_cap(walled_box, nlos_cfg):
     """The carve radius is capped where the fan's angular sampling stops (2.0 m at 64 rays, 8.1 m at 256): in an
     empty 12 m room a 256-ray fan carves cells more than 2 m from every wall, a 64-ray fan none, and neither
     carves a wall."""
     from scipy import ndimage
 
-    walls = _room(120, 120)
+    walls = walled_box(120, 120).occupied.copy()
     grid = OccupancyGrid(walls, ~walls, 0.1, "empty room")
     clearance = ndimage.distance_transform_edt(~walls)  # cells from the nearest wall cell's centre
     cap_64 = carve_radius_cap_m(64, 0.1) / 0.1
@@ -133,8 +128,8 @@ def test_a_denser_fan_carves_beyond_the_sparse_fans_cap(nlos_cfg):
             assert deepest > cap_64 + 10.0
 
 
-def test_pillar_between_secondary_rays_and_wall_at_the_carve_boundary():
-    walls = _room(70, 70)
+def test_pillar_between_secondary_rays_and_wall_at_the_carve_boundary(walled_box):
+    walls = walled_box(70, 70).occupied.copy()
     walls[20:50, 45] = True
     for r, c in [(30, 30), (34, 22), (26, 36), (40, 28)]:
         walls[r, c] = True  # single-cell pillars

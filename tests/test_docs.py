@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 README_MAX_LINES = 200
 
@@ -18,6 +20,7 @@ def _bash_blocks(markdown: str) -> list[str]:
     return [block.strip() for block in re.findall(r"^```bash\n(.*?)^```", markdown, flags=re.MULTILINE | re.DOTALL)]
 
 
+@pytest.mark.slow
 def test_site_builds_strictly(tmp_path):
     """`mkdocs build --strict` fails on any warning: broken links or anchors, pages outside the navigation,
     docstrings the API reference cannot render."""

@@ -1,16 +1,26 @@
+"""Exploration episodes in the simulator (superex_deploy.sim.episode): whole episodes on hand-built and bundled maps,
+their determinism, the goal tiers, the IoU log and the checks of their inputs."""
+
 import json
 
 import numpy as np
 import pytest
 
-from superex_deploy.onboard.explorer import ExplorerConfig
-from superex_deploy.onboard.planning.goal_choice import choose_goal as _choose, goal_reached as _reached, near_visited_goal as _near_visited
-from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
-from superex_deploy.onboard.planning.frontiers import find_frontiers
-from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import SpadFrame
 from superex_deploy.onboard import SpadProcessing
+from superex_deploy.onboard.explorer import ExplorerConfig
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.goal_choice import choose_goal as _choose
+from superex_deploy.onboard.planning.goal_choice import goal_reached as _reached
+from superex_deploy.onboard.planning.goal_choice import near_visited_goal as _near_visited
+from superex_deploy.onboard.planning.motion import MotionConfig
+from superex_deploy.onboard.planning.planners import MapexPlanner, NearestFrontier, make_planner
+from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
+from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
+from superex_deploy.sim.metrics import summarise
+from superex_deploy.sim.oracle import OraclePredictor
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.spad_types import SpadConfig
 
@@ -53,15 +63,6 @@ class _CountingPredictor:
         return Prediction(mean=mean, variance=np.zeros_like(mean))
 
 
-def _two_rooms():
-    """A 30 x 40 box split by a wall with a 0.6 m door: most of the right room is hidden from (5, 5)."""
-    walls = np.zeros((30, 40), bool)
-    walls[[0, -1], :] = walls[:, [0, -1]] = True
-    walls[:, 20] = True
-    walls[12:18, 20] = False
-    return OccupancyGrid(walls, ~walls, 0.1, "two rooms")
-
-
 class _CarveRightRoom(SpadProcessing):
     """A stand-in for the onboard SPAD processing: reveals a 5 x 5 block of the hidden room from the first step on."""
 
@@ -91,8 +92,8 @@ class _SensingWith(SpadSensing):
         return self.stand_in
 
 
-def test_two_rooms_are_explored_completely():
-    grid = _two_rooms()
+def test_two_rooms_are_explored_completely(two_rooms):
+    grid = two_rooms()
     result = run_episode(grid, (5, 5), _Closest(), _CountingPredictor(), steps=300, seed=0)
     assert result.finished and result.steps < 300
     # It stops when no frontier is left at all: the small pockets beside the door were visited too.
@@ -136,8 +137,8 @@ def test_a_door_seen_edge_on_is_followed_though_its_frontier_is_small():
     assert same.poses[:, 0].max() > 30
 
 
-def test_the_onboard_nlos_processing_feeds_carving_and_evidence():
-    grid = _two_rooms()
+def test_the_onboard_nlos_processing_feeds_carving_and_evidence(two_rooms):
+    grid = two_rooms()
     hook = _CarveRightRoom(grid.shape)
     predictor = _CountingPredictor()
     result = run_episode(grid, (5, 5), _AsksForPrediction(), predictor, steps=40, seed=0, sensing=_SensingWith(hook),
@@ -153,8 +154,8 @@ def test_the_onboard_nlos_processing_feeds_carving_and_evidence():
     assert predictor.calls == len(asked) and set(result.goal_steps) <= set(asked.tolist())
 
 
-def test_predictions_are_lazy_and_iou_is_logged_every_k_steps():
-    grid = _two_rooms()
+def test_predictions_are_lazy_and_iou_is_logged_every_k_steps(two_rooms):
+    grid = two_rooms()
     predictor = _CountingPredictor()
     result = run_episode(grid, (5, 5), _Closest(), predictor, steps=60, seed=0, cfg=ExplorationConfig(iou_every=0))
     assert predictor.calls == 0 and result.iou == [] and result.final_prediction is None
@@ -167,8 +168,8 @@ def test_predictions_are_lazy_and_iou_is_logged_every_k_steps():
     assert result.iou[-1] > result.iou[0]  # observed walls are predicted walls: IoU grows with coverage
 
 
-def test_on_step_sees_every_step_and_the_log_is_json_ready():
-    grid = _two_rooms()
+def test_on_step_sees_every_step_and_the_log_is_json_ready(two_rooms):
+    grid = two_rooms()
     seen = []
     result = run_episode(grid, (5, 5), _Closest(), _CountingPredictor(), steps=25,
                          on_step=lambda state: seen.append((state.step, state.pose, state.coverage)))
@@ -190,8 +191,8 @@ def test_episodes_are_deterministic_on_a_bundled_map():
     assert a.goals == b.goals and a.iou == b.iou
 
 
-def test_bad_inputs_raise_value_error():
-    grid = _two_rooms()
+def test_bad_inputs_raise_value_error(two_rooms):
+    grid = two_rooms()
     planner, predictor = _Closest(), _CountingPredictor()
     with pytest.raises(ValueError, match="inside a wall"):
         run_episode(grid, (0, 0), planner, predictor)
@@ -293,3 +294,57 @@ def test_the_episode_config_refuses_a_bad_iou_interval(value):
 
     with pytest.raises(ValueError, match="iou_every must be an integer >= 0"):
         ExplorationConfig(iou_every=value)
+
+
+@pytest.fixture(scope="module")
+def small_map():
+    return load_map("50052750")
+
+
+def test_episode_coverage_never_decreases_and_is_deterministic(small_map):
+    start = start_poses("50052750")[1]
+    runs = [run_episode(small_map, start, make_planner("nearest"), ObservedAsPrediction(), steps=80, seed=3)
+            for _ in range(2)]
+    a, b = runs
+    assert np.all(np.diff(a.coverage) >= 0) and np.all(np.diff(a.coverage_with_carving) >= 0)
+    assert np.all(np.diff(a.path_length_m) >= 0) and a.path_length_m[-1] > 5.0
+    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_array_equal(a.coverage, b.coverage)
+    assert a.goals == b.goals
+    assert not small_map.occupied[a.poses[:, 0], a.poses[:, 1]].any()
+    # Each step moves at most step_cells (0.3 m along 8-connected cells).
+    assert np.all(np.diff(np.r_[0.0, a.path_length_m]) <= 3 * np.sqrt(2) * 0.1 + 1e-9)
+
+
+def test_mapex_with_the_oracle_covers_more_than_nearest_frontier(small_map):
+    start = start_poses("50052750")[0]
+    oracle = OraclePredictor(small_map)
+    nearest = run_episode(small_map, start, NearestFrontier(), oracle, steps=150, seed=0)
+    mapex = run_episode(small_map, start, MapexPlanner(), oracle, steps=150, seed=0)
+    assert mapex.coverage[-1] > nearest.coverage[-1]
+    assert mapex.coverage.sum() > nearest.coverage.sum()  # area under the coverage curve
+
+
+def test_episode_finishes_when_everything_is_known(walled_box):
+    grid = walled_box(12, 12)
+    result = run_episode(grid, (6, 6), NearestFrontier(), ObservedAsPrediction(), steps=50)
+    assert result.finished and result.coverage[-1] == 1.0
+    summary = summarise([result.to_json()])
+    assert summary[0]["planner"] == "nearest"
+
+
+def test_bad_inputs(small_map):
+    with pytest.raises(ValueError, match="inside a wall"):
+        run_episode(small_map, tuple(np.argwhere(small_map.occupied)[0]), NearestFrontier(), ObservedAsPrediction())
+    with pytest.raises(ValueError, match="outside"):
+        run_episode(small_map, (-1, 0), NearestFrontier(), ObservedAsPrediction())
+    with pytest.raises(ValueError, match="Planner"):
+        run_episode(small_map, start_poses("50052750")[0], "nearest", ObservedAsPrediction())
+    with pytest.raises(ValueError, match="steps"):
+        run_episode(small_map, start_poses("50052750")[0], NearestFrontier(), ObservedAsPrediction(), steps=0)
+    with pytest.raises(ValueError, match="min_cells"):
+        find_frontiers(np.zeros((3, 3), np.int8), min_cells=0)
+    with pytest.raises(ValueError, match="MotionConfig"):
+        MotionConfig(step_cells=0)
+    with pytest.raises(ValueError, match="unknown planner"):
+        make_planner("frontier")

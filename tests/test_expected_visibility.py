@@ -1,4 +1,4 @@
-"""The expected-visibility gain (issue #26, item 1) against a brute-force enumeration of wall configurations on
+"""The expected-visibility gain against a brute-force enumeration of wall configurations on
 tiny hand-built maps, against its slow twin, and wired into the superex and MapEx planners."""
 
 import numpy as np
@@ -46,6 +46,7 @@ def _cross():
     return mean, observed
 
 
+@pytest.mark.slow
 def test_single_ray_corridor_is_exact_against_brute_force():
     mean, observed = _corridor()
     exact = brute_force_expected_visible(mean, observed, (2, 0), N_RAYS, RANGE_CELLS)

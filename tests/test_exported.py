@@ -59,6 +59,7 @@ def test_manifest_lists_every_model_once_with_matching_files():
     assert total < 20e6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stem", sorted(ENTRIES))
 def test_torch_and_onnx_runtime_agree(stem):
     entry = ENTRIES[stem]
@@ -250,6 +251,7 @@ def test_bad_inputs_raise():
         Pix2PixFilter.from_manifest().filter_windows(np.zeros((64, 64), np.float32))
 
 
+@pytest.mark.slow
 def test_inference_runs_with_torch_blocked():
     code = textwrap.dedent("""
         import sys, numpy as np

@@ -6,13 +6,8 @@ from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from tests.naive import naive_frontier_regions
 
 
-def _observed(rows):
-    codes = {".": FREE, "#": OCCUPIED, "?": UNKNOWN}
-    return np.array([[codes[ch] for ch in row] for row in rows], np.int8)
-
-
-def test_a_corridor_opening_into_the_unknown():
-    observed = _observed([
+def test_a_corridor_opening_into_the_unknown(observed_from_text):
+    observed = observed_from_text([
         "#######",
         "#.....?",
         "#.....?",
@@ -26,8 +21,8 @@ def test_a_corridor_opening_into_the_unknown():
     assert region.cells.dtype == np.int32
 
 
-def test_diagonal_cells_join_a_region_but_diagonal_unknowns_make_no_frontier():
-    observed = _observed([
+def test_diagonal_cells_join_a_region_but_diagonal_unknowns_make_no_frontier(observed_from_text):
+    observed = observed_from_text([
         "?.....",
         ".?....",
         "......",
@@ -42,8 +37,8 @@ def test_diagonal_cells_join_a_region_but_diagonal_unknowns_make_no_frontier():
     assert region.cell_rc == (0, 1)
 
 
-def test_walls_and_the_grid_border_are_not_unknown():
-    observed = _observed([
+def test_walls_and_the_grid_border_are_not_unknown(observed_from_text):
+    observed = observed_from_text([
         "....",
         ".##.",
         "....",
@@ -77,3 +72,29 @@ def test_bad_inputs_raise_value_error():
         frontier_cells(np.zeros(3, np.int8))
     with pytest.raises(ValueError, match="min_cells"):
         find_frontiers(np.zeros((3, 3), np.int8), min_cells=0)
+
+
+def test_frontiers_on_a_hand_built_map(observed_from_text):
+    observed = observed_from_text([
+        "#############",
+        "#.....?????..",
+        "#.....?????..",
+        "#............",
+        "#############",
+    ])
+    cells = frontier_cells(observed)
+    expected = {(1, 5), (2, 5), (3, 6), (3, 7), (3, 8), (3, 9), (3, 10), (1, 11), (2, 11)}
+    assert set(map(tuple, np.argwhere(cells).tolist())) == expected
+    (region,) = find_frontiers(observed, min_cells=9)
+    assert region.size == 9
+    assert region.cell_rc == (3, 8)  # nearest to the centroid (2.33, 8.0)
+    assert find_frontiers(observed, min_cells=10) == ()
+
+
+def test_separate_frontier_regions_are_ordered_and_filtered():
+    observed = np.full((12, 12), FREE, np.int8)
+    observed[0:3, 0:3] = UNKNOWN     # frontier: 3 + 3 cells along two sides (diagonal neighbours do not count)
+    observed[8:12, 8:12] = UNKNOWN   # 4 + 4 cells
+    regions = find_frontiers(observed, min_cells=1)
+    assert [r.size for r in regions] == [6, 8]
+    assert [r.size for r in find_frontiers(observed, min_cells=7)] == [8]

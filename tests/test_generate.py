@@ -74,6 +74,7 @@ def test_generation_is_deterministic(pix2pix_data, tmp_path):
     assert again.data_sha256 == info.data_sha256
 
 
+@pytest.mark.slow
 def test_lama_datasets_share_tiles_and_differ_only_by_nlos(tmp_path):
     cfg = GenerationConfig(maps=("0510030965_A-40",), episodes_per_map=1, steps=40, sample_every=10,
                            tile_cells=48, tiles_per_sample=2)
@@ -98,6 +99,7 @@ def test_lama_datasets_share_tiles_and_differ_only_by_nlos(tmp_path):
     assert 0 < np.mean([bp.arrays(i)[1].mean() for i in range(len(bp))]) < 5 * wall_share + 0.2
 
 
+@pytest.mark.slow
 def test_lama_data_hash_does_not_depend_on_where_the_filter_lies(tmp_path):
     cfg = GenerationConfig(maps=(SMALL_MAP,), episodes_per_map=1, steps=20, sample_every=10, tile_cells=32)
     hashes = []

@@ -70,6 +70,7 @@ def test_cast_rays_matches_naive_on_random_grids():
             assert hits.entry_axis[i] == axis
 
 
+@pytest.mark.slow
 def test_mark_rays_matches_naive_on_random_grids():
     rng = np.random.default_rng(1)
     for _ in range(8):

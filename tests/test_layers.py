@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("superex_deploy", "superex_train")
 
@@ -20,8 +22,9 @@ LAYERS = (
     ("onboard", ("superex_deploy.onboard",)),
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
-    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render", "superex_deploy.benchmarking")),
+    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
     ("gym env", ("superex_deploy.sim.gym_env",)),  # builds its explorer with pipeline.build_explorer
+    ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),
@@ -146,6 +149,7 @@ def test_superex_deploy_never_imports_torch_in_its_source():
     assert not offenders, offenders
 
 
+@pytest.mark.slow
 def test_superex_deploy_never_imports_torch_at_run_time():
     """Import every module of superex_deploy in turn in a fresh interpreter (torch installed and importable):
     none loads torch or superex_train."""

@@ -134,6 +134,7 @@ def test_bad_inputs(tmp_path):
         grid.check_pose(wall)
 
 
+@pytest.mark.slow
 def test_deploy_package_imports_without_torch():
     """Every superex_deploy module imports with torch made unimportable (a torch install must not be needed)."""
     import subprocess

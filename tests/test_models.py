@@ -286,6 +286,7 @@ def synthetic_data(tmp_path_factory):
     return {kind: write_synthetic_dataset(root / kind.value, kind, 48, 32, seed=0).directory for kind in ModelKind}
 
 
+@pytest.mark.slow
 def test_lama_training_learns_and_resumes_exactly(synthetic_data, tmp_path):
     base = dict(data_dir=str(synthetic_data[ModelKind.LAMA_BP]), model=LamaConfig(**SMALL_LAMA), batch_size=8,
                 lr=3e-3, progress=False)
@@ -367,6 +368,7 @@ def test_learning_rate_schedules():
         LamaTrainConfig(data_dir="d", out_dir="o", lr_schedule="step")
 
 
+@pytest.mark.slow
 def test_pix2pix_training_learns(synthetic_data, tmp_path):
     cfg = Pix2PixTrainConfig(data_dir=str(synthetic_data[ModelKind.PIX2PIX]), out_dir=str(tmp_path), epochs=4,
                              model=SMALL_PIX2PIX, batch_size=8, lr=2e-3, wall_weight=50.0,

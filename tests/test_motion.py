@@ -164,3 +164,37 @@ def test_dijkstra_matches_the_reference_and_its_parents_form_least_cost_paths():
         dijkstra(np.ones((2, 2)), (2, 0))
     with pytest.raises(ValueError, match="> 0"):
         dijkstra(np.zeros((2, 2)), (0, 0))
+
+
+def test_cost_to_go_and_path_on_a_hand_built_map(observed_from_text):
+    observed = observed_from_text([
+        "...........",
+        "...........",
+        "#########..",
+        "...........",
+        "...........",
+    ])
+    cfg = MotionConfig(robot_radius_m=0.0, wall_cost_weight=0.0)
+    plan = planning_map(observed, (0, 0), 0.1, cfg)
+    assert plan.travel_cost[0, 9] == pytest.approx(9.0)
+    # Diagonal to (1, 1), 7 right to (1, 8), diagonals past the wall's end to (2, 9) and (3, 8), 8 left.
+    assert plan.travel_cost[3, 0] == pytest.approx(15 + 3 * np.sqrt(2), abs=1e-9)
+    path = plan.path_to((3, 0))
+    assert path[0] == (0, 0) and path[-1] == (3, 0)
+    assert all(observed[cell] == FREE for cell in path)
+    assert all(max(abs(a[0] - b[0]), abs(a[1] - b[1])) == 1 for a, b in zip(path, path[1:]))
+    closed = observed.copy()
+    closed[2, 9:] = OCCUPIED
+    assert planning_map(closed, (0, 0), 0.1, cfg).path_to((3, 0)) == []
+
+
+def test_inflation_and_wall_cost():
+    observed = np.full((9, 9), FREE, np.int8)
+    observed[:, 4] = OCCUPIED
+    observed[4, 4] = FREE  # a one-cell door
+    tight = planning_map(observed, (4, 0), 0.1, MotionConfig(robot_radius_m=0.15))
+    assert not np.isfinite(tight.travel_cost[4, 8])  # the door is narrower than the robot
+    loose = planning_map(observed, (4, 0), 0.1, MotionConfig(robot_radius_m=0.0))
+    assert np.isfinite(loose.travel_cost[4, 8])
+    flat = planning_map(observed, (4, 0), 0.1, MotionConfig(robot_radius_m=0.0, wall_cost_weight=0.0))
+    assert loose.travel_cost[4, 8] > flat.travel_cost[4, 8] == pytest.approx(8.0)

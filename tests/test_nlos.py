@@ -23,17 +23,8 @@ from tests.naive import (
 RES = 0.1
 
 
-def _l_corner():
-    """Robot corridor rows 45-55 ending at a wall at col 40; a side corridor (cols 30-39) goes north to a
-    hidden wall at row 9; the side corridor beyond row 44 is hidden from the robot at (50, 10)."""
-    walls = np.ones((70, 60), bool)
-    walls[45:56, 1:40] = False
-    walls[10:45, 30:40] = False
-    return OccupancyGrid(walls, ~walls, RES, "l-corner")
-
-
-def test_los_estimates_recover_the_wall_points():
-    grid = _l_corner()
+def test_los_estimates_recover_the_wall_points(l_corner):
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=720, n_secondary=64))
     los = estimate_los(scan)
     hit = scan.truth.h1_rc[:, 0] >= 0
@@ -45,8 +36,8 @@ def test_los_estimates_recover_the_wall_points():
     assert np.all(np.abs(los.h1_rc[hit] - scan.truth.h1_rc[hit]).max(axis=1) <= 1)
 
 
-def test_l_corner_carves_hidden_free_space_and_back_projects_the_hidden_wall():
-    grid = _l_corner()
+def test_l_corner_carves_hidden_free_space_and_back_projects_the_hidden_wall(l_corner):
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 12), SpadConfig(n_rays=1440, n_secondary=128))
     result = process_scan(scan, NlosConfig(window_m=6.0))
     assert not np.any(result.carved & grid.occupied)
@@ -310,8 +301,8 @@ def test_wall_iou_tolerant():
         wall_iou_tolerant(pred, truth[:3], 1.0)
 
 
-def test_bad_inputs():
-    grid = _l_corner()
+def test_bad_inputs(l_corner):
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=90, n_secondary=8))
     with pytest.raises(ValueError, match="SpadScan"):
         process_scan(scan.histograms)
@@ -328,10 +319,10 @@ def test_bad_inputs():
             NlosConfig(threads=threads)
 
 
-def test_process_scan_patches_hold_the_whole_maps():
+def test_process_scan_patches_hold_the_whole_maps(l_corner):
     """process_scan keeps its maps as patches: each equals the public whole-map function's result, and nothing
     non-zero lies outside it."""
-    grid = _l_corner()
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 10), SpadConfig(n_rays=360, n_secondary=32))
     known = np.zeros(grid.shape, bool)
     known[45:55, 5:15] = True
@@ -352,10 +343,10 @@ def test_process_scan_patches_hold_the_whole_maps():
     assert result.bp_patch.slices == (slice(r0, r1 + 1), slice(c0, c1 + 1))
 
 
-def test_dense_histograms_give_the_same_results_as_sparse_ones():
+def test_dense_histograms_give_the_same_results_as_sparse_ones(l_corner):
     """A sensor that delivers dense histograms (as a real one does) is processed exactly like the simulator's
     sparse ones: only the detections are read."""
-    scan = simulate_scan(_l_corner(), (50, 10), SpadConfig(n_rays=360, n_secondary=32))
+    scan = simulate_scan(l_corner(), (50, 10), SpadConfig(n_rays=360, n_secondary=32))
     dense = replace(scan, stored=scan.histograms)
     assert scan.is_sparse and not dense.is_sparse
     known = np.zeros(scan.grid_shape, bool)

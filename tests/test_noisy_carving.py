@@ -13,7 +13,7 @@ from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig
 
 N_POSES = 2000
-SIGMA_XY_M = 0.05  # the declared sigma: what a good SLAM system delivers (issue #24)
+SIGMA_XY_M = 0.05  # the declared sigma: what a good SLAM system delivers
 SIGMA_YAW_RAD = np.deg2rad(1.0)
 # Fewer primaries than the default keep 2,000 scans fast; the fan (the part soundness depends on) is default.
 PROPERTY_CONFIG = SpadConfig(n_rays=360)
@@ -61,6 +61,7 @@ def test_carving_with_a_noisy_pose_and_its_covariance_never_carves_a_true_wall()
     assert carved_total / N_POSES > 300
 
 
+@pytest.mark.slow
 def test_without_the_margins_a_noisy_pose_carves_true_walls():
     """The margins are needed: the same beliefs placed as if exact carve true walls (measured: 64 of 2,000 poses;
     here 5 or more of 250)."""

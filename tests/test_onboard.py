@@ -28,6 +28,7 @@ TRAIN_FLOOR = list_maps("train")[0]
 LEGACY = json.loads((ROOT / "tests" / "data" / "legacy_episodes.json").read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", LEGACY["episodes"], ids=lambda e: f"{e['planner']}-{e['predictor']}"
                                                               f"{'-spad' if e['spad'] else ''}")
 def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(case):
@@ -94,14 +95,8 @@ def test_mark_ranges_refuses_bad_input():
         mark_ranges((7.5, 2.5), [0.0], [1.0], 10.0, free, hit)
 
 
-def _box(rows=9, cols=12) -> OccupancyGrid:
-    occupied = np.zeros((rows, cols), bool)
-    occupied[0, :] = occupied[-1, :] = occupied[:, 0] = occupied[:, -1] = True
-    return OccupancyGrid(occupied, ~occupied, 0.1, "box")
-
-
-def test_the_world_reports_wall_faces_as_ranges_in_metres():
-    world = World(_box(), (4, 5), WorldConfig())
+def test_the_world_reports_wall_faces_as_ranges_in_metres(walled_box):
+    world = World(walled_box(9, 12), (4, 5), WorldConfig())
     observation = world.observe()
     pose, scan = observation.pose, observation.scan
     assert (pose.x, pose.y, pose.yaw) == pytest.approx((0.55, 0.45, 0.0))
@@ -113,8 +108,8 @@ def test_the_world_reports_wall_faces_as_ranges_in_metres():
     assert np.all(np.isfinite(scan.ranges)) and scan.ranges.dtype == np.float32
 
 
-def test_the_world_drives_the_commanded_path_and_refuses_walls():
-    world = World(_box(), (4, 5), WorldConfig(step_cells=3))
+def test_the_world_drives_the_commanded_path_and_refuses_walls(walled_box):
+    world = World(walled_box(9, 12), (4, 5), WorldConfig(step_cells=3))
     frame = world.frame
     path = np.array([(4, 5), (4, 6), (4, 7), (4, 8), (4, 9)])
     command = Command(0.0, None, None, frame.centres_xy(path), path, False, False)
@@ -158,8 +153,8 @@ def test_explorer_refuses_bad_observations():
     assert explorer.steps == 0  # nothing was integrated by the refused calls
 
 
-def test_a_spad_frame_that_does_not_match_the_sensor_model_is_refused():
-    grid = _box(40, 40)
+def test_a_spad_frame_that_does_not_match_the_sensor_model_is_refused(walled_box):
+    grid = walled_box(40, 40)
     world = World(grid, (20, 20), WorldConfig(spad=SpadConfig(n_rays=100, range_m=2.0)))
     observation = world.observe()
     explorer = _explorer(world.frame, spad_processing=SpadProcessing(sensor=SpadConfig(n_rays=100, range_m=3.0)))
@@ -266,6 +261,7 @@ def test_a_command_holds_the_path_in_metres_and_cells():
     assert set(command.timings_s) == {"scan", "map_update", "frontiers", "prediction", "scoring", "path"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planner,predictor,spad", [("nearest", "observed", False), ("upen", "lama_los", False),
                                                      ("mapex", "observed", True), ("superex", "evidence", True)])
 def test_a_replay_of_a_recording_chooses_the_recorded_goals(tmp_path, planner, predictor, spad):

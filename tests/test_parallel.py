@@ -18,6 +18,7 @@ def _back_projection(pose_index: int) -> tuple[np.ndarray, int]:
     return process_scan(scan, NlosConfig(threads=2)).bp, numba.get_num_threads()
 
 
+@pytest.mark.slow
 def test_pool_workers_run_threaded_kernels_after_the_parent_has():
     # The parent runs the threaded back-projection first: a plainly forked worker would then abort under GNU
     # OpenMP ("fork() called from a process already using GNU OpenMP").

@@ -9,7 +9,7 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from superex_deploy.benchmarking import ScenarioTask, run_scenario
+from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.cli import main
 from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import MapFrame

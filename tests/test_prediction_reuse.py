@@ -1,10 +1,9 @@
-"""Prediction reuse and crops (#16) on hand-built maps with exact expected crops, the explorer's use of them,
+"""Prediction reuse and crops on hand-built maps with exact expected crops, the explorer's use of them,
 and the asynchronous mode's staleness bound."""
 
 import numpy as np
 import pytest
 
-from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.explorer import ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
@@ -346,25 +345,13 @@ def test_bad_settings_and_inputs():
         reusing.predict(_map((50, 50)))
 
 
-def _rooms():
-    """Three rooms along a corridor: enough frontiers and goal choices for the explorer in 150 steps."""
-    walls = np.ones((80, 160), bool)
-    walls[36:44, 2:158] = False  # corridor
-    for left in (10, 60, 110):
-        walls[4:34, left:left + 40] = False
-        walls[46:76, left:left + 40] = False
-        walls[34:36, left + 18:left + 22] = False  # doors
-        walls[44:46, left + 18:left + 22] = False
-    return OccupancyGrid(walls, ~walls, 0.1, "rooms")
-
-
-def _goals(cfg, predictor=None, planner="mapex", iou_every=0):
-    result = run_episode(_rooms(), (40, 6), make_planner(planner), predictor or ObservedAsPrediction(), steps=150,
+def _goals(grid, cfg, predictor=None, planner="mapex", iou_every=0):
+    result = run_episode(grid, (40, 6), make_planner(planner), predictor or ObservedAsPrediction(), steps=150,
                          cfg=ExplorationConfig(iou_every=iou_every, explorer=ExplorerConfig(prediction=cfg[0], reuse=cfg[1])))
     return result
 
 
-def test_crops_of_a_cellwise_predictor_change_nothing():
+def test_crops_of_a_cellwise_predictor_change_nothing(corridor_rooms):
     """The observed predictor's output at a cell depends on that cell alone, so predicting crops must give the
     very episode the whole-map predictions give."""
     class Shapes(ObservedAsPrediction):
@@ -375,16 +362,16 @@ def test_crops_of_a_cellwise_predictor_change_nothing():
             self.shapes.append(observed.shape)
             return super().predict(observed, extra)
 
-    full = _goals((PredictionSchedule(), PredictionReuse()))
+    full = _goals(corridor_rooms(), (PredictionSchedule(), PredictionReuse()))
     shapes = Shapes()
-    cropped = _goals((PredictionSchedule(), PredictionReuse(crop_margin_m=0.5)), shapes)
+    cropped = _goals(corridor_rooms(), (PredictionSchedule(), PredictionReuse(crop_margin_m=0.5)), shapes)
     assert full.goals == cropped.goals and len(full.goals) >= 4
     np.testing.assert_array_equal(full.coverage, cropped.coverage)
     # The planner was served crops, not the whole 80 x 160 map.
     assert len(shapes.shapes) >= 4 and all(rows * cols < 80 * 160 for rows, cols in shapes.shapes)
 
 
-def test_an_evaluation_between_requests_does_not_change_the_episode():
+def test_an_evaluation_between_requests_does_not_change_the_episode(corridor_rooms):
     """IoU evaluations call explorer.predict() at steps where the planner did not ask: with reuse on, that look
     must not become the last prediction."""
     class Shifting(ObservedAsPrediction):
@@ -396,22 +383,22 @@ def test_an_evaluation_between_requests_does_not_change_the_episode():
             return Prediction(mean=mean.astype(np.float32), variance=np.full(observed.shape, 0.1, np.float32))
 
     reuse = PredictionReuse(min_changed_cells=50, crop_margin_m=1.0)
-    quiet = _goals((PredictionSchedule(), reuse), Shifting())
-    evaluated = _goals((PredictionSchedule(), reuse), Shifting(), iou_every=1)
+    quiet = _goals(corridor_rooms(), (PredictionSchedule(), reuse), Shifting())
+    evaluated = _goals(corridor_rooms(), (PredictionSchedule(), reuse), Shifting(), iou_every=1)
     assert quiet.goals == evaluated.goals and len(quiet.iou) == 0 and len(evaluated.iou) >= 100
 
 
 @pytest.mark.parametrize("every,after,wait_first", [(5, 3, False), (4, 4, False), (2, 1, True), (1, 1, False),
                                                     (2, 2, True)])
 @pytest.mark.parametrize("mode", ["thread", "simulated"])
-def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(every, after, wait_first, mode):
+def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(corridor_rooms, every, after, wait_first, mode):
     """Step t plans with the prediction of step k * every for the largest k with k * every + after <= t (with
     ``wait_first``, the first step's own prediction until then)."""
     from superex_deploy.sim.episode import make_world_and_explorer
 
     cfg = ExplorationConfig(iou_every=0, explorer=ExplorerConfig(
         prediction=PredictionSchedule(mode, every, after, wait_first=wait_first), reuse=PredictionReuse(crop_margin_m=1.0)))
-    world, explorer = make_world_and_explorer(_rooms(), (40, 6), make_planner("mapex"), ObservedAsPrediction(),
+    world, explorer = make_world_and_explorer(corridor_rooms(), (40, 6), make_planner("mapex"), ObservedAsPrediction(),
                                               cfg=cfg)
     with explorer:
         for t in range(60):

@@ -1,4 +1,4 @@
-"""The prediction schedule's modes (issue #25): the free-running mode never waits for an unfinished prediction, the
+"""The prediction schedule's modes: the free-running mode never waits for an unfinished prediction, the
 simulated clock gives the threaded deterministic mode's episodes bit for bit, the commands carry the prediction's
 age, a replay follows a free run's recorded predictions exactly, and the explorer's thread budget."""
 
@@ -15,7 +15,6 @@ from superex_deploy.onboard.prediction.reuse import PredictionReuse
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN, Prediction
 from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
-from tests.test_prediction_reuse import _rooms
 
 
 class _SizeDependent(ObservedAsPrediction):
@@ -39,18 +38,18 @@ class _SizeDependent(ObservedAsPrediction):
         return Prediction(mean=mean, variance=np.full(observed.shape, 0.1, np.float32))
 
 
-def _explorer(schedule, predictor, reuse=PredictionReuse(crop_margin_m=1.0), cores=None):
+def _explorer(grid, schedule, predictor, reuse=PredictionReuse(crop_margin_m=1.0), cores=None):
     cfg = ExplorationConfig(iou_every=0, explorer=ExplorerConfig(prediction=schedule, reuse=reuse))
-    world, explorer = make_world_and_explorer(_rooms(), (40, 6), make_planner("mapex"), predictor, cfg=cfg)
+    world, explorer = make_world_and_explorer(grid, (40, 6), make_planner("mapex"), predictor, cfg=cfg)
     if cores is not None:
         explorer = Explorer(explorer.frame, explorer.planner, predictor, cfg=cfg.explorer, cores=cores)
     return world, explorer
 
 
-def _episode(schedule, steps=70, predictor=None, follow=None, observations=None):
-    """(commands, observations) of one episode on the rooms map; ``observations`` given: those are fed instead of
-    the world's."""
-    world, explorer = _explorer(schedule, predictor or _SizeDependent())
+def _episode(grid, schedule, steps=70, predictor=None, follow=None, observations=None):
+    """(commands, observations) of one episode on ``grid`` from (40, 6); ``observations`` given: those are fed
+    instead of the world's."""
+    world, explorer = _explorer(grid, schedule, predictor or _SizeDependent())
     commands, seen = [], []
     with explorer:
         if follow is not None:
@@ -78,14 +77,15 @@ def _same_commands(first, second):
 
 
 @pytest.mark.parametrize("every,after,wait_first", [(2, 2, True), (5, 3, False), (1, 1, False)])
-def test_the_simulated_clock_gives_the_threaded_deterministic_episode_bit_for_bit(every, after, wait_first):
-    threaded, _ = _episode(PredictionSchedule("thread", every, after, wait_first))
-    simulated, _ = _episode(PredictionSchedule("simulated", every, after, wait_first))
+def test_the_simulated_clock_gives_the_threaded_deterministic_episode_bit_for_bit(corridor_rooms, every, after,
+                                                                                  wait_first):
+    threaded, _ = _episode(corridor_rooms(), PredictionSchedule("thread", every, after, wait_first))
+    simulated, _ = _episode(corridor_rooms(), PredictionSchedule("simulated", every, after, wait_first))
     _same_commands(threaded, simulated)
     assert sum(c.new_goal for c in simulated) >= 3 and sum(c.prediction is not None for c in simulated) >= 40
 
 
-def test_the_simulated_clock_runs_no_thread():
+def test_the_simulated_clock_runs_no_thread(corridor_rooms):
     calls = []
 
     class Where(_SizeDependent):
@@ -93,7 +93,7 @@ def test_the_simulated_clock_runs_no_thread():
             calls.append(threading.current_thread() is threading.main_thread())
             return super().predict(observed, extra)
 
-    _episode(PredictionSchedule("simulated", 2, 2, True), steps=20, predictor=Where())
+    _episode(corridor_rooms(), PredictionSchedule("simulated", 2, 2, True), steps=20, predictor=Where())
     assert calls and all(calls)
 
 
@@ -117,12 +117,12 @@ class _Blocking(ObservedAsPrediction):
 
 
 @pytest.mark.parametrize("wait_first", [True, False])
-def test_the_free_mode_never_waits_for_an_unfinished_prediction(wait_first):
+def test_the_free_mode_never_waits_for_an_unfinished_prediction(corridor_rooms, wait_first):
     """While the worker is stuck in a prediction, every step after the first returns without it (a step that
     waited could only return after the 60 s the predictor blocks for, which sets ``finished`` first); once it is
     released, the next step after it finished applies it."""
     predictor = _Blocking(block_at=2 if wait_first else 1)  # the first prediction the worker runs alone
-    world, explorer = _explorer(PredictionSchedule("free", wait_first=wait_first), predictor)
+    world, explorer = _explorer(corridor_rooms(), PredictionSchedule("free", wait_first=wait_first), predictor)
     with explorer:
         first = explorer.step(world.observe())
         assert (first.prediction_step, first.prediction_age_steps) == ((0, 0) if wait_first else (-1, None))
@@ -148,7 +148,7 @@ def test_the_free_mode_never_waits_for_an_unfinished_prediction(wait_first):
         assert explorer.scheduled.blocking_waits <= (1 if wait_first else 0)  # at most step 0's own
 
 
-def test_a_free_run_replays_exactly_when_its_recorded_predictions_are_followed():
+def test_a_free_run_replays_exactly_when_its_recorded_predictions_are_followed(corridor_rooms):
     """A free run's predictions land when its worker finished them; an explorer that follows the recorded
     ``prediction_step`` of each command, predicting inline, makes the same commands and the same predictions."""
     import time
@@ -158,19 +158,20 @@ def test_a_free_run_replays_exactly_when_its_recorded_predictions_are_followed()
             time.sleep(0.001 * (self.calls % 5))  # landing steps that no fixed schedule gives
             return super().predict(observed, extra)
 
-    free, observations = _episode(PredictionSchedule("free", wait_first=True), steps=60, predictor=Jittery())
+    free, observations = _episode(corridor_rooms(), PredictionSchedule("free", wait_first=True), steps=60,
+                                  predictor=Jittery())
     landed = [c.prediction_step for c in free]
-    replayed, _ = _episode(PredictionSchedule("free", wait_first=True), predictor=_SizeDependent(),
+    replayed, _ = _episode(corridor_rooms(), PredictionSchedule("free", wait_first=True), predictor=_SizeDependent(),
                            follow=landed, observations=observations)
     _same_commands(free, replayed)
     with pytest.raises(ValueError, match="must lie in -1..step"):
-        _explorer(PredictionSchedule("free"), _SizeDependent())[1].follow_recorded_predictions([0, 2])
+        _explorer(corridor_rooms(), PredictionSchedule("free"), _SizeDependent())[1].follow_recorded_predictions([0, 2])
     with pytest.raises(ValueError, match="an inline schedule predicts each step's own map"):
-        _explorer(PredictionSchedule(), _SizeDependent())[1].follow_recorded_predictions([0])
+        _explorer(corridor_rooms(), PredictionSchedule(), _SizeDependent())[1].follow_recorded_predictions([0])
 
 
-def test_the_command_carries_the_prediction_age():
-    inline, _ = _episode(PredictionSchedule(), steps=30)
+def test_the_command_carries_the_prediction_age(corridor_rooms):
+    inline, _ = _episode(corridor_rooms(), PredictionSchedule(), steps=30)
     for command in inline:
         if command.prediction is None:
             assert command.prediction_age_steps is None and command.prediction_age_s is None
@@ -178,7 +179,7 @@ def test_the_command_carries_the_prediction_age():
             assert command.prediction_age_steps == command.step - command.prediction_step >= 0
             assert command.prediction_age_s == pytest.approx(0.1 * command.prediction_age_steps)
     assert any(c.prediction_age_steps == 0 for c in inline) and any(c.prediction_age_steps > 0 for c in inline)
-    simulated, _ = _episode(PredictionSchedule("simulated", 4, 3), steps=30)
+    simulated, _ = _episode(corridor_rooms(), PredictionSchedule("simulated", 4, 3), steps=30)
     assert [c.prediction_age_steps for c in simulated[:3]] == [None] * 3
     assert all(3 <= c.prediction_age_steps <= 6 for c in simulated[3:])
     assert all(c.prediction_age_s == pytest.approx(0.1 * c.prediction_age_steps) for c in simulated[3:])
@@ -227,10 +228,11 @@ class _ThreadCounts(ObservedAsPrediction):
 
 
 @pytest.mark.parametrize("mode,cores", [("free", 2), ("thread", 2), ("simulated", 2), ("free", 1)])
-def test_the_explorer_sets_numba_threads_in_its_loop_and_its_worker(mode, cores):
+def test_the_explorer_sets_numba_threads_in_its_loop_and_its_worker(corridor_rooms, mode, cores):
     launched = numba.config.NUMBA_NUM_THREADS
     predictor = _ThreadCounts()
-    world, explorer = _explorer(PredictionSchedule(mode, 2, 1, wait_first=True), predictor, cores=cores)
+    world, explorer = _explorer(corridor_rooms(), PredictionSchedule(mode, 2, 1, wait_first=True), predictor,
+                                cores=cores)
     budget = explorer.budget
     assert budget == ThreadBudget(cores, mode != "simulated")
     inside = []

@@ -1,4 +1,4 @@
-"""The real-time profiles (#16): the default the CLI runs, its checks, and the reproducibility of its deterministic
+"""The real-time profiles: the default the CLI runs, its checks, and the reproducibility of its deterministic
 asynchronous mode end to end."""
 
 import json
@@ -68,6 +68,7 @@ def test_explore_refuses_a_profile_the_planner_cannot_use_and_defaults_around_it
     assert resolve_profile("full", make_planner("superex"), "lama_bp") == "full"
 
 
+@pytest.mark.slow
 def test_the_realtime_pipeline_replays_and_its_benchmark_episodes_are_reproducible(tmp_path):
     """``superex explore`` runs the default on the robot's clock (a step never waits for the predictor, so where
     predictions land depends on the machine): its recording keeps where they landed and a replay follows it to the
@@ -114,6 +115,7 @@ def test_a_replay_refuses_a_profile_defined_differently_since(tmp_path, monkeypa
     assert not (tmp_path / "replay" / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_a_benchmark_runs_every_planner_on_one_profile(tmp_path):
     """MapEx cannot use the one-member default with a LaMa predictor, so the whole run falls back to full: the
     planners are compared on the same pipeline."""

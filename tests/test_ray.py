@@ -1,27 +1,19 @@
 """The Ray backend runs the same episodes as the local pool (a local Ray instance with 2 CPUs)."""
 
-import json
-
 import pytest
 
 from superex_deploy.cli import main
 
 ray = pytest.importorskip("ray")
-DETERMINISTIC = ("map", "start_index", "planner", "coverage", "coverage_with_carving", "path_length_m", "goals", "iou",
-                 "steps", "finished")
-
-
-def _episodes(out):
-    return [{k: e[k] for k in DETERMINISTIC} for e in json.loads((out / "results.json").read_text())["episodes"]]
 
 
 @pytest.mark.slow
-def test_a_benchmark_on_ray_gives_the_local_pools_results(tmp_path):
+def test_a_benchmark_on_ray_gives_the_local_pools_results(deterministic_episodes, tmp_path):
     base = ["benchmark", "--maps", "50052750", "--planners", "nearest,upen,mapex", "--steps", "80", "--jobs", "2"]
     assert main(base + ["--out", str(tmp_path / "local")]) == 0
     assert main(base + ["--backend", "ray", "--out", str(tmp_path / "ray")]) == 0
-    assert _episodes(tmp_path / "ray") == _episodes(tmp_path / "local")
-    assert len(_episodes(tmp_path / "ray")) == 12
+    assert deterministic_episodes(tmp_path / "ray") == deterministic_episodes(tmp_path / "local")
+    assert len(deterministic_episodes(tmp_path / "ray")) == 12
     assert not ray.is_initialized()  # the local instance was shut down
 
 

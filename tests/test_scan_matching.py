@@ -120,7 +120,7 @@ def test_a_known_error_is_matched_back_in_a_hand_built_room(error):
 
 def test_known_errors_are_matched_back_on_train_floors():
     """The default search finds the true pose within a cell and half a degree; a prior five times stronger (the
-    default before #24's second pass, which held the map closer to the belief) still removes most of the error."""
+    an earlier default, which held the map closer to the belief) still removes most of the error."""
     rng = np.random.default_rng(7)
     weak, default = ScanMatcher(), ScanMatcher(ScanMatchingConfig(prior_weight=0.05))
     covariance = PoseCovariance.from_sigmas(0.1, math.radians(2.0))

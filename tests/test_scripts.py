@@ -32,6 +32,7 @@ def test_the_scripts_are_found():
     assert len(SCRIPTS) >= 8 and ROOT / "scripts" / "bench_explore.py" in SCRIPTS
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda path: path.stem)
 def test_a_script_imports_without_running_and_answers_help(script):
     if _needs_torch(script) and importlib.util.find_spec("torch") is None:
@@ -46,3 +47,31 @@ def test_a_script_imports_without_running_and_answers_help(script):
     helped = _run([str(script), "--help"])
     assert helped.returncode == 0, helped.stderr[-2000:]
     assert helped.stdout.startswith("usage:"), helped.stdout[:500]
+
+
+def _path_edits_and_script_imports(source: str) -> list[str]:
+    """What a script does to reach other code outside the package: ``sys.path`` used anywhere, or an import of a
+    sibling script (a module named like a file in scripts/)."""
+    siblings = {path.stem for path in SCRIPTS}
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr == "path" and getattr(node.value, "id", None) == "sys":
+            found.append(f"sys.path at line {node.lineno}")
+        names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                 else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+        found += [f"imports the script {name} at line {node.lineno}" for name in names if name in siblings]
+    return found
+
+
+def test_the_check_finds_path_edits_and_script_imports():
+    source = "import sys\nsys.path.insert(0, 'x')\nfrom ceiling_study import scenarios\n"
+    assert sorted(_path_edits_and_script_imports(source)) == ["imports the script ceiling_study at line 3",
+                                                              "sys.path at line 2"]
+    assert _path_edits_and_script_imports("import sys\nprint(sys.argv)\nfrom superex_deploy import evaluation\n") == []
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda path: path.stem)
+def test_a_script_neither_edits_sys_path_nor_imports_another_script(script):
+    """Shared code lives in the package (superex_deploy.evaluation), not in a script others reach through
+    sys.path."""
+    assert not _path_edits_and_script_imports(script.read_text(encoding="utf-8"))

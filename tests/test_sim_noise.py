@@ -1,4 +1,4 @@
-"""Imperfection in the simulator (issue #24): localisation error, belief-relative continuous motion, LiDAR noise and
+"""Imperfection in the simulator: localisation error, belief-relative continuous motion, LiDAR noise and
 the SPAD photon budgets; all of it off by default, where the world is what it was (the legacy episodes of
 tests/test_onboard.py hold it to that)."""
 
@@ -28,14 +28,6 @@ from superex_deploy.spad_types import SPAD_PRESETS, SpadConfig, spad_preset
 _EXACT = PoseNoise()  # continuous motion, belief = truth: the belief is then set by hand
 
 
-def _box(rows=20, cols=20, walls=()) -> OccupancyGrid:
-    occupied = np.zeros((rows, cols), bool)
-    occupied[0, :] = occupied[-1, :] = occupied[:, 0] = occupied[:, -1] = True
-    for cell in walls:
-        occupied[cell] = True
-    return OccupancyGrid(occupied, ~occupied, 0.1, "box")
-
-
 def _command(world: World, cells) -> Command:
     cells = np.asarray(cells, np.int64)
     return Command(0.0, None, None, world.frame.centres_xy(cells), cells, False, False)
@@ -47,8 +39,8 @@ def _north_of(cell, n):
 
 # Belief-relative motion on hand-built grids.
 
-def test_a_belief_one_cell_off_drives_the_robot_one_cell_off_the_path():
-    world = World(_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
+def test_a_belief_one_cell_off_drives_the_robot_one_cell_off_the_path(walled_box):
+    world = World(walled_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
     truth = world.observe().pose
     assert (truth.x, truth.y, truth.yaw) == pytest.approx((0.55, 0.95, 0.0))
     world.belief = Pose2D(truth.x + 0.1, truth.y, 0.0)  # the robot believes it is one cell east
@@ -60,8 +52,8 @@ def test_a_belief_one_cell_off_drives_the_robot_one_cell_off_the_path():
     assert world.collisions == 0
 
 
-def test_a_wall_stops_the_robot_at_the_last_free_position_and_counts():
-    world = World(_box(walls=[(8, 5)]), (10, 5), WorldConfig(pose_noise=_EXACT))
+def test_a_wall_stops_the_robot_at_the_last_free_position_and_counts(walled_box):
+    world = World(walled_box(walls=[(8, 5)]), (10, 5), WorldConfig(pose_noise=_EXACT))
     truth = world.observe().pose
     world.belief = Pose2D(truth.x + 0.1, truth.y, 0.0)
     metres = world.apply(_command(world, _north_of((10, 6), 4)))  # column 6 is free, column 5 is not
@@ -73,8 +65,8 @@ def test_a_wall_stops_the_robot_at_the_last_free_position_and_counts():
     assert world.collisions == 2 and world.pose_rc == (9, 5)
 
 
-def test_a_yaw_error_turns_the_displacement():
-    world = World(_box(), (10, 10), WorldConfig(pose_noise=_EXACT))
+def test_a_yaw_error_turns_the_displacement(walled_box):
+    world = World(walled_box(), (10, 10), WorldConfig(pose_noise=_EXACT))
     truth = world.observe().pose
     world.belief = Pose2D(truth.x, truth.y, math.pi / 2)  # believes it faces north, faces east
     world.apply(_command(world, _north_of((10, 10), 3)))  # three cells ahead, as the robot sees it
@@ -82,11 +74,11 @@ def test_a_yaw_error_turns_the_displacement():
     assert world.pose_rc == (10, 13)  # straight ahead, as it really faces: east
 
 
-def test_with_pose_noise_no_command_is_refused_and_without_it_the_old_rules_hold():
-    noisy = World(_box(), (10, 5), WorldConfig(pose_noise=PoseNoise.from_sigmas(0.05, 1.0)))
+def test_with_pose_noise_no_command_is_refused_and_without_it_the_old_rules_hold(walled_box):
+    noisy = World(walled_box(), (10, 5), WorldConfig(pose_noise=PoseNoise.from_sigmas(0.05, 1.0)))
     noisy.observe()
     noisy.apply(_command(noisy, [(3, 3), (3, 4), (3, 6)]))  # elsewhere, and not 8-connected: still driven
-    exact = World(_box(), (10, 5))
+    exact = World(walled_box(), (10, 5))
     with pytest.raises(ValueError, match="starts at cell"):
         exact.apply(_command(exact, [(3, 3), (3, 4)]))
     assert exact.observe().pose_covariance is None
@@ -202,18 +194,18 @@ def test_lidar_noise_has_the_configured_rates():
     np.testing.assert_array_equal(again, ranges.astype(np.float32))  # deterministic per seed
 
 
-def test_the_world_sends_noisy_scans_with_a_minimum_range():
-    world = World(_box(), (10, 10), WorldConfig(lidar_noise=LidarNoise.from_sigma(0.02, seed=1)))
+def test_the_world_sends_noisy_scans_with_a_minimum_range(walled_box):
+    world = World(walled_box(), (10, 10), WorldConfig(lidar_noise=LidarNoise.from_sigma(0.02, seed=1)))
     scan = world.observe().scan
     assert scan.range_min == pytest.approx(0.05) and np.isnan(scan.ranges).any()
-    clean = World(_box(), (10, 10)).observe().scan
+    clean = World(walled_box(), (10, 10)).observe().scan
     valid = ~np.isnan(scan.ranges) & (np.abs(scan.ranges - clean.ranges) < 0.1)
     assert valid.mean() > 0.95
     assert np.std(scan.ranges[valid] - clean.ranges[valid]) == pytest.approx(0.02, rel=0.25)
 
 
-def test_the_scan_turns_with_the_robot():
-    world = World(_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
+def test_the_scan_turns_with_the_robot(walled_box):
+    world = World(walled_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
     world.observe()
     world.apply(_command(world, _north_of((10, 5), 3)))  # heading north now, at the centre of (7, 5)
     scan = world.observe().scan
@@ -226,9 +218,9 @@ def test_the_scan_turns_with_the_robot():
 
 # The SPAD: from the true pose, and its photon budgets.
 
-def test_the_spad_scan_is_cast_from_the_true_continuous_pose():
+def test_the_spad_scan_is_cast_from_the_true_continuous_pose(walled_box):
     small = SpadConfig(n_rays=90, range_m=2.0, n_secondary=16)
-    grid = _box()
+    grid = walled_box()
     centre = simulate_scan(grid, (10, 10), small)
     same = simulate_scan(grid, (10, 10), small, origin_yx=(10.5, 10.5))
     np.testing.assert_array_equal(centre.histograms, same.histograms)
@@ -246,7 +238,7 @@ def test_the_spad_scan_is_cast_from_the_true_continuous_pose():
     np.testing.assert_allclose(turn, 0.0, atol=1e-9)  # the robot-frame angles turn back to the grid's
 
 
-def test_the_photon_budgets_set_the_noise_and_the_onboard_threshold():
+def test_the_photon_budgets_set_the_noise_and_the_onboard_threshold(walled_box):
     assert set(SPAD_PRESETS) == {"off", "realistic", "low"}
     small = SpadConfig(n_rays=60, range_m=3.0, n_secondary=16)
     assert spad_preset("off", small) is small and spad_preset("off") == SpadConfig()
@@ -256,7 +248,7 @@ def test_the_photon_budgets_set_the_noise_and_the_onboard_threshold():
     assert small.direct_counts > realistic.direct_counts > low.direct_counts
     assert realistic.n_bins == small.n_bins and realistic.bin_width_s == small.bin_width_s  # same histograms
     rng = np.random.default_rng(0)
-    thresholds = [estimate_los(simulate_scan(_box(), (10, 10), config, rng=rng)).late_threshold
+    thresholds = [estimate_los(simulate_scan(walled_box(), (10, 10), config, rng=rng)).late_threshold
                   for config in (small, realistic, low)]
     assert thresholds[0] == 0.0 < thresholds[1] < thresholds[2]
     with pytest.raises(ValueError, match="unknown SPAD noise preset"):
@@ -321,6 +313,7 @@ def test_bad_noise_flags_fail_with_a_clear_message(tmp_path, capsys, argv, messa
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_explore_and_benchmark_run_with_noise(tmp_path, capsys):
     out = tmp_path / "explore"
     assert main(["explore", "--map", "50052750", "--steps", "50", "--pose-noise", "0.05,1", "--lidar-noise", "0.02",

@@ -10,18 +10,11 @@ from superex_deploy.onboard.prediction.baselines import EvidenceAsPrediction
 from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
 
 
-def _episode(coverage, carved=None, iou=((0, 0.0, 0.0),), start=0, name="m"):
-    steps, values, covs = zip(*iou)
-    return {"map": name, "start_index": start, "coverage": list(coverage),
-            "coverage_with_carving": list(carved if carved is not None else coverage),
-            "iou": {"steps": list(steps), "iou": list(values), "coverage": list(covs)}}
-
-
-def test_scenario_metrics_on_a_hand_built_log():
+def test_scenario_metrics_on_a_hand_built_log(episode_log):
     # Linear growth to 0.5 over 10 steps, then the episode ends (it keeps its final coverage).
     coverage = np.linspace(0.05, 0.5, 10)
     iou = [(0, 0.1, 0.04), (3, 0.2, 0.08), (5, 0.3, 0.12), (7, 0.4, 0.25), (9, 0.5, 0.5)]
-    m = scenario_metrics(_episode(coverage, iou=iou), steps=20)
+    m = scenario_metrics(episode_log(coverage, iou=iou), steps=20)
     assert m["auc_first_half"] == pytest.approx(np.mean(coverage))
     assert m["auc"] == pytest.approx((coverage.sum() + 10 * 0.5) / 20)
     assert m["los_auc"] == m["auc"]
@@ -29,9 +22,9 @@ def test_scenario_metrics_on_a_hand_built_log():
     assert m["iou_bin_0.0_0.1"] == pytest.approx(0.15) and m["iou_bin_0.1_0.2"] == 0.3
     assert m["iou_bin_0.2_0.3"] == 0.4 and m["final_iou"] == 0.5
     assert "coverage@100" not in m  # beyond the horizon
-    never = scenario_metrics(_episode([0.01, 0.02], iou=[(0, 0.1, 0.01)]), steps=4)
+    never = scenario_metrics(episode_log([0.01, 0.02], iou=[(0, 0.1, 0.01)]), steps=4)
     assert np.isnan(never["iou@0.05"]) and np.isnan(never["iou_bin_0.1_0.2"])
-    carved = scenario_metrics(_episode([0.1, 0.2], carved=[0.2, 0.3]), steps=2)
+    carved = scenario_metrics(episode_log([0.1, 0.2], carved=[0.2, 0.3]), steps=2)
     assert carved["auc"] == pytest.approx(0.25) and carved["los_auc"] == pytest.approx(0.15)
 
 
@@ -46,9 +39,9 @@ def test_bootstrap_interval_brackets_the_mean_and_narrows_with_more_data():
     assert all(np.isnan(bootstrap_interval([np.nan])))
 
 
-def test_paired_summary_pairs_by_scenario_and_counts_better_and_worse():
-    reference = [_episode([0.1] * 4, start=k) for k in range(3)]
-    candidate = [_episode([0.2] * 4, start=0), _episode([0.1] * 4, start=1), _episode([0.05] * 4, start=2)]
+def test_paired_summary_pairs_by_scenario_and_counts_better_and_worse(episode_log):
+    reference = [episode_log([0.1] * 4, start=k) for k in range(3)]
+    candidate = [episode_log([0.2] * 4, start=0), episode_log([0.1] * 4, start=1), episode_log([0.05] * 4, start=2)]
     paired = paired_summary(reference, candidate[::-1], steps=4)["auc"]  # order does not matter
     assert paired["mean"] == pytest.approx(0.05 / 3) and paired["n"] == 3
     assert (paired["better"], paired["worse"], paired["tied"]) == (1, 1, 1)
@@ -67,6 +60,7 @@ def test_the_evidence_predictor_reads_the_evidence_only_on_unknown_cells():
         EvidenceAsPrediction().predict(observed, np.zeros((3, 3), np.float32))
 
 
+@pytest.mark.slow
 def test_paper_suite_runs_rows_resumes_and_refuses_other_settings(tmp_path, capsys):
     out = tmp_path / "paper"
     argv = ["benchmark", "--suite", "paper", "--rows", "nearest,superex_oracle", "--maps", "50052750",

@@ -13,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from superex_deploy.benchmarking import ScenarioTask, run_scenario
+from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.commands.options import (add_noise_options, add_parallel_options, add_planner_option,
                                              add_profile_option, check_jobs, check_output_folder, eval_maps,
                                              make_backend, name_list, noise_options, noise_settings,

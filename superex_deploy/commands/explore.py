@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.render import GifRecorder
-    from superex_deploy.benchmarking import with_noise, with_spad_noise
+    from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
 
     # Every check first: nothing is created before the last of them.
     if args.steps < 1:

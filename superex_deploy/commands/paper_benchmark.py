@@ -53,7 +53,7 @@ def _same_protocol(recorded: dict, setting: dict) -> bool:
 def _make_floors(maps: list[str], out: Path, backend) -> list[dict]:
     """The altered floor of every scenario of ``maps``, made once into ``OUT/floors/`` (resumable); their
     summaries (:func:`~superex_deploy.sim.altered_floors.floor_summary`), in scenario order."""
-    from superex_deploy.benchmarking import make_altered_floor
+    from superex_deploy.evaluation.tasks import make_altered_floor
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
@@ -71,7 +71,7 @@ def _refuse_other_settings(path: Path, recorded: dict, setting: dict, advice: st
 def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Path, setting: dict,
              backend) -> list[dict]:
     """The row's episodes, each appended to ``rows_dir/NAME.episodes.jsonl`` as it finishes (a rerun resumes)."""
-    from superex_deploy.benchmarking import ScenarioTask, run_scenario
+    from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 

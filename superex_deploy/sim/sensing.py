@@ -42,10 +42,20 @@ class SpadSensing:
     _processing: Optional[SpadProcessing] = field(default=None, init=False, repr=False)
     _rng: Optional[np.random.Generator] = field(default=None, init=False, repr=False)
 
+    def make_processing(self) -> SpadProcessing:
+        """The onboard :class:`SpadProcessing` an episode runs (a subclass may return another, e.g. one that also
+        measures the processing it would replace)."""
+        return SpadProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter, skips=self.skips)
+
     def processing(self) -> SpadProcessing:
-        """A fresh onboard :class:`SpadProcessing` for one episode; :attr:`evidence` follows it."""
-        self._processing = SpadProcessing(sensor=self.spad, nlos_cfg=self.nlos_cfg, bp_filter=self.bp_filter,
-                                          skips=self.skips)
+        """A fresh onboard :class:`SpadProcessing` for one episode (:meth:`make_processing`); :attr:`evidence`
+        and :attr:`current_processing` follow it."""
+        self._processing = self.make_processing()
+        return self._processing
+
+    @property
+    def current_processing(self) -> Optional[SpadProcessing]:
+        """The processing of the current episode (its counters say what it left out), or None before one."""
         return self._processing
 
     @property

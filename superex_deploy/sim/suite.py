@@ -14,11 +14,12 @@ Episodes on altered floors (``superex benchmark --suite altered``) carry ``dead_
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from superex_deploy.sim.metrics import coverage_at, difference_counts, pair_by_scenario
+from superex_deploy.sim.metrics import (coverage_at, coverage_auc, difference_counts, first_half_auc,
+                                        pair_by_scenario)
 
 __all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
            "DEAD_END_METRICS", "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary",
@@ -74,10 +75,6 @@ def _series(episode: dict, key: str) -> list[float]:
     return episode[key] if episode[key] else [0.0]
 
 
-def _auc(series: Sequence[float], first: int, last: int) -> float:
-    return float(np.mean([coverage_at(series, s) for s in range(first, last + 1)]))
-
-
 def scenario_metrics(episode: dict, steps: int = 1000) -> dict[str, float]:
     """Metrics of one episode (fractions, not percent).
 
@@ -90,16 +87,15 @@ def scenario_metrics(episode: dict, steps: int = 1000) -> dict[str, float]:
         ``scoring_ms_per_goal`` and ``prediction_ms_per_goal`` (the mean time per goal choice).
     """
     carved, los = _series(episode, "coverage_with_carving"), _series(episode, "coverage")
-    half = max(steps // 2, 1)
     out = {}
     for n in CHECKPOINTS:
         if n <= steps:
             out[f"coverage@{n}"] = coverage_at(carved, n)
             out[f"los_coverage@{n}"] = coverage_at(los, n)
-    out["auc_first_half"] = _auc(carved, 1, half)
-    out["auc"] = _auc(carved, 1, steps)
-    out["los_auc_first_half"] = _auc(los, 1, half)
-    out["los_auc"] = _auc(los, 1, steps)
+    out["auc_first_half"] = first_half_auc(carved, steps)
+    out["auc"] = coverage_auc(carved, 1, steps)
+    out["los_auc_first_half"] = first_half_auc(los, steps)
+    out["los_auc"] = coverage_auc(los, 1, steps)
     iou_cov = np.asarray(episode["iou"]["coverage"], float)
     iou = np.asarray(episode["iou"]["iou"], float)
     for level in IOU_LEVELS:
@@ -121,16 +117,32 @@ def scenario_metrics(episode: dict, steps: int = 1000) -> dict[str, float]:
 
 
 def bootstrap_interval(values: Sequence[float], confidence: float = 0.95, resamples: int = 10000,
-                       seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap interval of the mean of ``values`` (finite ones; ``(nan, nan)`` if none)."""
+                       seed: int = 0, *, rng: Optional[np.random.Generator] = None,
+                       statistic: Callable[..., np.ndarray] = np.mean,
+                       levels: Optional[tuple[float, float]] = None) -> tuple[float, float]:
+    """Percentile bootstrap interval of ``statistic`` (the mean by default) over ``values`` (finite ones;
+    ``(nan, nan)`` if none): the one implementation every benchmark's interval comes from.
+
+    Args:
+        values: the sample, float (paired differences, for a paired interval).
+        confidence: the interval's coverage; its quantiles are ``(1 - confidence) / 2`` and ``1 - that``.
+        resamples: bootstrap resamples, each of ``len(values)`` draws with replacement.
+        seed: seeds a fresh generator, unless ``rng`` is given.
+        rng: draw from this generator instead (a stream shared by several intervals, advanced by each).
+        statistic: ``statistic(draws, axis=1)`` of the ``[resamples, n]`` resampled values (``np.median``...).
+        levels: the two quantile levels instead of those of ``confidence`` (``(0.025, 0.975)``: the spelling
+            some benchmarks were committed with, which differs from 0.95's in the last bits).
+    """
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
     if values.size == 0:
         return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = values[rng.integers(0, values.size, (resamples, values.size))].mean(axis=1)
-    tail = (1.0 - confidence) / 2.0
-    return float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))
+    rng = np.random.default_rng(seed) if rng is None else rng
+    draws = statistic(values[rng.integers(0, values.size, (resamples, values.size))], axis=1)
+    if levels is None:
+        tail = (1.0 - confidence) / 2.0
+        levels = (tail, 1.0 - tail)
+    return float(np.quantile(draws, levels[0])), float(np.quantile(draws, levels[1]))
 
 
 def scenario_key(episode: dict) -> tuple:

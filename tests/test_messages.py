@@ -3,12 +3,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D,
-                                     PoseCovariance)
-
-
-def _scan():
-    return LaserScan(angle_min=0.0, angle_increment=0.5, range_min=0.1, range_max=5.0, ranges=np.ones(4, np.float32))
+from superex_deploy.messages import MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance
 
 
 def test_a_frame_grid_round_trips_through_the_message():
@@ -103,13 +98,13 @@ def test_bad_pose_covariances_are_refused(matrix, message):
         PoseCovariance(matrix)
 
 
-def test_an_observation_needs_a_scan_or_a_map():
-    pose = Pose2D(0.5, 0.5)
+def test_an_observation_needs_a_scan_or_a_map(laser_scan):
+    pose, scan = Pose2D(0.5, 0.5), laser_scan(np.ones(4), angle_increment=0.5, dtype=np.float32)
     with pytest.raises(ValueError, match="scan must be a LaserScan"):
         Observation(stamp_s=0.0, pose=pose, scan=None)
     grid = OccupancyGridMessage(resolution_m=0.1, width=2, height=2, origin_xy=(0.0, 0.0), data=np.zeros(4, np.int8))
     assert Observation(stamp_s=0.0, pose=pose, scan=None, occupancy_grid=grid).scan is None
     with pytest.raises(ValueError, match="pose_covariance must be a PoseCovariance"):
-        Observation(stamp_s=0.0, pose=pose, scan=_scan(), pose_covariance=np.eye(3))
+        Observation(stamp_s=0.0, pose=pose, scan=scan, pose_covariance=np.eye(3))
     with pytest.raises(ValueError, match="occupancy_grid must be an OccupancyGridMessage"):
-        Observation(stamp_s=0.0, pose=pose, scan=_scan(), occupancy_grid=np.zeros((2, 2), np.int8))
+        Observation(stamp_s=0.0, pose=pose, scan=scan, occupancy_grid=np.zeros((2, 2), np.int8))

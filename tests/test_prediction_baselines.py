@@ -1,3 +1,6 @@
+"""The predictors that need no model (superex_deploy.onboard.prediction.baselines, and the simulator's oracle): what
+they fill unknown cells with, and the maps they refuse."""
+
 import numpy as np
 import pytest
 

@@ -1,5 +1,6 @@
-"""Issue #23, the rows of the hostile pass: every bad input gets one clear error where it enters, never a silent
-wrong result, a crash deep inside, or a warning."""
+"""Bad inputs at every entry point (the explorer's step, the mapper's ranges, planner options, map files and frames,
+recordings, stamps and headings): each gets one clear error where it enters, never a silent wrong result, a crash
+deep inside, or a warning."""
 
 import math
 import struct
@@ -24,18 +25,13 @@ from superex_deploy.onboard.types import Planner
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
 RAYS = 72
-INCREMENT = 2 * math.pi / RAYS
 
 
-def _scan(ranges, range_min=0.1, range_max=5.0) -> LaserScan:
-    return LaserScan(0.0, INCREMENT, range_min, range_max, np.asarray(ranges, np.float64))
+def _observation(scan, stamp=0.0, pose=Pose2D(10.0, 10.0)) -> Observation:
+    return Observation(stamp, pose, scan)
 
 
-def _observation(ranges, stamp=0.0, pose=Pose2D(10.0, 10.0)) -> Observation:
-    return Observation(stamp, pose, _scan(ranges))
-
-
-# Row 1: a scan with no valid reading leaves the map untouched and never reports `finished`.
+# A scan with no valid reading leaves the map untouched and never reports `finished`.
 
 INVALID = st.one_of(st.just(math.nan), st.just(-math.inf), st.floats(-1e300, 0.0999, allow_nan=False))
 
@@ -45,14 +41,14 @@ INVALID = st.one_of(st.just(math.nan), st.just(-math.inf), st.floats(-1e300, 0.0
 @example(ranges=[math.nan] * RAYS)
 @example(ranges=[-math.inf] * RAYS)
 @example(ranges=[0.05] * RAYS)
-def test_a_scan_without_valid_readings_changes_nothing_and_is_not_finished(ranges):
+def test_a_scan_without_valid_readings_changes_nothing_and_is_not_finished(laser_scan, ranges):
     explorer = Explorer(MapFrame((200, 200), 0.1), make_planner("nearest"), ObservedAsPrediction())
     for step in range(3):
-        command = explorer.step(_observation(ranges, stamp=float(step)))
+        command = explorer.step(_observation(laser_scan(ranges), stamp=float(step)))
         assert not command.finished and command.goal_rc is None and command.step == step
         assert not explorer.mapper.known().any()
     # The loop of the README goes on; the first valid scan (no return on any ray: free up to 5 m) gives a goal.
-    command = explorer.step(_observation(np.full(RAYS, np.inf), stamp=3.0))
+    command = explorer.step(_observation(laser_scan(np.full(RAYS, np.inf)), stamp=3.0))
     assert command.goal_rc is not None and not command.finished and explorer.mapper.known().any()
 
 
@@ -69,13 +65,13 @@ def test_finished_means_a_known_map_without_a_reachable_frontier():
 @example(value=1e300)
 @example(value=-1e300)
 @example(value=3.4e38)
-def test_every_range_is_a_return_no_return_or_skipped_without_warnings(value):
+def test_every_range_is_a_return_no_return_or_skipped_without_warnings(laser_scan, value):
     """REP 117: [range_min, range_max] a return; +inf or above range_max no return (free up to range_max); NaN,
     -inf or below range_min invalid (skipped). float64 ranges beyond float32 become +-inf, without a warning."""
     frame, pose = MapFrame((120, 120), 0.1), Pose2D(6.0, 6.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        scan = _scan(np.full(RAYS, value), range_min=0.1, range_max=5.0)
+        scan = laser_scan(np.full(RAYS, value), range_min=0.1, range_max=5.0)
         mapper = Mapper(frame.shape)
         mapper.integrate_scan(frame, pose, scan)
     stored = float(scan.ranges[0])
@@ -84,12 +80,12 @@ def test_every_range_is_a_return_no_return_or_skipped_without_warnings(value):
         return
     returned = stored <= scan.range_max
     equivalent = Mapper(frame.shape)
-    equivalent.integrate_scan(frame, pose, _scan(np.full(RAYS, stored if returned else np.inf)))
+    equivalent.integrate_scan(frame, pose, laser_scan(np.full(RAYS, stored if returned else np.inf)))
     assert np.array_equal(mapper.known(), equivalent.known()) and mapper.known().any()
     assert mapper.seen_wall.any() == returned
 
 
-# Row 12: one caller at a time.
+# One caller at a time.
 
 class _BlockingPlanner(Planner):
     """The nearest-frontier choice, held inside the step until the test lets it go."""
@@ -105,31 +101,32 @@ class _BlockingPlanner(Planner):
         return make_planner("nearest").choose_goal(ctx)
 
 
-def test_a_second_concurrent_step_raises_instead_of_repeating_a_step_number():
+def test_a_second_concurrent_step_raises_instead_of_repeating_a_step_number(laser_scan):
     planner = _BlockingPlanner()
     explorer = Explorer(MapFrame((200, 200), 0.1), planner, ObservedAsPrediction())
     results: list = []
-    first = threading.Thread(target=lambda: results.append(explorer.step(_observation(np.full(RAYS, np.inf)))))
+    blind = laser_scan(np.full(RAYS, np.inf))
+    first = threading.Thread(target=lambda: results.append(explorer.step(_observation(blind))))
     first.start()
     try:
         assert planner.entered.wait(60)  # the first step is inside the planner now
         with pytest.raises(RuntimeError, match="one caller at a time"):
-            explorer.step(_observation(np.full(RAYS, np.inf), stamp=1.0))
+            explorer.step(_observation(laser_scan(np.full(RAYS, np.inf)), stamp=1.0))
     finally:
         planner.release.set()
         first.join(60)
     assert [c.step for c in results] == [0] and explorer.steps == 1
-    assert explorer.step(_observation(np.full(RAYS, np.inf), stamp=2.0)).step == 1  # the lock was released
+    assert explorer.step(_observation(laser_scan(np.full(RAYS, np.inf)), stamp=2.0)).step == 1  # the lock was released
 
 
-def test_a_step_that_raises_releases_the_lock():
+def test_a_step_that_raises_releases_the_lock(laser_scan):
     explorer = Explorer(MapFrame((200, 200), 0.1), make_planner("nearest"), ObservedAsPrediction())
     with pytest.raises(ValueError, match="outside the map"):
-        explorer.step(_observation(np.full(RAYS, np.inf), pose=Pose2D(100.0, 100.0)))
-    assert explorer.step(_observation(np.full(RAYS, np.inf))).step == 0
+        explorer.step(_observation(laser_scan(np.full(RAYS, np.inf)), pose=Pose2D(100.0, 100.0)))
+    assert explorer.step(_observation(laser_scan(np.full(RAYS, np.inf)))).step == 0
 
 
-# Rows 3, 4, 5: planner options are checked when the planner is built.
+# Planner options are checked when the planner is built.
 
 @pytest.mark.parametrize("planner, field, value", [
     ("mapex", "visibility", 3), ("hector", "visibility", "none"), ("upen", "rrt_samples", math.inf),
@@ -186,7 +183,7 @@ def test_a_planner_refuses_a_config_of_another_planner():
         UpenPlanner(MapexConfig())
 
 
-# Rows 6, 7: one limit on map size, checked before anything is allocated.
+# One limit on map size, checked before anything is allocated.
 
 def _png_header(width: int, height: int) -> bytes:
     """A grey 8-bit PNG that declares ``width`` x ``height`` pixels and holds one short row of data: only a reader
@@ -251,39 +248,31 @@ def test_a_map_frame_of_any_shape_is_built_or_refused(rows, cols):
     assert frame.shape[0] * frame.shape[1] <= max_map_cells()
 
 
-def _record(path, metadata, frame=MapFrame((20, 20), 0.1), steps=1):
-    from superex_deploy.recording import EpisodeRecorder
-
-    with EpisodeRecorder(path, frame, metadata) as recorder:
-        for step in range(steps):
-            observation = Observation(float(step), Pose2D(1.0, 1.0, 7.0), _scan(np.full(RAYS, 1.0)))
-            recorder.write(observation, Command(float(step), None, None, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
-                                                False, False, step=step), np.zeros((20, 20), np.int8))
-
-
-def test_a_recording_with_a_huge_map_frame_is_refused(tmp_path):
+def test_a_recording_with_a_huge_map_frame_is_refused(write_recording, tmp_path):
     from superex_deploy.recording import read_recording
 
     path = tmp_path / "huge.mcap"
-    _record(path, {"frame": {"shape": [200000, 200000], "resolution_m": 0.1, "origin_xy": [0.0, 0.0]}})
+    write_recording(path, yaw=7.0,
+                    metadata={"frame": {"shape": [200000, 200000], "resolution_m": 0.1, "origin_xy": [0.0, 0.0]}})
     with pytest.raises(ValueError, match="map frame .* more than the limit of"):
         read_recording(path)
 
 
-# Row 10: the metadata of a recording has fixed types.
+# The metadata of a recording has fixed types.
 
 @pytest.mark.parametrize("key, value", [("planner_options", [1, 2]), ("planner_options", "x"), ("seed", "3"),
                                         ("seed", True), ("planner", 3), ("explorer", []), ("frame", None)])
-def test_recording_metadata_of_the_wrong_type_is_refused(tmp_path, monkeypatch, key, value, capsys):
+def test_recording_metadata_of_the_wrong_type_is_refused(write_recording, tmp_path, monkeypatch, key, value, capsys):
     import superex_deploy.recording.writer as writer
     from superex_deploy.cli import main
     from superex_deploy.recording import read_recording
 
     path = tmp_path / "bad.mcap"
     with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
-        _record(path, {key: value})  # the writer refuses it
+        write_recording(path, yaw=7.0, metadata={key: value})  # the writer refuses it
     monkeypatch.setattr(writer, "check_metadata", lambda metadata, where: metadata)
-    _record(path, {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}, key: value})
+    write_recording(path, yaw=7.0,
+                    metadata={"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}, key: value})
     monkeypatch.undo()
     with pytest.raises(ValueError, match=f"metadata value '{key}' must be"):
         read_recording(path)
@@ -291,7 +280,7 @@ def test_recording_metadata_of_the_wrong_type_is_refused(tmp_path, monkeypatch, 
     assert f"metadata value '{key}' must be" in capsys.readouterr().err
 
 
-# Rows 11, 15: stamps and headings, one rule for the messages, the recorder and the mapper.
+# Stamps and headings, one rule for the messages, the recorder and the mapper.
 
 @FUZZ
 @given(stamp=st.one_of(ANY_FLOAT, st.integers(-10, 2 ** 40)))
@@ -299,11 +288,11 @@ def test_recording_metadata_of_the_wrong_type_is_refused(tmp_path, monkeypatch, 
 @example(stamp=1e12)
 @example(stamp=MAX_STAMP_S)
 @example(stamp=0.0)
-def test_a_stamp_is_a_ros_time_or_refused_and_every_accepted_one_records(tmp_path, stamp):
+def test_a_stamp_is_a_ros_time_or_refused_and_every_accepted_one_records(laser_scan, tmp_path, stamp):
     from superex_deploy.recording import read_recording
 
     try:
-        observation = Observation(stamp, Pose2D(1.0, 1.0), _scan(np.full(RAYS, 1.0)))
+        observation = Observation(stamp, Pose2D(1.0, 1.0), laser_scan(np.full(RAYS, 1.0)))
     except ValueError as error:
         assert "stamp_s must" in str(error)
         assert not (isinstance(stamp, (int, float)) and 0 <= stamp <= MAX_STAMP_S and math.isfinite(stamp))
@@ -348,10 +337,10 @@ def test_a_yaw_is_normalised_or_refused(yaw):
     assert abs(math.cos(pose.yaw) - math.cos(yaw)) <= tolerance and abs(math.sin(pose.yaw) - math.sin(yaw)) <= tolerance
 
 
-def test_a_normalised_yaw_is_what_is_recorded_and_replayed(tmp_path):
+def test_a_normalised_yaw_is_what_is_recorded_and_replayed(write_recording, tmp_path):
     from superex_deploy.recording import read_recording
 
     path = tmp_path / "yaw.mcap"
-    _record(path, {})
+    write_recording(path, yaw=7.0, metadata={})
     observation = read_recording(path).steps[0].observation
     assert observation.pose.yaw == Pose2D(0.0, 0.0, 7.0).yaw == math.remainder(7.0, math.tau)

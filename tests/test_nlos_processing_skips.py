@@ -1,5 +1,8 @@
-"""The SPAD processing's skips (#16): each trigger on hand-built scenes, the exact skip gives exactly the result of
-processing, and the physics invariants (sound carving, finite evidence) hold with every skip on."""
+"""The SPAD processing's frame skips (superex_deploy.onboard.nlos.processing.NlosSkips): each trigger on hand-built
+scenes (no unknown cell in reach, a robot standing still, an empty back-projection window, a filter input seen
+before, evidence every k-th frame), the exact skips give exactly the result of processing in full, the physics
+invariants (sound carving, finite evidence) hold with every skip on, and the options are checked and counted. The
+rays skipped inside the back-projection are in test_nlos_back_projection_skips.py."""
 
 from dataclasses import replace
 
@@ -7,22 +10,16 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start
-from superex_deploy.onboard.nlos import NlosConfig, carve_radius_cap_m
-from superex_deploy.onboard.nlos.processing import NlosSkips, SpadProcessing
+from superex_deploy.onboard.nlos import NlosConfig, carve_radius_cap_m, estimate_los
+from superex_deploy.onboard.nlos.back_projection import back_project_patch
+from superex_deploy.onboard.nlos.processing import COUNTS, NlosSkips, SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig
 
 RES = 0.1
 SENSOR = SpadConfig(n_rays=360, n_secondary=32, range_m=4.0)
 ALL = NlosSkips(without_unknown=True, when_still=True, filter_without_votes=True)
-
-
-def _l_corner():
-    """The test_nlos scene: the robot's corridor (rows 45-55) and a side corridor north to a hidden wall."""
-    walls = np.ones((70, 60), bool)
-    walls[45:56, 1:40] = False
-    walls[10:45, 30:40] = False
-    return OccupancyGrid(walls, ~walls, RES, "l-corner")
+EXACT = NlosSkips(rays_without_unknown=True, filter_same_input=True)
 
 
 class CountingFilter:
@@ -95,8 +92,8 @@ def test_the_no_unknown_skip_is_exact_on_random_scenes():
     assert triggered == 18
 
 
-def test_a_robot_standing_still_for_100_frames_is_processed_once():
-    grid = _l_corner()
+def test_a_robot_standing_still_for_100_frames_is_processed_once(l_corner):
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 12), SENSOR)
     bp_filter = CountingFilter()
     processing = SpadProcessing(sensor=SENSOR, bp_filter=bp_filter, skips=NlosSkips(when_still=True))
@@ -117,8 +114,8 @@ def test_a_robot_standing_still_for_100_frames_is_processed_once():
     assert processing.counts["still"] == 99 and bp_filter.calls == 2
 
 
-def test_a_turn_on_the_spot_is_not_still():
-    grid = _l_corner()
+def test_a_turn_on_the_spot_is_not_still(l_corner):
+    grid = l_corner()
     scan = simulate_scan(grid, (50, 12), SENSOR)
     turned = replace(scan, angles=scan.angles + 0.3)  # the same cell, another heading
     processing = SpadProcessing(sensor=SENSOR, skips=NlosSkips(when_still=True))
@@ -129,7 +126,7 @@ def test_a_turn_on_the_spot_is_not_still():
     assert processing.counts["still"] == 1
 
 
-def test_an_empty_back_projection_window_skips_the_filter():
+def test_an_empty_back_projection_window_skips_the_filter(l_corner):
     """In a hall whose walls lie beyond the sensor's range, no photon returns and nothing votes: the filter does
     not run and the evidence stays zero (without the skip, the learned filter's bias on an empty window would
     enter the running maximum)."""
@@ -144,7 +141,7 @@ def test_an_empty_back_projection_window_skips_the_filter():
     assert processing.counts["no_votes"] == 1 and bp_filter.calls == 0
     assert not evidence.any()
     # The L corner has a hidden wall: votes, so the filter runs.
-    corner = _l_corner()
+    corner = l_corner()
     processing.reset()
     processing.process_scan(simulate_scan(corner, (50, 12), SENSOR), np.zeros(corner.shape, bool))
     assert processing.counts["no_votes"] == 0 and bp_filter.calls == 1
@@ -194,3 +191,109 @@ def test_with_a_biased_filter_the_no_unknown_skip_also_leaves_out_the_bias():
     _, with_bias = full.process_scan(scan, known)
     _, without = skipped.process_scan(scan, known)
     assert with_bias.min() == np.float32(0.3) and not without.any()
+
+
+class PoseDependentFilter:
+    """A stand-in learned filter that depends on its input and the robot cell; counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, bp, pose_rc):
+        self.calls += 1
+        out = np.sqrt(bp).astype(np.float32)
+        out[pose_rc[0], :] = np.maximum(out[pose_rc[0], :], np.float32(0.25))
+        return out
+
+
+def _episode_frames(seed, n_frames, still_every=3):
+    """A random walk of frames on a train floor, standing still every ``still_every``-th frame, with the known
+    mask growing by what the frames carve (as in an episode)."""
+    rng = np.random.default_rng(seed)
+    grid = load_map(list_maps("train")[seed % 7])
+    pose = random_start(grid, rng, 0.3)
+    frames = []
+    for k in range(n_frames):
+        if k % still_every:
+            pose = random_start(grid, rng, 0.3)
+        frames.append((pose, simulate_scan(grid, pose, SENSOR)))
+    return grid, frames
+
+
+@pytest.mark.parametrize("bp_filter", [None, "counting"])
+def test_the_exact_skips_give_the_same_carving_and_evidence_as_processing_in_full(bp_filter):
+    for seed in range(3):
+        grid, frames = _episode_frames(seed, 15)
+        filters = [PoseDependentFilter(), PoseDependentFilter()] if bp_filter else [None, None]
+        full = SpadProcessing(sensor=SENSOR, bp_filter=filters[0])
+        skipping = SpadProcessing(sensor=SENSOR, bp_filter=filters[1], skips=EXACT)
+        known = np.zeros(grid.shape, bool)
+        rows, cols = np.indices(grid.shape)
+        for pose, scan in frames:
+            known |= (rows - pose[0]) ** 2 + (cols - pose[1]) ** 2 < 30 ** 2  # what the robot has seen around it
+            carved_f, evidence_f = full.process_scan(scan, known)
+            carved_s, evidence_s = skipping.process_scan(scan, known)
+            np.testing.assert_array_equal(carved_s, carved_f)
+            np.testing.assert_array_equal(evidence_s, evidence_f)
+            known |= carved_f
+        counts = skipping.counts
+        assert counts["rays_skipped"] > 0 and counts["rays"] > counts["rays_skipped"]
+        if bp_filter:
+            # Standing still with the same known cells repeats the filter's input: it runs once for those.
+            assert counts["same_input"] >= 1
+            assert filters[1].calls == filters[0].calls - counts["same_input"]
+        else:
+            assert counts["same_input"] == 0  # the Laplacian filter is cheap: always run
+
+
+def test_the_filter_reruns_when_the_input_or_the_robot_cell_changes():
+    grid, frames = _episode_frames(0, 2, still_every=10)  # the same cell twice
+    (pose, scan), _ = frames
+    bp_filter = PoseDependentFilter()
+    processing = SpadProcessing(sensor=SENSOR, bp_filter=bp_filter, skips=NlosSkips(filter_same_input=True))
+    known = np.zeros(grid.shape, bool)
+    processing.process_scan(scan, known)
+    processing.process_scan(scan, known)
+    assert bp_filter.calls == 1 and processing.counts["same_input"] == 1
+    # A known cell in the window changes the back-projection: the filter runs again.
+    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
+    r, c = np.argwhere(bp.values > 0)[0]
+    known[bp.top + r, bp.left + c] = True
+    processing.process_scan(scan, known)
+    assert bp_filter.calls == 2
+    # The same back-projection read from another robot cell is another input (the filter reads the cell).
+    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
+    assert processing._same_filter_input(bp, scan.pose_rc)
+    assert not processing._same_filter_input(bp, (scan.pose_rc[0], scan.pose_rc[1] + 1))
+
+
+def test_evidence_every_k_back_projects_every_kth_frame_and_carves_every_frame():
+    grid, frames = _episode_frames(1, 9, still_every=100)
+    bp_filter = PoseDependentFilter()
+    every3 = SpadProcessing(sensor=SENSOR, bp_filter=bp_filter, skips=NlosSkips(evidence_every=3))
+    full = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter())
+    known = np.zeros(grid.shape, bool)
+    reference = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter())  # fed only frames 0, 3, 6
+    for k, (pose, scan) in enumerate(frames):
+        carved_k, evidence_k = every3.process_scan(scan, known)
+        carved_f, _ = full.process_scan(scan, known)
+        np.testing.assert_array_equal(carved_k, carved_f)  # carving is never skipped
+        if k % 3 == 0:
+            reference.process_scan(scan, known)
+        np.testing.assert_array_equal(evidence_k, reference.evidence)
+    assert bp_filter.calls == 3
+    assert every3.counts["evidence_skipped"] == 6 and every3.counts["frames"] == 9
+
+
+def test_the_new_skips_are_checked_and_counted():
+    with pytest.raises(ValueError, match="evidence_every must be an integer >= 1, got 0"):
+        NlosSkips(evidence_every=0)
+    with pytest.raises(ValueError, match="evidence_every must be an integer >= 1, got True"):
+        NlosSkips(evidence_every=True)
+    with pytest.raises(ValueError, match="rays_without_unknown must be True or False"):
+        NlosSkips(rays_without_unknown=1)
+    processing = SpadProcessing(skips=EXACT)
+    assert tuple(processing.counts) == COUNTS
+    processing.counts["rays"] = 5
+    processing.reset()
+    assert set(processing.counts.values()) == {0}

@@ -8,7 +8,7 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from superex_deploy.maps import OccupancyGrid, load_map, start_poses
+from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import Observation, OccupancyGridMessage, Pose2D, PoseCovariance
 from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.onboard.planning.motion import MotionConfig
@@ -48,6 +48,7 @@ def _drive(world, explorer, steps, observe=None, after=None):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planner,spad", [("nearest", False), ("mapex", True)])
 def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner, spad):
     grid = load_map(MAP)
@@ -96,6 +97,7 @@ def test_a_slam_map_on_another_lattice_or_resolution_is_refused_and_may_cover_an
     assert command.goal_rc is not None
 
 
+@pytest.mark.slow
 def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goals(tmp_path):
     from superex_deploy.cli import main
 
@@ -159,17 +161,9 @@ class _CarveAcrossTheDoor(SpadProcessing):
         return self.block & ~known, self._evidence
 
 
-def _two_rooms():
-    walls = np.zeros((30, 40), bool)
-    walls[[0, -1], :] = walls[:, [0, -1]] = True
-    walls[:, 20] = True
-    walls[12:18, 20] = False
-    return OccupancyGrid(walls, ~walls, 0.1, "two rooms")
-
-
 @pytest.mark.parametrize("drive_carved", [None, True])
-def test_with_a_pose_covariance_paths_cross_only_cells_the_line_of_sight_holds_free(drive_carved):
-    grid = _two_rooms()
+def test_with_a_pose_covariance_paths_cross_only_cells_the_line_of_sight_holds_free(two_rooms, drive_carved):
+    grid = two_rooms()
     sensor = SpadConfig(n_rays=100, range_m=3.0)
     world = World(grid, (5, 5), WorldConfig(spad=sensor))
     cfg = ExplorerConfig(motion=MotionConfig(drive_carved=drive_carved))

@@ -1,24 +1,22 @@
-"""The exact SPAD skips of issue #25: rays whose late light cannot vote on an unknown window cell are left out of
-the back-projection (bit-identical result), and the learned filter is not rerun on an input it has seen; the
-inexact ``evidence_every`` skips the evidence of frames between. Kernels against their slow twins in
-tests/naive.py."""
+"""The rays skipped inside the back-projection (superex_deploy.onboard.nlos.back_projection): rays whose late light
+cannot vote on an unknown window cell are left out, with a bit-identical result; the ring bounds and the kept rays
+against their slow twins in tests/naive.py. The whole-frame skips are in test_nlos_processing_skips.py."""
 
 import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start
 from superex_deploy.onboard.nlos import NlosConfig, estimate_los
-from superex_deploy.onboard.nlos.back_projection import (READ_BLOCK, _n_radii, _readable_ring_bounds, _window,
-                                                          back_project_patch, rays_reaching_unknown)
+from superex_deploy.onboard.nlos.back_projection import (READ_BLOCK, back_project_patch, _n_radii,
+                                                          _readable_ring_bounds, _window, rays_reaching_unknown)
 from superex_deploy.onboard.nlos.los import late_threshold
-from superex_deploy.onboard.nlos.processing import COUNTS, NlosSkips, SpadProcessing
+from superex_deploy.onboard.nlos.processing import NlosSkips, SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig, SpadNoise
 
 from tests.naive import naive_readable_rings, naive_voted_rings
 
 SHORT = SpadConfig(n_rays=360, n_secondary=32, range_m=4.0)
-EXACT = NlosSkips(rays_without_unknown=True, filter_same_input=True)
 
 
 def _known_mask(grid, pose, rng, kind):
@@ -77,6 +75,7 @@ def test_the_readable_ring_bounds_hold_every_ring_an_unknown_cell_in_front_lies_
     assert checked > 100 and empty > 10
 
 
+@pytest.mark.slow
 def test_a_kept_ray_is_one_whose_rings_span_meets_the_bounds_and_every_ray_that_votes_on_a_readable_ring_is_kept():
     cfg = NlosConfig(window_m=2.0)
     skipped = kept = 0
@@ -101,6 +100,7 @@ def test_a_kept_ray_is_one_whose_rings_span_meets_the_bounds_and_every_ray_that_
     assert kept > 100 and skipped > 100
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sensor, window_m, n", [(SHORT, 8.0, 30), (SHORT, 2.0, 15), (SpadConfig(), 8.0, 12)])
 def test_skipping_the_rays_that_reach_no_unknown_cell_gives_the_same_back_projection_to_the_last_bit(sensor,
                                                                                                        window_m, n):
@@ -126,112 +126,6 @@ def test_keep_rays_is_checked():
         back_project_patch(scan, los, NlosConfig(), known, keep_rays=np.ones(3, bool))
     with pytest.raises(ValueError, match="known must be a bool array of shape"):
         rays_reaching_unknown(scan, los, NlosConfig(), known[:-1])
-
-
-class CountingFilter:
-    """A stand-in learned filter that depends on its input and the robot cell; counts its calls."""
-
-    def __init__(self):
-        self.calls = 0
-
-    def __call__(self, bp, pose_rc):
-        self.calls += 1
-        out = np.sqrt(bp).astype(np.float32)
-        out[pose_rc[0], :] = np.maximum(out[pose_rc[0], :], np.float32(0.25))
-        return out
-
-
-def _episode_frames(seed, n_frames, still_every=3):
-    """A random walk of frames on a train floor, standing still every ``still_every``-th frame, with the known
-    mask growing by what the frames carve (as in an episode)."""
-    rng = np.random.default_rng(seed)
-    grid = load_map(list_maps("train")[seed % 7])
-    pose = random_start(grid, rng, 0.3)
-    frames = []
-    for k in range(n_frames):
-        if k % still_every:
-            pose = random_start(grid, rng, 0.3)
-        frames.append((pose, simulate_scan(grid, pose, SHORT)))
-    return grid, frames
-
-
-@pytest.mark.parametrize("bp_filter", [None, "counting"])
-def test_the_exact_skips_give_the_same_carving_and_evidence_as_processing_in_full(bp_filter):
-    for seed in range(3):
-        grid, frames = _episode_frames(seed, 15)
-        filters = [CountingFilter(), CountingFilter()] if bp_filter else [None, None]
-        full = SpadProcessing(sensor=SHORT, bp_filter=filters[0])
-        skipping = SpadProcessing(sensor=SHORT, bp_filter=filters[1], skips=EXACT)
-        known = np.zeros(grid.shape, bool)
-        rows, cols = np.indices(grid.shape)
-        for pose, scan in frames:
-            known |= (rows - pose[0]) ** 2 + (cols - pose[1]) ** 2 < 30 ** 2  # what the robot has seen around it
-            carved_f, evidence_f = full.process_scan(scan, known)
-            carved_s, evidence_s = skipping.process_scan(scan, known)
-            np.testing.assert_array_equal(carved_s, carved_f)
-            np.testing.assert_array_equal(evidence_s, evidence_f)
-            known |= carved_f
-        counts = skipping.counts
-        assert counts["rays_skipped"] > 0 and counts["rays"] > counts["rays_skipped"]
-        if bp_filter:
-            # Standing still with the same known cells repeats the filter's input: it runs once for those.
-            assert counts["same_input"] >= 1
-            assert filters[1].calls == filters[0].calls - counts["same_input"]
-        else:
-            assert counts["same_input"] == 0  # the Laplacian filter is cheap: always run
-
-
-def test_the_filter_reruns_when_the_input_or_the_robot_cell_changes():
-    grid, frames = _episode_frames(0, 2, still_every=10)  # the same cell twice
-    (pose, scan), _ = frames
-    bp_filter = CountingFilter()
-    processing = SpadProcessing(sensor=SHORT, bp_filter=bp_filter, skips=NlosSkips(filter_same_input=True))
-    known = np.zeros(grid.shape, bool)
-    processing.process_scan(scan, known)
-    processing.process_scan(scan, known)
-    assert bp_filter.calls == 1 and processing.counts["same_input"] == 1
-    # A known cell in the window changes the back-projection: the filter runs again.
-    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
-    r, c = np.argwhere(bp.values > 0)[0]
-    known[bp.top + r, bp.left + c] = True
-    processing.process_scan(scan, known)
-    assert bp_filter.calls == 2
-    # The same back-projection read from another robot cell is another input (the filter reads the cell).
-    bp = back_project_patch(scan, estimate_los(scan), NlosConfig(), known)
-    assert processing._same_filter_input(bp, scan.pose_rc)
-    assert not processing._same_filter_input(bp, (scan.pose_rc[0], scan.pose_rc[1] + 1))
-
-
-def test_evidence_every_k_back_projects_every_kth_frame_and_carves_every_frame():
-    grid, frames = _episode_frames(1, 9, still_every=100)
-    bp_filter = CountingFilter()
-    every3 = SpadProcessing(sensor=SHORT, bp_filter=bp_filter, skips=NlosSkips(evidence_every=3))
-    full = SpadProcessing(sensor=SHORT, bp_filter=CountingFilter())
-    known = np.zeros(grid.shape, bool)
-    reference = SpadProcessing(sensor=SHORT, bp_filter=CountingFilter())  # fed only frames 0, 3, 6
-    for k, (pose, scan) in enumerate(frames):
-        carved_k, evidence_k = every3.process_scan(scan, known)
-        carved_f, _ = full.process_scan(scan, known)
-        np.testing.assert_array_equal(carved_k, carved_f)  # carving is never skipped
-        if k % 3 == 0:
-            reference.process_scan(scan, known)
-        np.testing.assert_array_equal(evidence_k, reference.evidence)
-    assert bp_filter.calls == 3
-    assert every3.counts["evidence_skipped"] == 6 and every3.counts["frames"] == 9
-
-
-def test_the_new_skips_are_checked_and_counted():
-    with pytest.raises(ValueError, match="evidence_every must be an integer >= 1, got 0"):
-        NlosSkips(evidence_every=0)
-    with pytest.raises(ValueError, match="evidence_every must be an integer >= 1, got True"):
-        NlosSkips(evidence_every=True)
-    with pytest.raises(ValueError, match="rays_without_unknown must be True or False"):
-        NlosSkips(rays_without_unknown=1)
-    processing = SpadProcessing(skips=EXACT)
-    assert tuple(processing.counts) == COUNTS
-    processing.counts["rays"] = 5
-    processing.reset()
-    assert set(processing.counts.values()) == {0}
 
 
 def test_a_window_with_no_unknown_cell_skips_every_ray_and_draws_nothing():

@@ -1,5 +1,6 @@
-"""The batched goal-choice kernels (issue #25 item 3) against the code they replaced (``tests/naive.py``): the same
-descents, the same counts and variance sums bit for bit, hence the same goals, on random hand-built grids."""
+"""The batched goal-choice kernels (viewpoint gains, and the superex planner's descents) against the code they
+replaced (``tests/naive.py``): the same descents, the same counts and variance sums bit for bit, hence the same
+goals, on random hand-built grids."""
 
 import numpy as np
 import pytest

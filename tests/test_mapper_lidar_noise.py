@@ -1,6 +1,7 @@
-"""The onboard map under a noisy LiDAR (issue #24): the per-scan vote and the calibrated return shift against the
-slow twin, a noisy wall that does not thicken, spurious returns that do not become walls, footprint clearing
-(never of a confirmed wall) and a spurious return next to the robot that does not end exploration."""
+"""The onboard map under a noisy LiDAR (superex_deploy.onboard.mapping.mapper): the per-scan vote and the calibrated
+return shift against the slow twin, a noisy wall that does not thicken, spurious returns that do not become walls,
+footprint clearing (never of a confirmed wall) and a spurious return next to the robot that does not end
+exploration."""
 
 import dataclasses
 
@@ -50,13 +51,6 @@ def test_the_shifted_vote_matches_its_naive_twin_on_random_noisy_scans():
             OccupancyConfig(**bad)
 
 
-def _room():
-    walls = np.zeros((40, 40), bool)
-    walls[[0, -1], :] = walls[:, [0, -1]] = True
-    walls[5:35, 25] = True  # an interior wall facing the robot, its face on a cell boundary
-    return OccupancyGrid(walls, ~walls, 0.1, "room")
-
-
 def _noisy_scans(world, sigma_m, n, rng):
     """``n`` scans from the world's robot, every return moved by N(0, sigma_m)."""
     obs = world.observe()
@@ -66,8 +60,8 @@ def _noisy_scans(world, sigma_m, n, rng):
         yield obs.pose, dataclasses.replace(obs.scan, ranges=ranges.astype(np.float32))
 
 
-def test_a_noisy_range_scan_of_a_wall_does_not_thicken_it_once_the_sigma_is_calibrated():
-    grid = _room()
+def test_a_noisy_range_scan_of_a_wall_does_not_thicken_it_once_the_sigma_is_calibrated(wall_room):
+    grid = wall_room()
     frame = MapFrame(grid.shape, 0.1)
     world = World(grid, (20, 12))
     calibrated = Mapper(grid.shape, OccupancyConfig(range_sigma_m=0.02))
@@ -84,8 +78,8 @@ def test_a_noisy_range_scan_of_a_wall_does_not_thicken_it_once_the_sigma_is_cali
     assert np.count_nonzero(uncalibrated.observed()[8:32, 24] == OCCUPIED) >= 3
 
 
-def test_spurious_short_returns_in_free_space_do_not_become_walls():
-    grid = _room()
+def test_spurious_short_returns_in_free_space_do_not_become_walls(wall_room):
+    grid = wall_room()
     frame = MapFrame(grid.shape, 0.1)
     obs = World(grid, (20, 12)).observe()
     mapper = Mapper(grid.shape)
