@@ -22,7 +22,8 @@ import numpy as np
 
 from superex_deploy.messages import check_map_size, max_map_cells
 
-__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start", "DATA_DIR",
+__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start",
+           "largest_region_start", "DATA_DIR",
            "MAP_SERVER_MODES", "MAP_SERVER_FREE_THRESH"]
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "kth"
@@ -317,3 +318,28 @@ def random_start(grid: OccupancyGrid, rng: np.random.Generator, min_clearance_m:
     r, c = cells[rng.integers(len(cells))]
     return int(r), int(c)
 
+
+def largest_region_start(grid: OccupancyGrid, rng: np.random.Generator, min_clearance_m: float) -> tuple[int, int]:
+    """A start cell drawn uniformly from the largest connected free region of the valid area (4-connected free,
+    valid cells), among its cells at least ``min_clearance_m`` from every wall (the region's clearest cell if none
+    is that clear): for a user's floor that has no benchmark start poses, a start from which the building, not a
+    closet or a pocket outside it, can be explored.
+
+    Raises:
+        ValueError: a map with no free valid cell.
+    """
+    from scipy import ndimage
+
+    free = grid.valid & ~grid.occupied
+    labels, count = ndimage.label(free)
+    if count == 0:
+        raise ValueError(f"map {grid.name!r} has no free cell inside its valid area to start from")
+    sizes = np.bincount(labels.ravel())[1:]
+    region = labels == (int(np.argmax(sizes)) + 1)
+    clearance = ndimage.distance_transform_edt(~grid.occupied) * grid.resolution_m
+    candidates = region & (clearance >= min_clearance_m)
+    cells = np.argwhere(candidates)
+    if len(cells) == 0:
+        cells = np.argwhere(region & (clearance == clearance[region].max()))
+    r, c = cells[rng.integers(len(cells))]
+    return int(r), int(c)

@@ -273,18 +273,26 @@ def test_a_record_path_in_a_missing_folder_leaves_nothing_behind(tmp_path, capsy
 
 
 @pytest.mark.parametrize("command", ["explore", "scan"])
-def test_a_map_without_start_poses_asks_for_pose(tmp_path, capsys, command):
+def test_a_map_without_start_poses_starts_in_its_largest_free_region(tmp_path, capsys, command):
     from PIL import Image
 
     image = np.full((60, 80), 255, np.uint8)
     image[[0, -1], :] = image[:, [0, -1]] = 0
+    image[:, 20] = 0  # a closed 18-column closet on the left, the hall on the right
     Image.fromarray(image).save(tmp_path / "small.png")
-    out = tmp_path / "out"
-    _refused(capsys, [command, "--map", str(tmp_path / "small.png"), "--out", str(out)],
-             "has no start poses", "--pose ROW COL")
-    assert not out.exists()
     extra = ["--steps", "2", "--gif-every", "0"] if command == "explore" else ["--secondary", "4"]
-    assert main([command, "--map", str(tmp_path / "small.png"), "--pose", "30", "40", *extra, "--out", str(out)]) == 0
+    starts = []
+    for run in ("a", "b"):
+        assert main([command, "--map", str(tmp_path / "small.png"), *extra, "--seed", "3",
+                     "--out", str(tmp_path / run)]) == 0
+        line = next(x for x in capsys.readouterr().out.splitlines() if "has no start poses" in x)
+        assert line.startswith(f"superex {command}: ") and "largest free region (seed 3)" in line
+        row, col = (int(v) for v in line.rsplit("--pose ", 1)[1].split())
+        starts.append((row, col))
+        assert col > 20 + 5 and 5 <= row <= 54  # in the hall, 0.5 m (5 cells) from its walls
+    assert starts[0] == starts[1]  # seeded
+    assert main([command, "--map", str(tmp_path / "small.png"), "--pose", "30", "40", *extra,
+                 "--out", str(tmp_path / "c")]) == 0
 
 
 # Lists are never empty.

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         check_output_file(args.record, "--record", made=folders_made(args.out))
     grid = load_map(args.map)
-    start = resolve_start(args.map, grid, args.start, args.pose)
+    start = resolve_start(args.map, grid, args.start, args.pose, seed=args.seed, command="superex explore")
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)

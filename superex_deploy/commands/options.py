@@ -17,7 +17,7 @@ from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
 
 __all__ = ["add_planner_option", "planner_options", "add_profile_option", "add_parallel_options", "check_jobs",
            "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps", "check_output_folder",
-           "check_output_file", "folders_made", "resolve_start", "settings_differences",
+           "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M", "settings_differences",
            "add_noise_options", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings"]
 
 
@@ -124,9 +124,16 @@ def folders_made(out: Path) -> list[Path]:
     return made
 
 
+START_CLEARANCE_M = 0.5
+"""How far from every wall a start drawn for a map without start poses lies (metres), where the map allows."""
+
+
 def resolve_start(map_arg: str, grid, start_index: int, pose: Optional[tuple[int, int]],
-                  require_valid: bool = True) -> tuple[int, int]:
-    """The start cell ``--start`` / ``--pose`` name on the map ``--map`` loaded as ``grid``.
+                  require_valid: bool = True, seed: int = 0, command: str = "superex") -> tuple[int, int]:
+    """The start cell ``--start`` / ``--pose`` name on the map ``--map`` loaded as ``grid``. A map without start
+    poses (a user's file, a train map) and no ``--pose``: a cell drawn with ``seed`` from the largest free region,
+    :data:`START_CLEARANCE_M` from the walls (:func:`~superex_deploy.maps.largest_region_start`), printed as
+    ``command: ...`` so that the run can be repeated with ``--pose``.
 
     Args:
         map_arg: ``--map`` as given (a bundled map's name, or a file).
@@ -134,12 +141,16 @@ def resolve_start(map_arg: str, grid, start_index: int, pose: Optional[tuple[int
         start_index: ``--start``, the index of a bundled eval map's start pose.
         pose: ``--pose ROW COL``, or None.
         require_valid: refuse a ``--pose`` outside the valid (inside-the-building) area.
+        seed: the draw's seed (``--seed``).
+        command: how the printed line starts.
 
     Raises:
         ValueError: a pose off the map, in a wall or (``require_valid``) outside the valid area; a ``--start``
-            out of range; a map without start poses (a file, a train map) and no ``--pose``.
+            out of range; a map with no free valid cell to draw a start from.
     """
-    from superex_deploy.maps import list_maps, start_poses
+    import numpy as np
+
+    from superex_deploy.maps import largest_region_start, list_maps, start_poses
 
     if pose is not None:
         start = grid.check_pose(pose)
@@ -148,8 +159,10 @@ def resolve_start(map_arg: str, grid, start_index: int, pose: Optional[tuple[int
                              f"{grid.name!r}: nothing there could be explored")
         return start
     if str(map_arg) not in list_maps("eval"):
-        raise ValueError(f"--map {map_arg} has no start poses (only the bundled eval maps do): give the start cell "
-                         f"with --pose ROW COL")
+        start = largest_region_start(grid, np.random.default_rng(seed), START_CLEARANCE_M)
+        print(f"{command}: --map {map_arg} has no start poses: start drawn from its largest free region (seed "
+              f"{seed}): --pose {start[0]} {start[1]}", flush=True)
+        return start
     poses = start_poses(grid.name)
     if not 0 <= start_index < len(poses):
         raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")

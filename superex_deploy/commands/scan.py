@@ -34,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
 
     check_output_folder(args.out)
     grid = load_map(args.map)
-    pose = resolve_start(args.map, grid, args.start, args.pose, require_valid=False)
+    pose = resolve_start(args.map, grid, args.start, args.pose, require_valid=False, seed=args.seed,
+                         command="superex scan")
     cfg = SpadConfig(n_secondary=args.secondary, noise=SpadNoise(enabled=args.noise))
     scan = simulate_scan(grid, pose, cfg, rng=np.random.default_rng(args.seed) if args.noise else None)
     seen_free = np.zeros(grid.shape, bool)
