@@ -40,6 +40,7 @@ MOVED: dict[str, str] = {
     "superex_deploy.sim.lidar_noise": "superex_deploy.sim.noise.lidar",
     "superex_deploy.commands._options": "superex_deploy.commands.options",
     "superex_deploy.benchmarking": "superex_deploy.evaluation.tasks",
+    "superex_deploy.sim.gym_env": "superex_deploy.gym_env",
 }
 """Old dotted module path -> new one. A moved package's submodules moved with it
 (``superex_deploy.onboard.planners.superex`` -> ``superex_deploy.onboard.planning.planners.superex``).

@@ -107,7 +107,7 @@ def test_a_wall_reach_too_wide_for_the_resolution_is_refused_before_any_allocati
 
 def test_the_environment_refuses_a_step_after_the_episode_ended_or_after_close():
     pytest.importorskip("gymnasium")
-    from superex_deploy.sim.gym_env import ExplorationEnv
+    from superex_deploy.gym_env import ExplorationEnv
 
     env = ExplorationEnv(map=MAP, steps_per_action=2, max_steps=3)
     with pytest.raises(RuntimeError, match="reset\\(\\) has not been called"):

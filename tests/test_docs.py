@@ -35,7 +35,7 @@ def test_site_builds_strictly(tmp_path):
                        ("nlos", "superex_deploy.onboard.nlos.process_scan"),
                        ("inference", "superex_deploy.onboard.prediction.inference.LamaEnsemble"),
                        ("spad", "superex_deploy.sim.spad.simulate_scan"),
-                       ("sim", "superex_deploy.sim.gym_env.ExplorationEnv")]:
+                       ("sim", "superex_deploy.gym_env.ExplorationEnv")]:
         html = (tmp_path / "api" / page / "index.html").read_text(encoding="utf-8")
         assert f'id="{name}"' in html, f"the API reference page api/{page} does not document {name}"
 

@@ -23,7 +23,7 @@ LAYERS = (
     ("recording", ("superex_deploy.recording",)),
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
-    ("gym env", ("superex_deploy.sim.gym_env",)),  # builds its explorer with pipeline.build_explorer
+    ("gym env", ("superex_deploy.gym_env",)),  # builds its explorer with pipeline.build_explorer
     ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
@@ -125,7 +125,7 @@ def test_the_import_graph_is_read_from_every_module():
             "superex_train.commands.train"} <= set(graph)
     # Function-level, TYPE_CHECKING and relative imports count too.
     assert "superex_deploy.pipeline" in graph["superex_deploy.commands.benchmark"]
-    assert "superex_deploy.sim.episode" in graph["superex_deploy.sim.gym_env"]
+    assert "superex_deploy.sim.episode" in graph["superex_deploy.gym_env"]
     assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 

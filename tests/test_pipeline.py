@@ -82,7 +82,7 @@ def test_a_learned_predictor_follows_the_profile_and_the_cores():
 def test_every_entry_point_defaults_to_the_one_default_profile(tmp_path):
     """The CLI, build_explorer, a benchmark task and the Gymnasium environment: each left to its default runs
     DEFAULT_PROFILE (a test that fails when one of them drifts)."""
-    gym_env = pytest.importorskip("superex_deploy.sim.gym_env")
+    gym_env = pytest.importorskip("superex_deploy.gym_env")
     assert DEFAULT_PROFILE in PROFILES
     with build_explorer(FRAME, "nearest", "observed") as explorer:
         assert explorer.cfg == PROFILES[DEFAULT_PROFILE].explorer_config()

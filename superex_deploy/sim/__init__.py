@@ -14,7 +14,7 @@ def _register_gym_env() -> None:
     except ImportError:
         return
     if "SuperEx/Explore-v0" not in gymnasium.registry:
-        gymnasium.register(id="SuperEx/Explore-v0", entry_point="superex_deploy.sim.gym_env:ExplorationEnv")
+        gymnasium.register(id="SuperEx/Explore-v0", entry_point="superex_deploy.gym_env:ExplorationEnv")
 
 
 _register_gym_env()
