@@ -14,10 +14,12 @@ from superex_deploy.messages import Command, MapFrame
 from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse
 from superex_deploy.onboard.checks import cells_at_least, cells_within, from_cells, in_cells
 from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.planning.planners import MapexConfig, UpenConfig, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.reuse import ReusingPredictor
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.pipeline import PROFILES
 from superex_deploy.sim.world import World, WorldConfig
 
@@ -65,6 +67,21 @@ def test_the_world_drives_the_same_metres_per_step_on_every_grid():
         path = np.array([(10 * scale, c) for c in range(2 * scale, 50 * scale)])
         driven = world.apply(Command(0.0, None, None, world.frame.centres_xy(path), path, False, False))
         assert driven == pytest.approx(0.3) and world.pose_rc == (10 * scale, 2 * scale + world.step_cells)
+
+
+@pytest.mark.parametrize("resolution", RESOLUTIONS)
+def test_the_first_frontier_tier_holds_the_same_metres_on_every_grid(resolution):
+    # A room whose far wall has a 0.5 m and a 1.5 m opening onto the unknown: the frontier above each opening is as
+    # long as the opening; the first tier (frontier_min_m = 1 m) holds only the 1.5 m one, on every grid.
+    s = round(0.1 / resolution)
+    observed = np.full((10 * s, 60 * s), UNKNOWN, np.int8)
+    observed[:5 * s] = FREE
+    observed[5 * s] = OCCUPIED
+    observed[5 * s, 5 * s:10 * s] = observed[5 * s, 20 * s:35 * s] = UNKNOWN
+    explorer = Explorer(MapFrame(observed.shape, resolution), make_planner("nearest"), ObservedAsPrediction())
+    assert sorted(len(f.cells) for f in find_frontiers(observed, 1)) == [5 * s, 15 * s]
+    first_tier = find_frontiers(observed, explorer.frontier_min_cells)
+    assert [len(f.cells) * resolution for f in first_tier] == [pytest.approx(1.5)]
 
 
 @pytest.mark.parametrize("build, old, new", [

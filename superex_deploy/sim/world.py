@@ -87,7 +87,7 @@ class WorldConfig:
             raise ValueError(f"lidar must be a LidarConfig, got {type(self.lidar).__name__}")
         if self.spad is not None and not isinstance(self.spad, SpadConfig):
             raise ValueError(f"spad must be a SpadConfig or None, got {type(self.spad).__name__}")
-        check_real("step_m", self.step_m, 0.0, low_open=True)
+        object.__setattr__(self, "step_m", check_real("step_m", self.step_m, 0.0, low_open=True))
         if not (float(self.step_s) > 0.0 and np.isfinite(self.step_s)):
             raise ValueError(f"step_s must be positive and finite, got {self.step_s}")
         for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
