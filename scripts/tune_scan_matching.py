@@ -30,8 +30,8 @@ VARIANTS = {
     "prior0": dict(prior_weight=0.0),
     "prior05": dict(prior_weight=0.05),
     "prior02": dict(prior_weight=0.02),
-    "prior05sigma15": dict(prior_weight=0.05, field_sigma_cells=1.5),
-    "sigma15": dict(field_sigma_cells=1.5),
+    "prior05sigma15": dict(prior_weight=0.05, field_sigma_m=0.15),
+    "sigma15": dict(field_sigma_m=0.15),
     "range6": dict(max_point_range_m=6.0),
     "range15": dict(max_point_range_m=15.0),
 }

@@ -1,7 +1,7 @@
 """A Gymnasium environment for learning where to explore: ``SuperEx/Explore-v0`` (needs the ``gym`` extra).
 
 The agent picks a goal among the current frontier regions; the simulated robot drives there with the onboard
-explorer (one simulator step per ``step_cells`` of path) until the goal is reached, the explorer asks for a new goal
+explorer (one simulator step per ``MotionConfig.step_m`` of path) until the goal is reached, the explorer asks for a new goal
 or ``steps_per_action`` steps have passed. The reward is the area newly known (square metres, carved cells
 included). The observation is the explorer's map cropped around the robot, one-hot per cell state, plus the predicted
 wall probability when a predictor is given; the agent sees only what the robot knows.

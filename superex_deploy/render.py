@@ -91,6 +91,8 @@ def save_map_image(observed: np.ndarray, path: Path) -> Path:
 def save_episode_figure(path: Path, grid, result) -> Path:
     """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
     frontier regions left (orange, dots at their goal cells); the final prediction."""
+    from superex_deploy.onboard import ExplorerConfig
+    from superex_deploy.onboard.checks import from_cells
     from superex_deploy.onboard.planning.frontiers import find_frontiers
 
     plt = _pyplot()
@@ -100,7 +102,10 @@ def save_episode_figure(path: Path, grid, result) -> Path:
     axes[0].plot(result.start_rc[1], result.start_rc[0], "g*", markersize=12)
     axes[0].set_title(f"{grid.name}: path {result.path_length_m[-1] if len(result.path_length_m) else 0:.1f} m")
     axes[1].imshow(_observed_image(result.final_observed), cmap="gray", vmin=0, vmax=1)
-    frontiers = find_frontiers(result.final_observed, int(result.config.get("frontier_min_cells", 10)))
+    recorded = {name: value for name, value in result.config.get("explorer", {}).items()
+                if name in ("frontier_min_m", "frontier_min_cells")}  # a log of an earlier version counts cells
+    explorer_cfg = ExplorerConfig(**from_cells(ExplorerConfig, recorded, grid.resolution_m))
+    frontiers = find_frontiers(result.final_observed, explorer_cfg.frontier_min_cells(grid.resolution_m))
     if frontiers:
         cells = np.concatenate([f.cells for f in frontiers])
         axes[1].plot(cells[:, 1], cells[:, 0], ",", color="tab:orange")

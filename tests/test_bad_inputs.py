@@ -133,8 +133,8 @@ def test_a_step_that_raises_releases_the_lock(laser_scan):
 @pytest.mark.parametrize("planner, field, value", [
     ("mapex", "visibility", 3), ("hector", "visibility", "none"), ("upen", "rrt_samples", math.inf),
     ("superex", "n_rays", math.inf), ("hector", "wall_threshold", -3), ("hector", "wall_threshold", math.nan),
-    ("hector", "wall_threshold", "x"), ("mapex", "min_distance_cells", math.inf),
-    ("upen", "min_goal_distance_m", math.inf), ("upen", "rrt_samples", 10 ** 400), ("upen", "expand_cells", "x"),
+    ("hector", "wall_threshold", "x"), ("mapex", "min_distance_m", math.inf),
+    ("upen", "min_goal_distance_m", math.inf), ("upen", "rrt_samples", 10 ** 400), ("upen", "expand_m", "x"),
     ("hector", "info_gain_weight", None), ("superex", "range_m", math.inf), ("superex", "gain", ["path"]),
     ("mapex", "distance", 3), ("superex", "n_rays", True), ("upen", "reach_horizon", 2.5),
 ])
@@ -143,8 +143,8 @@ def test_a_bad_planner_option_is_refused_when_the_planner_is_built(planner, fiel
         make_planner(planner, **{field: value})
 
 
-NUMERIC_FIELDS = [("hector", "info_gain_weight"), ("hector", "wall_threshold"), ("mapex", "min_distance_cells"),
-                  ("upen", "rrt_samples"), ("upen", "expand_cells"), ("upen", "reach_horizon"),
+NUMERIC_FIELDS = [("hector", "info_gain_weight"), ("hector", "wall_threshold"), ("mapex", "min_distance_m"),
+                  ("upen", "rrt_samples"), ("upen", "expand_m"), ("upen", "reach_horizon"),
                   ("upen", "min_goal_distance_m"), ("superex", "wall_threshold"), ("superex", "sense_every_m"),
                   ("superex", "range_m"), ("superex", "n_rays"), ("superex", "drop_resolved_m")]
 OPTION_VALUE = st.one_of(ANY_FLOAT, st.integers(-10 ** 20, 10 ** 20), st.booleans(), st.none(), st.text(max_size=5),
@@ -168,7 +168,7 @@ def test_numeric_planner_options_are_finite_numbers_of_their_type_or_refused(cas
 
 
 @pytest.mark.parametrize("text", ["x", "nan", "inf", "-inf", "none", "1e400"])
-@pytest.mark.parametrize("planner, field", [("hector", "wall_threshold"), ("mapex", "min_distance_cells"),
+@pytest.mark.parametrize("planner, field", [("hector", "wall_threshold"), ("mapex", "min_distance_m"),
                                             ("upen", "rrt_samples"), ("superex", "n_rays"),
                                             ("mapex", "visibility")])
 def test_command_line_option_strings_give_one_clear_error(planner, field, text):

@@ -73,7 +73,7 @@ def test_a_visibility_config_holds_checked_values_or_names_the_bad_field(field, 
 
 @FUZZ
 @given(field=st.sampled_from(["robot_radius_m", "wall_cost_weight", "wall_cost_range_m", "goal_reached_m",
-                              "step_cells"]),
+                              "step_m"]),
        value=st.one_of(st.floats(allow_nan=True), st.integers(-10, 10 ** 15), st.text(max_size=2), st.none()))
 @example(field="wall_cost_range_m", value=1e300)
 @example(field="wall_cost_range_m", value=10 ** 9)

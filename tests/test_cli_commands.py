@@ -55,8 +55,8 @@ def test_benchmark_runs_scenarios_and_writes_the_table(tmp_path):
 def test_planner_options_are_parsed_and_checked():
     from superex_deploy.commands.explore import planner_options
 
-    assert planner_options(["distance=euclidean", "min_distance_cells=2", "weight=0.5", "flag=True"]) == {
-        "distance": "euclidean", "min_distance_cells": 2, "weight": 0.5, "flag": True}
+    assert planner_options(["distance=euclidean", "min_distance_m=2", "weight=0.5", "flag=True"]) == {
+        "distance": "euclidean", "min_distance_m": 2, "weight": 0.5, "flag": True}
     with pytest.raises(ValueError, match="FIELD=VALUE"):
         planner_options(["distance"])
 
@@ -117,7 +117,7 @@ def test_explore_with_the_oracle_logs_everything_the_benchmark_needs(tmp_path):
     assert metrics["iou"]["steps"] == [0, 25, 29] and metrics["iou"]["iou"] == [1.0, 1.0, 1.0]
     assert all(len(v) == 30 for v in metrics["timings_s"].values())
     explorer = metrics["config"]["explorer"]
-    assert explorer["motion"]["robot_radius_m"] == 0.15 and explorer["frontier_min_cells"] == 10
+    assert explorer["motion"]["robot_radius_m"] == 0.15 and explorer["frontier_min_m"] == 1.0
     frames = imageio.mimread(out / "episode.gif")
     assert len(frames) == 5  # steps 0, 7, 14, 21, 28
     assert max(frames[0].shape[:2]) <= 400

@@ -102,7 +102,7 @@ def test_two_rooms_are_explored_completely(two_rooms):
     assert result.poses[:, 1].max() >= 20  # drove into the door
     assert not grid.occupied[result.poses[:, 0], result.poses[:, 1]].any()
     steps = np.diff(result.poses, axis=0)
-    assert np.abs(steps).max() <= 3  # at most step_cells cells per step
+    assert np.abs(steps).max() <= 3  # at most step_m = 0.3 m, 3 cells, per step
     driven = np.diff(result.path_length_m)  # along the 8-connected path: at least the displacement
     assert np.all(driven >= 0.1 * np.hypot(steps[:, 0], steps[:, 1]) - 1e-9)
     assert np.all(driven <= 0.3 * np.sqrt(2) + 1e-9)
@@ -133,7 +133,7 @@ def test_a_door_seen_edge_on_is_followed_though_its_frontier_is_small():
     assert result.finished and find_frontiers(result.final_observed, min_cells=1) == ()
     # With the minimum at one cell there is no fallback to make: the same episode.
     same = run_episode(grid, (3, 3), _Closest(), _CountingPredictor(), steps=300, seed=0,
-                       cfg=ExplorationConfig(explorer=ExplorerConfig(frontier_min_cells=1)))
+                       cfg=ExplorationConfig(explorer=ExplorerConfig(frontier_min_m=0.1)))
     assert same.poses[:, 0].max() > 30
 
 
@@ -179,7 +179,7 @@ def test_on_step_sees_every_step_and_the_log_is_json_ready(two_rooms):
     log = json.loads(json.dumps(result.to_json()))
     assert set(log["timings_s"]) == set(STAGES) and all(len(v) == result.steps for v in log["timings_s"].values())
     assert log["steps"] == result.steps == len(log["coverage"]) == len(log["path_length_m"])
-    assert log["config"]["explorer"]["motion"]["step_cells"] == 3 and log["config"]["lidar"]["n_rays"] == 2500
+    assert log["config"]["explorer"]["motion"]["step_m"] == 0.3 and log["config"]["lidar"]["n_rays"] == 2500
 
 
 def test_episodes_are_deterministic_on_a_bundled_map():
@@ -210,8 +210,8 @@ def test_bad_inputs_raise_value_error(two_rooms):
         run_episode(grid, (5, 5), planner, predictor, sensing="spad")
     with pytest.raises(ValueError, match="sensing must be a SpadSensing"):
         run_episode(grid, (5, 5), planner, predictor, sensing=lambda g, p, o: (np.zeros((3, 3), bool), None))
-    with pytest.raises(ValueError, match="frontier_min_cells"):
-        ExplorerConfig(frontier_min_cells=0)
+    with pytest.raises(ValueError, match="frontier_min_m must be positive"):
+        ExplorerConfig(frontier_min_m=0)
 
 
 def _two_side_rooms():
@@ -312,7 +312,7 @@ def test_episode_coverage_never_decreases_and_is_deterministic(small_map):
     np.testing.assert_array_equal(a.coverage, b.coverage)
     assert a.goals == b.goals
     assert not small_map.occupied[a.poses[:, 0], a.poses[:, 1]].any()
-    # Each step moves at most step_cells (0.3 m along 8-connected cells).
+    # Each step moves at most step_m (0.3 m along 8-connected cells).
     assert np.all(np.diff(np.r_[0.0, a.path_length_m]) <= 3 * np.sqrt(2) * 0.1 + 1e-9)
 
 
@@ -345,6 +345,6 @@ def test_bad_inputs(small_map):
     with pytest.raises(ValueError, match="min_cells"):
         find_frontiers(np.zeros((3, 3), np.int8), min_cells=0)
     with pytest.raises(ValueError, match="MotionConfig"):
-        MotionConfig(step_cells=0)
+        MotionConfig(step_m=0)
     with pytest.raises(ValueError, match="unknown planner"):
         make_planner("frontier")

@@ -36,7 +36,8 @@ def test_frontier_candidates_are_what_the_explorer_offers_its_planner():
     planner = _Spy()
     explorer = Explorer(world.frame, planner, ObservedAsPrediction())
     assert explorer.frontier_candidates(world.pose_rc) == ()  # nothing known yet
-    min_cells = explorer.cfg.frontier_min_cells
+    min_cells = explorer.frontier_min_cells
+    assert min_cells == 10  # frontier_min_m = 1 m at 0.1 m
     checked_large = checked_small = 0
     for t in range(300):
         planner.offers, planner.refuse_first = [], t % 4 == 3

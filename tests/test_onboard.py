@@ -109,7 +109,7 @@ def test_the_world_reports_wall_faces_as_ranges_in_metres(walled_box):
 
 
 def test_the_world_drives_the_commanded_path_and_refuses_walls(walled_box):
-    world = World(walled_box(9, 12), (4, 5), WorldConfig(step_cells=3))
+    world = World(walled_box(9, 12), (4, 5), WorldConfig(step_m=0.3))
     frame = world.frame
     path = np.array([(4, 5), (4, 6), (4, 7), (4, 8), (4, 9)])
     command = Command(0.0, None, None, frame.centres_xy(path), path, False, False)

@@ -51,7 +51,7 @@ def test_changed_box_and_grow_on_hand_built_boxes():
 
 def test_below_the_change_threshold_the_last_prediction_is_merged_with_the_map():
     predictor = Recording()
-    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_cells=5), resolution_m=0.1)
+    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_m2=0.05), resolution_m=0.1)
     observed = _map()
     first = reusing.predict(observed)
     assert predictor.shapes == [observed.shape] and reusing.runs == 1
@@ -282,7 +282,7 @@ def test_a_predictor_that_takes_no_crops_gets_the_whole_map():
 def test_a_look_without_commit_leaves_no_trace():
     predictor = Recording()
     # Hard edges: the call that wrote a cell can be read off its value.
-    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_cells=1, crop_margin_m=1.0, feather_m=0),
+    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_m2=0.01, crop_margin_m=1.0, feather_m=0),
                                resolution_m=0.1)
     observed = _map()
     reusing.predict(observed)
@@ -297,7 +297,7 @@ def test_a_look_without_commit_leaves_no_trace():
 
 def test_evidence_that_rose_counts_as_a_change():
     predictor = Recording()
-    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_cells=1, crop_margin_m=1.0), resolution_m=0.1)
+    reusing = ReusingPredictor(predictor, PredictionReuse(min_changed_m2=0.01, crop_margin_m=1.0), resolution_m=0.1)
     observed, evidence = _map(), np.zeros((100, 120), np.float32)
     reusing.predict(observed, evidence)
     evidence[80, 20] = 0.04  # below evidence_change = 0.05: no change
@@ -309,16 +309,18 @@ def test_evidence_that_rose_counts_as_a_change():
 
 
 def test_bad_settings_and_inputs():
-    with pytest.raises(ValueError, match=r"min_changed_cells must be an integer >= 0, got -1"):
-        PredictionReuse(min_changed_cells=-1)
+    with pytest.raises(ValueError, match=r"min_changed_m2 must be a number of square metres >= 0, got -1"):
+        PredictionReuse(min_changed_m2=-1)
     with pytest.raises(ValueError, match=r"crop_margin_m must be a positive number of metres or None, got 0"):
         PredictionReuse(crop_margin_m=0)
     with pytest.raises(ValueError, match=r"evidence_change must lie in \[0, 1\), got 1.5"):
         PredictionReuse(evidence_change=1.5)
     with pytest.raises(ValueError, match=r"evidence_change must lie in \[0, 1\), got None"):
         PredictionReuse(evidence_change=None)
-    with pytest.raises(ValueError, match=r"min_changed_cells must be an integer >= 0, got 2.0"):
-        PredictionReuse(min_changed_cells=2.0)
+    with pytest.raises(ValueError, match=r"min_changed_m2 must be a number of square metres >= 0, got True"):
+        PredictionReuse(min_changed_m2=True)
+    with pytest.raises(ValueError, match=r"'min_changed_cells' was renamed to min_changed_m2 \(square metres"):
+        PredictionReuse(min_changed_cells=2)
     with pytest.raises(ValueError, match=r"crop_margin_m must be a positive number of metres or None, got True"):
         PredictionReuse(crop_margin_m=True)
     with pytest.raises(ValueError, match=r"feather_m must be a number of metres >= 0, got -0.1"):
@@ -339,7 +341,7 @@ def test_bad_settings_and_inputs():
     assert ReusingPredictor(Recording(), PredictionReuse(crop_margin_m=1.1), 0.1)._margin == 11
     with pytest.raises(ValueError, match="cfg must be a PredictionReuse, got dict"):
         ReusingPredictor(Recording(), {}, 0.1)
-    reusing = ReusingPredictor(Recording(), PredictionReuse(min_changed_cells=3), 0.1)
+    reusing = ReusingPredictor(Recording(), PredictionReuse(min_changed_m2=0.03), 0.1)
     reusing.predict(_map())
     with pytest.raises(ValueError, match=r"observed has shape \(50, 50\), the last prediction \(100, 120\)"):
         reusing.predict(_map((50, 50)))
@@ -382,7 +384,7 @@ def test_an_evaluation_between_requests_does_not_change_the_episode(corridor_roo
             mean = np.where(observed == UNKNOWN, np.float32(0.3 * observed.shape[0] / 80), base.mean)
             return Prediction(mean=mean.astype(np.float32), variance=np.full(observed.shape, 0.1, np.float32))
 
-    reuse = PredictionReuse(min_changed_cells=50, crop_margin_m=1.0)
+    reuse = PredictionReuse(min_changed_m2=0.5, crop_margin_m=1.0)
     quiet = _goals(corridor_rooms(), (PredictionSchedule(), reuse), Shifting())
     evaluated = _goals(corridor_rooms(), (PredictionSchedule(), reuse), Shifting(), iou_every=1)
     assert quiet.goals == evaluated.goals and len(quiet.iou) == 0 and len(evaluated.iou) >= 100

@@ -93,7 +93,7 @@ def test_the_fit_is_one_on_the_walls_and_falls_off_the_walls():
     assert not likelihood_field(np.zeros((4, 4), bool), 1.0).any()
 
 
-@pytest.mark.parametrize("bad", [dict(window_sigmas=0.0), dict(field_sigma_cells=-1.0), dict(min_gain=-0.1),
+@pytest.mark.parametrize("bad", [dict(window_sigmas=0.0), dict(field_sigma_m=-1.0), dict(min_gain=-0.1),
                                  dict(max_points=0), dict(min_points=500, max_points=400), dict(enabled=1),
                                  dict(starts=0), dict(max_window_deg=float("inf"))])
 def test_the_config_rejects_bad_values(bad):

@@ -37,7 +37,7 @@ def build_explorer(metadata: dict, frame, models=None):
 
     from superex_deploy import pipeline
     from superex_deploy.onboard.planning.motion import MotionConfig
-    from superex_deploy.onboard.checks import without_retired
+    from superex_deploy.onboard.checks import from_cells, without_retired
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.onboard.planning.planners import make_planner, planner_config
     from superex_deploy.onboard.nlos import NlosConfig
@@ -57,7 +57,8 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
                          f"({', '.join(pipeline.PROFILES)})")
     profile = pipeline.PROFILES[profile_name]
-    if "profile_settings" in metadata and _settings_as_now(metadata["profile_settings"]) != profile.to_json():
+    if "profile_settings" in metadata and _settings_as_now(metadata["profile_settings"], frame.resolution_m) \
+            != profile.to_json():
         raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
                          f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
                          "a replay would not rebuild its explorer")
@@ -65,21 +66,23 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
     try:
         # A recording made before an option was retired carries it at its old default (accepted) or at another
-        # value (refused, named).
+        # value (refused, named); one made before an option counted metres carries cells (converted).
         config = planner_config(planner_name)
         if config is not None and isinstance(options, dict):
-            options = without_retired(config, options)
+            options = without_retired(config, from_cells(config, options, frame.resolution_m))
         planner = make_planner(planner_name, **options)
     except ValueError as error:
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     try:
-        explorer_fields = dict(metadata["explorer"])
+        # A recording made before the settings counted in metres carries cell counts: converted with its grid.
+        explorer_fields = from_cells(ExplorerConfig, metadata["explorer"], frame.resolution_m)
         schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
-        reuse = PredictionReuse(**explorer_fields.pop("reuse", {}))
+        reuse = PredictionReuse(**from_cells(PredictionReuse, explorer_fields.pop("reuse", {}), frame.resolution_m))
         if isinstance(explorer_fields.get("scan_matching"), dict):
-            explorer_fields["scan_matching"] = without_retired(ScanMatchingConfig, explorer_fields["scan_matching"])
-        cfg = ExplorerConfig(motion=MotionConfig(**explorer_fields.pop("motion")), prediction=schedule, reuse=reuse,
-                             **explorer_fields)
+            explorer_fields["scan_matching"] = without_retired(ScanMatchingConfig, from_cells(
+                ScanMatchingConfig, explorer_fields["scan_matching"], frame.resolution_m))
+        motion = MotionConfig(**from_cells(MotionConfig, explorer_fields.pop("motion"), frame.resolution_m))
+        cfg = ExplorerConfig(motion=motion, prediction=schedule, reuse=reuse, **explorer_fields)
         sensor = nlos_cfg = None
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])
@@ -99,13 +102,15 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
 
 
-def _settings_as_now(settings):
+def _settings_as_now(settings, resolution_m: float):
     """A recording's profile settings in this version's form: a schedule written before the schedule's modes
-    converted (``PredictionSchedule.from_json``), fields added since filled in with their defaults (the values
-    that behave as the version before them did)."""
+    converted (``PredictionSchedule.from_json``), reuse counts of cells converted to square metres on the
+    recording's grid of ``resolution_m`` metres per cell, fields added since filled in with their defaults (the
+    values that behave as the version before them did)."""
     from dataclasses import asdict
 
-    from superex_deploy.onboard import PredictionSchedule
+    from superex_deploy.onboard import PredictionReuse, PredictionSchedule
+    from superex_deploy.onboard.checks import from_cells
     from superex_deploy.pipeline import RealtimeProfile
 
     if not isinstance(settings, dict):
@@ -117,6 +122,11 @@ def _settings_as_now(settings):
                 settings[key] = asdict(PredictionSchedule.from_json(settings[key]))
             except (TypeError, ValueError):
                 pass  # left as recorded: it differs from this version's, which the caller reports
+    if isinstance(settings["reuse"], dict):
+        try:
+            settings["reuse"] = from_cells(PredictionReuse, settings["reuse"], resolution_m)
+        except ValueError:
+            pass  # as above
     return settings
 
 

@@ -9,7 +9,7 @@
 2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
    its carving margins widened by the pose covariance when the observation carries one): carved cells join the
    map as evidence towards free, the back-projection evidence is kept for the predictor;
-3. **frontiers**: frontier regions of the map (regions below ``frontier_min_cells`` are offered only when the
+3. **frontiers**: frontier regions of the map (regions shorter than ``frontier_min_m`` are offered only when the
    larger ones give no goal);
 4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and* in
    line of sight on the map, see :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
@@ -48,6 +48,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.checks import cells_at_least, check_real, renames
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.mapping.growth import MapGrowth, Regrid, grown_frame, reach_of
 from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig
@@ -70,17 +71,19 @@ STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
 """The stages of a step whose wall-clock time :attr:`Command.timings_s` reports (seconds)."""
 
 
+@renames(frontier_min_cells=("frontier_min_m", 1))
 @dataclass(frozen=True)
 class ExplorerConfig:
     """Onboard exploration parameters.
 
     Attributes:
-        motion: robot radius, proximity cost, goal tolerance (``step_cells`` is how far the robot is expected to
+        motion: robot radius, proximity cost, goal tolerance (``step_m`` is how far the robot is expected to
             drive per step; the explorer follows wherever it actually stops).
-        frontier_min_cells: frontier regions with fewer cells are offered to the planner only when no larger
-            region gives a goal (MapEx drops them: 10). They are kept as a last tier because a room whose open
-            door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at its
-            first step (docs/benchmarks/exploration.md).
+        frontier_min_m: a frontier region's size in metres is its cells times the cell size; regions smaller than
+            this (:meth:`frontier_min_cells` cells) are offered to the planner only when no larger region gives a
+            goal (MapEx drops them: 10 cells of 0.1 m, 1 m). They are kept as a last tier because a room whose
+            open door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at
+            its first step (docs/benchmarks/exploration.md). The old ``frontier_min_cells`` is refused, naming it.
         prediction: when the predictor runs (:class:`PredictionSchedule`).
         reuse: what the explorer keeps of its last prediction
             (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map
@@ -106,7 +109,7 @@ class ExplorerConfig:
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
-    frontier_min_cells: int = 10
+    frontier_min_m: float = 1.0
     prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
@@ -136,8 +139,14 @@ class ExplorerConfig:
         if isinstance(self.finish_after_s, bool) or not isinstance(self.finish_after_s, (int, float)) \
                 or not (np.isfinite(self.finish_after_s) and self.finish_after_s >= 0.0):
             raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")
-        if int(self.frontier_min_cells) < 1:
-            raise ValueError(f"frontier_min_cells must be >= 1, got {self.frontier_min_cells}")
+        object.__setattr__(self, "frontier_min_m", check_real("frontier_min_m", self.frontier_min_m, 0.0,
+                                                              low_open=True))
+
+    def frontier_min_cells(self, resolution_m: float) -> int:
+        """The fewest cells of a frontier region offered in the first tier on a grid of ``resolution_m`` metres per
+        cell: those that reach ``frontier_min_m`` (10 at 0.1 m, 20 at 0.05 m, 40 at 0.025 m), at least one."""
+        return max(1, cells_at_least(self.frontier_min_m, check_real("resolution_m", resolution_m, 0.0,
+                                                                     low_open=True)))
 
 
 class Explorer:
@@ -177,6 +186,7 @@ class Explorer:
         reusing: the :class:`~superex_deploy.onboard.prediction.reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
         budget: the :class:`~superex_deploy.onboard.prediction.inference.ThreadBudget` of ``cores``.
+        frontier_min_cells: the first tier's smallest frontier region on this grid (cells; ``cfg.frontier_min_m``).
         scheduled: the :class:`~superex_deploy.onboard.prediction.schedule.ScheduledPredictions` that runs the
             predictor when the schedule is not ``inline`` (its ``blocking_waits`` count the steps that waited for an
             unfinished prediction), else None.
@@ -217,6 +227,7 @@ class Explorer:
         self._no_goal_since: Optional[float] = None  # stamp of the first step of the current run without a goal
         self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
+        self.frontier_min_cells = cfg.frontier_min_cells(frame.resolution_m)
         self._reach_cells = cfg.motion.goal_reached_m / frame.resolution_m
         self._radius_cells = cfg.motion.robot_radius_m / frame.resolution_m
         self._goal_tolerance = self._reach_cells
@@ -252,7 +263,7 @@ class Explorer:
         """The latest map's frontier regions, of every size, that :meth:`step` would offer a planner with the robot
         at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`) and whose goal cell
         is no goal reached before nor next to one (:func:`~superex_deploy.onboard.planning.goal_choice.near_visited_goal`), in ``find_frontiers`` order; ``()``
-        before the first observation. :meth:`step` offers the regions of ``cfg.frontier_min_cells`` cells or more
+        before the first observation. :meth:`step` offers the regions of :attr:`frontier_min_cells` cells or more
         first, the smaller ones only when those give no goal. For a goal chosen outside the explorer (a learning
         agent): a goal among these is one the explorer does not let go of at once.
 
@@ -430,7 +441,7 @@ class Explorer:
         timings["map_update"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        frontiers = find_frontiers(planning, self.cfg.frontier_min_cells)
+        frontiers = find_frontiers(planning, self.frontier_min_cells)
         timings["frontiers"] = time.perf_counter() - clock
 
         waited = 0.0
@@ -536,7 +547,7 @@ class Explorer:
                 traversable=plan.traversable, resolution_m=res, predict=prediction, rng=self._rng))
 
         clock = time.perf_counter()
-        chosen, self._goal_tolerance = choose_goal(offer, observed, frontiers, self.cfg.frontier_min_cells, not_free,
+        chosen, self._goal_tolerance = choose_goal(offer, observed, frontiers, self.frontier_min_cells, not_free,
                                                pose, self._reach_cells, self._visited)
         timings["scoring"] = time.perf_counter() - clock - prediction.seconds
         timings["prediction"] = prediction.seconds

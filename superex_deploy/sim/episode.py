@@ -4,7 +4,7 @@ Step ``t``: :meth:`World.observe <superex_deploy.sim.world.World.observe>` scans
 (line-of-sight ranges and, with SPAD sensing, a SPAD frame); :meth:`Explorer.step
 <superex_deploy.onboard.explorer.Explorer.step>` integrates them into its own map and keeps or chooses a goal (see
 :mod:`superex_deploy.onboard.explorer` for its stages); the metrics are read against the truth; :meth:`World.apply
-<superex_deploy.sim.world.World.apply>` advances the robot ``step_cells`` cells along the commanded path, to
+<superex_deploy.sim.world.World.apply>` advances the robot ``step_m`` metres of cells along the commanded path, to
 ``p_{t+1}``.
 
 The log at index ``t`` describes the scan taken at ``p_t``: the pose, the coverage after that scan, and the
@@ -41,8 +41,8 @@ class ExplorationConfig:
     Attributes:
         lidar: the line-of-sight LiDAR (the world's).
         explorer: what the explorer is built with (:class:`~superex_deploy.onboard.explorer.ExplorerConfig`:
-            motion, frontier size, prediction schedule and reuse); the world drives ``explorer.motion.step_cells``
-            cells per step.
+            motion, frontier size, prediction schedule and reuse); the world drives ``explorer.motion.step_m``
+            metres per step.
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
@@ -124,7 +124,7 @@ class EpisodeResult:
         goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
         finished: True when the planner found no goal before the budget ran out.
         config: the :class:`ExplorationConfig` as a dict (``lidar``, ``explorer``: ``motion``,
-            ``frontier_min_cells``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``; ``pose_noise``
+            ``frontier_min_m``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``; ``pose_noise``
             and ``lidar_noise`` where set).
         final_observed: int8 ``[H, W]`` observed map at the end.
         final_carved: bool ``[H, W]`` carved cells at the end.
@@ -237,7 +237,7 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Optional[Pla
     if given != ((True, True) if explorer is None else (False, False)):
         raise ValueError("give either an explorer or a planner and a predictor")
     world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
-                                              step_cells=cfg.explorer.motion.step_cells,
+                                              step_m=cfg.explorer.motion.step_m,
                                               seed=0 if sensing is None else sensing.seed,
                                               pose_noise=cfg.pose_noise, lidar_noise=cfg.lidar_noise))
     if explorer is None:

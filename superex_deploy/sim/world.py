@@ -26,6 +26,7 @@ import numpy as np
 from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.onboard.checks import cells_within, check_real, renames
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.kinematics import drive_belief_relative
@@ -54,6 +55,7 @@ class LidarConfig:
                              f"{self.n_rays}, range_m={self.range_m}")
 
 
+@renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
 class WorldConfig:
     """The simulated robot's sensors and motion.
@@ -61,18 +63,20 @@ class WorldConfig:
     Attributes:
         lidar: the line-of-sight LiDAR (rays over a full turn, maximum range).
         spad: the SPAD LiDAR, or None (no SPAD frames).
-        step_cells: path cells the robot drives per :meth:`World.apply` (MapEx: 3 cells = 0.3 m).
+        step_m: how far the robot drives per :meth:`World.apply` (metres, > 0; MapEx: 3 cells of 0.1 m): along a
+            path of cells, the most cells that fit in it (:attr:`World.step_cells`, at least one). The old
+            ``step_cells`` is refused, naming it.
         seed: seed of the SPAD noise generator (used only when ``spad.noise.enabled``).
         step_s: simulated time per step (seconds; the observations' time stamps).
         pose_noise: the localisation error (None: the observations carry the true pose, and the robot moves from
             cell centre to cell centre). With it the robot moves continuously and drives
-            ``step_cells * resolution`` metres per step.
+            ``World.step_cells * resolution`` metres per step.
         lidar_noise: the LiDAR's noise, or None (exact ranges).
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
     spad: Optional[SpadConfig] = None
-    step_cells: int = 3
+    step_m: float = 0.3
     seed: int = 0
     step_s: float = 0.1
     pose_noise: Optional[PoseNoise] = None
@@ -83,8 +87,7 @@ class WorldConfig:
             raise ValueError(f"lidar must be a LidarConfig, got {type(self.lidar).__name__}")
         if self.spad is not None and not isinstance(self.spad, SpadConfig):
             raise ValueError(f"spad must be a SpadConfig or None, got {type(self.spad).__name__}")
-        if isinstance(self.step_cells, bool) or int(self.step_cells) != self.step_cells or self.step_cells < 1:
-            raise ValueError(f"step_cells must be a positive integer, got {self.step_cells!r}")
+        object.__setattr__(self, "step_m", check_real("step_m", self.step_m, 0.0, low_open=True))
         if not (float(self.step_s) > 0.0 and np.isfinite(self.step_s)):
             raise ValueError(f"step_s must be positive and finite, got {self.step_s}")
         for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
@@ -148,6 +151,7 @@ class World:
         grid, cfg: as given.
         frame: the map frame the observations use (the grid's shape and resolution, origin at (0, 0)).
         pose_rc: the robot's cell (setting it puts the robot at the cell's centre).
+        step_cells: path cells per :meth:`apply`: the most that fit in ``cfg.step_m`` on this grid, at least one.
         driven_m: metres driven so far.
         steps: observations produced so far.
         collisions: commanded moves stopped by a wall (or the map's edge).
@@ -168,6 +172,7 @@ class World:
         self.grid, self.cfg = grid, cfg
         self.frame = MapFrame(grid.shape, grid.resolution_m)
         self.pose_rc = start
+        self.step_cells = max(1, cells_within(cfg.step_m, grid.resolution_m))
         self.belief: Optional[Pose2D] = None
         self.pose_error = None if cfg.pose_noise is None else PoseErrorModel(cfg.pose_noise)
         self._lidar_rng = None if cfg.lidar_noise is None else cfg.lidar_noise.generator()
@@ -246,7 +251,7 @@ class World:
         return observation
 
     def apply(self, command: Command) -> float:
-        """Drive up to ``step_cells`` cells along the commanded path; returns the metres driven.
+        """Drive up to :attr:`step_cells` cells (``cfg.step_m``) along the commanded path; returns the metres driven.
 
         Without pose noise the path must start at the robot's cell and step between 8-connected cells; a move into
         a wall is refused (the robot stops before it and :attr:`collisions` counts it). With pose noise the robot
@@ -272,11 +277,11 @@ class World:
         if any(step != 1 for step in steps):
             raise ValueError("the commanded path must step between 8-connected neighbouring cells")
         free = 1
-        while free < len(path) and free <= self.cfg.step_cells and self.grid.is_free(path[free]):
+        while free < len(path) and free <= self.step_cells and self.grid.is_free(path[free]):
             free += 1
-        if free <= min(self.cfg.step_cells, len(path) - 1):
+        if free <= min(self.step_cells, len(path) - 1):
             self.collisions += 1  # the next cell is a wall or off the map
-        pose, _, metres = advance(path[:free], self.cfg.step_cells, self.grid.resolution_m)
+        pose, _, metres = advance(path[:free], self.step_cells, self.grid.resolution_m)
         self.pose_rc = (int(pose[0]), int(pose[1]))
         self.driven_m += metres
         return metres
@@ -286,7 +291,7 @@ class World:
             raise ValueError("the commanded path holds a non-finite waypoint")
         truth = self.pose
         drive = drive_belief_relative(self.grid, truth, self.belief or truth, path_xy,
-                                      self.cfg.step_cells * self.grid.resolution_m)
+                                      self.step_cells * self.grid.resolution_m)
         self.pose_rc = self.frame.cell_of(drive.pose.x, drive.pose.y)
         self._true_pose = drive.pose
         self.collisions += int(drive.collided)

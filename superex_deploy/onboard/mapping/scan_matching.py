@@ -7,19 +7,19 @@ window around the believed pose for the pose at which the scan's returns best fi
 
 * **Likelihood field**: the map's occupied cells (line of sight, ``log_odds >= occupied_threshold``) become a smooth
   field ``exp(-d^2 / (2 s^2))``, ``d`` the Euclidean distance (cells) to the nearest occupied cell (``s``:
-  :attr:`ScanMatchingConfig.field_sigma_cells`), computed on a crop around the robot. A pose's **fit** is the mean
+  :attr:`ScanMatchingConfig.field_sigma_m` in cells), computed on a crop around the robot. A pose's **fit** is the mean
   field value (bilinear) at the scan's returns placed from that pose: 1 when every return lies on a wall of the
   map, near 0 when none is near one.
 * **Window**: ``+-window_sigmas`` standard deviations of the observation's pose covariance in ``x``, ``y`` and yaw
   (the covariance's diagonal), at least one cell and capped at ``max_window_m`` / ``max_window_deg``.
 * **Coarse to fine**: every pose of the window's lattice (one cell; the yaw step that moves the farthest return by
-  one cell) is scored on a wider field (``coarse_sigma_cells``: wide basins, so the right pose need not lie on the
+  one cell) is scored on a wider field (``coarse_sigma_m``: wide basins, so the right pose need not lie on the
   lattice); from the ``starts`` best, hill-climbing on the narrow field over the 3 x 3 x 3 poses around the
   current one, at the lattice's steps and then ``refine_levels`` times at half the previous steps (1/8 cell at 3).
 * **Prior**: the search maximises ``fit - prior_weight * m^2 / 2`` (``m``: the Mahalanobis distance of the offset
   under the covariance), so a scan that constrains a pose poorly (a corridor along its axis) stays near the belief.
 * **Acceptance rule** (a wrong correction is worse than none): the corrected pose is used only when the map holds
-  at least ``min_map_walls`` occupied cells near the robot, the scan has at least ``min_points`` returns, the best
+  at least ``min_map_wall_m`` of occupied cells (their count times the cell size) near the robot, the scan has at least ``min_points`` returns, the best
   fit is at least ``min_fit`` and beats the fit at the believed pose by at least ``min_gain``, and the corrected
   cell is not held occupied; otherwise the believed pose is kept unchanged.
 
@@ -37,7 +37,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance
-from superex_deploy.onboard.checks import retires
+from superex_deploy.onboard.checks import cells_at_least, in_cells, renames, retires
 
 __all__ = ["ScanMatchingConfig", "ScanMatch", "ScanMatcher", "score_poses", "likelihood_field"]
 
@@ -47,6 +47,8 @@ _FACE_TO_CENTRE_CELLS = 0.5
 """Added to each return's range (cells) before scoring: from the wall's face to its cell's centre, along the ray."""
 
 
+@renames(field_sigma_cells=("field_sigma_m", 1), coarse_sigma_cells=("coarse_sigma_m", 1),
+         min_map_walls=("min_map_wall_m", 1))
 @retires("docs/on-a-robot.md", match_sigma_cells=0.0, match_sigma_deg=0.0, start_after_scans=0)
 @dataclass(frozen=True)
 class ScanMatchingConfig:
@@ -57,14 +59,15 @@ class ScanMatchingConfig:
         window_sigmas: half-width of the search window in standard deviations of the pose covariance.
         max_window_m: cap on the translational half-width (metres).
         max_window_deg: cap on the rotational half-width (degrees).
-        field_sigma_cells: smoothing ``s`` of the likelihood field the fit is read on (cells).
-        coarse_sigma_cells: the wider field the lattice is scored on (cells).
+        field_sigma_m: smoothing ``s`` of the likelihood field the fit is read on (metres; one cell of 0.1 m).
+        coarse_sigma_m: the wider field the lattice is scored on (metres).
         starts: the best lattice poses refined on the narrow field.
         max_points: returns used at most (evenly spaced over the scan), for speed.
         max_point_range_m: returns farther than this are not used (their angular leverage makes the yaw lattice
             fine, and far walls are the least certain in the map).
         min_points: fewer usable returns: no correction.
-        min_map_walls: fewer occupied map cells in the field's crop: no correction.
+        min_map_wall_m: fewer occupied map cells in the field's crop than this many metres of them (their count
+            times the cell size, about the length of wall seen; 50 cells of 0.1 m): no correction.
         min_fit: the best pose's fit must reach this.
         min_gain: ... and beat the believed pose's fit by this much.
         prior_weight: weight of the Mahalanobis prior (fit units per unit of ``m^2 / 2``). It trades a single
@@ -75,20 +78,21 @@ class ScanMatchingConfig:
 
     The options ``match_sigma_cells``, ``match_sigma_deg`` (fusing an accepted match with the belief) and
     ``start_after_scans`` (matching only after the first scans) were retired (``RETIRED``: their old defaults;
-    measured in docs/on-a-robot.md, "What was tried").
+    measured in docs/on-a-robot.md, "What was tried"). The cell counts ``field_sigma_cells``, ``coarse_sigma_cells``
+    and ``min_map_walls`` are refused, naming their metric fields.
     """
 
     enabled: bool = True
     window_sigmas: float = 3.0
     max_window_m: float = 0.8
     max_window_deg: float = 10.0
-    field_sigma_cells: float = 1.0
-    coarse_sigma_cells: float = 2.0
+    field_sigma_m: float = 0.1
+    coarse_sigma_m: float = 0.2
     starts: int = 4
     max_points: int = 400
     max_point_range_m: float = 10.0
     min_points: int = 30
-    min_map_walls: int = 50
+    min_map_wall_m: float = 5.0
     min_fit: float = 0.4
     min_gain: float = 0.02
     prior_weight: float = 0.01
@@ -97,19 +101,18 @@ class ScanMatchingConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
             raise ValueError(f"ScanMatchingConfig.enabled must be a bool, got {self.enabled!r}")
-        for name in ("window_sigmas", "max_window_m", "max_window_deg", "field_sigma_cells", "coarse_sigma_cells",
+        for name in ("window_sigmas", "max_window_m", "max_window_deg", "field_sigma_m", "coarse_sigma_m",
                      "max_point_range_m"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("min_fit", "min_gain", "prior_weight"):
+        for name in ("min_fit", "min_gain", "prior_weight", "min_map_wall_m"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"ScanMatchingConfig.{name} must be a finite number >= 0, got {value!r}")
-        for name, low in (("max_points", 1), ("starts", 1), ("min_points", 1), ("min_map_walls", 0),
-                          ("refine_levels", 0)):
+        for name, low in (("max_points", 1), ("starts", 1), ("min_points", 1), ("refine_levels", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"ScanMatchingConfig.{name} must be an integer >= {low}, got {value!r}")
@@ -262,13 +265,14 @@ class ScanMatcher:
         half_y = min(max(cfg.window_sigmas * sigma_y, res), cfg.max_window_m) / res
         half_yaw = min(cfg.window_sigmas * sigma_yaw, math.radians(cfg.max_window_deg))
         (gy, gx), _ = frame.locate(pose.x, pose.y)
-        reach = float(rho.max()) + max(half_x, half_y) + 4.0 * max(cfg.field_sigma_cells, cfg.coarse_sigma_cells) + 2.0
+        sigmas = (in_cells(cfg.field_sigma_m, res), in_cells(cfg.coarse_sigma_m, res))
+        reach = float(rho.max()) + max(half_x, half_y) + 4.0 * max(sigmas) + 2.0
         top, left = max(0, int(gy - reach)), max(0, int(gx - reach))
         bottom, right = min(frame.shape[0], int(gy + reach) + 2), min(frame.shape[1], int(gx + reach) + 2)
         crop = np.asarray(walls[top:bottom, left:right], bool)
-        if int(crop.sum()) < cfg.min_map_walls or min(crop.shape) < 2:
+        if int(crop.sum()) < cells_at_least(cfg.min_map_wall_m, res) or min(crop.shape) < 2:
             return ScanMatch(pose, False, nan, nan, "too few walls in the map")
-        fine, coarse = likelihood_fields(crop, (cfg.field_sigma_cells, cfg.coarse_sigma_cells))
+        fine, coarse = likelihood_fields(crop, sigmas)
         origin = (gy - top, gx - left)
         # Offsets are (dy down, dx right, dyaw): the prior reads them in the map frame (y up).
         inv_var = np.array([1.0 / max(sigma_y / res, 1e-9) ** 2, 1.0 / max(sigma_x / res, 1e-9) ** 2,

@@ -18,7 +18,9 @@ ROW_BLOCK = 8
 
 @dataclass(frozen=True)
 class NlosConfig:
-    """NLOS processing parameters.
+    """NLOS processing parameters. The ``*_cells`` fields are tolerances of the grid's own discretisation (a cell
+    centre's distance to a wall face, a wall cell estimated one cell off, the hits a normal is fitted to), so they
+    are counted in cells and scale with the cell on purpose; every physical distance is in metres.
 
     Attributes:
         window_m: back-projection is computed within this distance of the robot (square window, metres).

@@ -38,6 +38,7 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.onboard.checks import cells_within, check_real, renames
 from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
 __all__ = ["MAX_WALL_REACH_M", "MAX_WALL_REACH_CELLS", "check_wall_reach", "MotionConfig", "PlanningMap",
@@ -51,6 +52,7 @@ MAX_WALL_REACH_CELLS = 1000
 (24 bytes each), 96 MB at this limit."""
 
 
+@renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
 class MotionConfig:
     """Robot motion and path planning.
@@ -60,7 +62,8 @@ class MotionConfig:
         wall_cost_weight: extra cost per cell right at a wall, falling linearly to zero at
             ``wall_cost_range_m`` (0 disables the proximity cost).
         wall_cost_range_m: reach of the wall-proximity cost (metres, > 0).
-        step_cells: path cells advanced per step (3 cells = 0.3 m, MapEx's ``ind_to_move_per_step``).
+        step_m: how far the robot is expected to drive per step (metres; MapEx's ``ind_to_move_per_step`` of 3
+            cells at 0.1 m): the simulator advances :meth:`cells_per_step` path cells, the same metres on any grid.
         goal_reached_m: a goal counts as reached within this straight-line distance (MapEx: 1 m); frontiers
             this close to the robot are not offered to the planner either.
         drive_carved: whether the explorer plans on cells known free only by NLOS carving. False: never, it plans
@@ -74,33 +77,40 @@ class MotionConfig:
         ValueError: ``MotionConfig: FIELD must ...``, for a field of another type, not finite or out of its range:
             ``robot_radius_m`` in ``[0, MAX_WALL_REACH_M]``, ``wall_cost_range_m`` in ``(0, MAX_WALL_REACH_M]``
             (:data:`MAX_WALL_REACH_M`), ``wall_cost_weight`` and ``goal_reached_m`` finite and >= 0,
-            ``step_cells`` an integer >= 1.
+            ``step_m`` positive and finite; the old name ``step_cells`` (a count of cells, whose distance
+            changed with the grid) is refused, naming ``step_m``.
     """
 
     robot_radius_m: float = 0.15
     wall_cost_weight: float = 10.0
     wall_cost_range_m: float = 1.0
-    step_cells: int = 3
+    step_m: float = 0.3
     goal_reached_m: float = 1.0
     drive_carved: Optional[bool] = None
 
     def __post_init__(self) -> None:
         if self.drive_carved is not None and not isinstance(self.drive_carved, bool):
             raise ValueError(f"MotionConfig: drive_carved must be True, False or None, got {self.drive_carved!r}")
-        # Imported here: the planners package imports this module.
-        from superex_deploy.onboard.checks import check_int, check_real
-
         try:
             checked = {"robot_radius_m": check_real("robot_radius_m", self.robot_radius_m, 0.0, MAX_WALL_REACH_M),
                        "wall_cost_weight": check_real("wall_cost_weight", self.wall_cost_weight, 0.0),
                        "wall_cost_range_m": check_real("wall_cost_range_m", self.wall_cost_range_m, 0.0,
                                                        MAX_WALL_REACH_M, low_open=True),
-                       "step_cells": check_int("step_cells", self.step_cells, 1),
+                       "step_m": check_real("step_m", self.step_m, 0.0, low_open=True),
                        "goal_reached_m": check_real("goal_reached_m", self.goal_reached_m, 0.0)}
         except ValueError as error:
             raise ValueError(f"MotionConfig: {error}") from None
         for name, value in checked.items():
             object.__setattr__(self, name, value)
+
+    def cells_per_step(self, resolution_m: float) -> int:
+        """The path cells one step advances on a grid of ``resolution_m`` metres per cell: the most that fit in
+        ``step_m`` (3 at 0.1 m, 6 at 0.05 m, 12 at 0.025 m), at least one.
+
+        Raises:
+            ValueError: ``resolution_m`` not positive and finite.
+        """
+        return max(1, cells_within(self.step_m, check_real("resolution_m", resolution_m, 0.0, low_open=True)))
 
 
 @numba.njit(cache=True)

@@ -5,7 +5,7 @@ docs/benchmarks/exploration.md). Between two goal choices the map changes only a
 :class:`ReusingPredictor` keeps the last prediction and the map it was made for, and on the next request
 
 1. counts the cells whose map state changed (and those whose evidence rose by more than
-   :attr:`PredictionReuse.evidence_change`); below :attr:`PredictionReuse.min_changed_cells` the last prediction,
+   :attr:`PredictionReuse.evidence_change`); below :attr:`PredictionReuse.min_changed_m2` of them the last prediction,
    merged with the current map (:func:`merge_with_map`), is returned without running the predictor;
 2. otherwise, with :attr:`PredictionReuse.crop_margin_m` set, predicts only the bounding box of the changed
    cells grown by that margin on every side (the network's context), and writes the inner part of the result
@@ -27,7 +27,7 @@ docs/benchmarks/exploration.md). Between two goal choices the map changes only a
 
 Cells that no prediction ever covered (outside every crop so far) are taken as the map says, unknown = free, as
 :class:`~superex_deploy.onboard.prediction.baselines.ObservedAsPrediction` does; they lie more than half a margin from every
-cell known when the last prediction was made (cells seen since, while fewer than ``min_changed_cells`` changed,
+cell known when the last prediction was made (cells seen since, while less than ``min_changed_m2`` changed,
 are not predicted until the threshold is reached).
 
 Crops are used only with predictors that declare ``accepts_crops = True`` (the LaMa ensembles, the observed and
@@ -43,6 +43,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.onboard.checks import cells_at_least, renames
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, MapPredictor, Prediction
 
 __all__ = ["PredictionReuse", "ReusingPredictor", "merge_with_map", "changed_box", "feather_weights", "RAMPS",
@@ -61,14 +62,16 @@ whole-map predictions near a seam, and a step across a seam no larger than the w
 (measured in docs/benchmarks/realtime.md, "Seams")."""
 
 
+@renames(min_changed_cells=("min_changed_m2", 2))
 @dataclass(frozen=True)
 class PredictionReuse:
     """What the explorer keeps of its last prediction (the defaults keep nothing: every request runs the
     predictor on the whole map).
 
     Attributes:
-        min_changed_cells: run the predictor only when at least this many cells changed since the map of the
-            last prediction (0: always).
+        min_changed_m2: run the predictor only when the cells changed since the map of the last prediction cover at
+            least this area (square metres, >= 0; 2 m^2 is 200 cells of 0.1 m, 800 of 0.05 m; 0: always). The
+            old ``min_changed_cells`` is refused, naming it.
         crop_margin_m: predict only the box around the changed cells grown by this many metres of context (None:
             the whole map); see the module docstring.
         evidence_change: an evidence cell (the filtered back-projection, in [0, 1]) counts as changed when it
@@ -78,16 +81,15 @@ class PredictionReuse:
         feather_ramp: the ramp's shape, one of :data:`RAMPS`.
     """
 
-    min_changed_cells: int = 0
+    min_changed_m2: float = 0.0
     crop_margin_m: Optional[float] = None
     evidence_change: float = 0.05
     feather_m: float = FEATHER_M
     feather_ramp: str = "linear"
 
     def __post_init__(self) -> None:
-        if not isinstance(self.min_changed_cells, (int, np.integer)) or isinstance(self.min_changed_cells, bool) \
-                or self.min_changed_cells < 0:
-            raise ValueError(f"min_changed_cells must be an integer >= 0, got {self.min_changed_cells!r}")
+        if not (_is_number(self.min_changed_m2) and self.min_changed_m2 >= 0):
+            raise ValueError(f"min_changed_m2 must be a number of square metres >= 0, got {self.min_changed_m2!r}")
         if self.crop_margin_m is not None and not (_is_number(self.crop_margin_m) and self.crop_margin_m > 0):
             raise ValueError(f"crop_margin_m must be a positive number of metres or None, got {self.crop_margin_m!r}")
         if not (_is_number(self.evidence_change) and 0.0 <= self.evidence_change < 1.0):
@@ -100,7 +102,7 @@ class PredictionReuse:
     @property
     def reuses(self) -> bool:
         """Whether anything is kept (else the explorer calls the predictor directly)."""
-        return self.min_changed_cells > 0 or self.crop_margin_m is not None
+        return self.min_changed_m2 > 0 or self.crop_margin_m is not None
 
 
 def _is_number(value) -> bool:
@@ -187,9 +189,10 @@ class ReusingPredictor:
     Args:
         predictor: the wrapped predictor.
         cfg: what to keep.
-        resolution_m: metres per cell (converts ``crop_margin_m``).
+        resolution_m: metres per cell (converts ``crop_margin_m``, ``feather_m`` and ``min_changed_m2``).
 
     Attributes:
+        min_changed_cells: the changed cells that reach ``cfg.min_changed_m2`` on this grid.
         runs: predictor calls so far; ``reused``: requests answered from the last prediction alone;
         predicted_cells: cells of all the (cropped) maps the predictor ran on.
         last_crop: ``(outer, inner)`` boxes (``(top, left, bottom, right)``, end-exclusive) of the latest kept
@@ -211,6 +214,7 @@ class ReusingPredictor:
         self._margin = 0 if cfg.crop_margin_m is None else int(np.ceil(cfg.crop_margin_m / resolution_m - 1e-9))
         self._multiple = int(getattr(predictor, "size_multiple", 1) or 1)
         self._feather = int(np.ceil(cfg.feather_m / resolution_m - 1e-9))
+        self.min_changed_cells = cells_at_least(cfg.min_changed_m2, resolution_m ** 2)
         self._lock = threading.Lock()
         self._base: Optional[Prediction] = None
         self._base_observed: Optional[np.ndarray] = None
@@ -268,7 +272,7 @@ class ReusingPredictor:
             changed = self._changed(observed, extra)
             n_changed = int(changed.sum())
             # Too little changed; with crops, nothing changed also means the last prediction is exact for this map.
-            if self._base is not None and (n_changed < self.cfg.min_changed_cells or (self._crops and not n_changed)):
+            if self._base is not None and (n_changed < self.min_changed_cells or (self._crops and not n_changed)):
                 if commit:
                     self.reused += 1
                 return merge_with_map(self._base, observed)

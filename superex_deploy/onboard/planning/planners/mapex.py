@@ -10,7 +10,7 @@ import numpy as np
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.checks import check_choice, check_instance, check_real
+from superex_deploy.onboard.checks import check_choice, check_instance, check_real, in_cells, renames
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
 from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
 from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_frontier, reachable_frontiers
@@ -18,6 +18,7 @@ from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_fr
 __all__ = ["MapexConfig", "MapexPlanner"]
 
 
+@renames(min_distance_cells=("min_distance_m", 1))
 @dataclass(frozen=True)
 class MapexConfig:
     """MapEx (``visvarprob``): predicted-visible variance per unit distance.
@@ -27,8 +28,9 @@ class MapexConfig:
         distance: the divisor: ``"travel"`` (default), the cost-to-go of the planning map (path length weighted
             by the wall-proximity cost), or ``"euclidean"``, the straight-line distance from the robot to the
             frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
-        min_distance_cells: floor on the divisor (positive, finite). Frontiers within the goal tolerance (1 m)
-            are never offered, so it only guards against a zero distance.
+        min_distance_m: floor on the divisor (metres, positive, finite; one cell of 0.1 m). Frontiers within the
+            goal tolerance (1 m) are never offered, so it only guards against a zero distance. The old
+            ``min_distance_cells`` is refused, naming it.
         gain: ``"visible"`` (MapEx): the cells of the thresholded raycast's filled polygon; ``"expected"``: every
             unknown cell weighted by the probability that a ray reaches it through the predicted walls
             (:func:`~superex_deploy.onboard.planning.expected_visibility.expected_visible_gains`, with ``visibility``'s
@@ -49,7 +51,7 @@ class MapexConfig:
 
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
     distance: str = "travel"
-    min_distance_cells: float = 1.0
+    min_distance_m: float = 0.1
     gain: str = "visible"
     wall_support: Optional[WallSupport] = None
     transmittance: str = "independent"
@@ -60,8 +62,8 @@ class MapexConfig:
         check_choice("gain", self.gain, ("visible", "expected"))
         object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
         check_choice("transmittance", self.transmittance, TRANSMITTANCES)
-        object.__setattr__(self, "min_distance_cells",
-                           check_real("min_distance_cells", self.min_distance_cells, 0.0, low_open=True))
+        object.__setattr__(self, "min_distance_m",
+                           check_real("min_distance_m", self.min_distance_m, 0.0, low_open=True))
 
 
 class MapexPlanner(Planner):
@@ -118,7 +120,7 @@ class MapexPlanner(Planner):
             distance = np.hypot(cells[:, 0] - ctx.pose_rc[0], cells[:, 1] - ctx.pose_rc[1])
         else:
             distance = costs
-        return frontiers, costs, information / np.maximum(distance, self.cfg.min_distance_cells)
+        return frontiers, costs, information / np.maximum(distance, in_cells(self.cfg.min_distance_m, ctx.resolution_m))
 
     def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
         frontiers, costs, scores = self.score(ctx)

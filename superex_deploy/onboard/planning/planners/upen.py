@@ -9,7 +9,7 @@ from typing import Optional
 import numba
 import numpy as np
 
-from superex_deploy.onboard.checks import check_instance, check_int, check_real
+from superex_deploy.onboard.checks import check_instance, check_int, check_real, in_cells, renames
 from superex_deploy.onboard.types import OCCUPIED, Planner, PlanningContext
 from superex_deploy.onboard.planning.planners.nearest import NearestFrontier
 from superex_deploy.onboard.planning.visibility import check_cells, check_map
@@ -175,13 +175,15 @@ def grow_rrt(passable: np.ndarray, start_rc, n_samples: int, expand_cells: float
                       exit_rc[:n].copy())
 
 
+@renames(expand_cells=("expand_m", 1))
 @dataclass(frozen=True)
 class UpenConfig:
     """UPEN (Georgakis et al., ICRA 2022) as MapEx runs it (``upen_config`` of its ``base.yaml``).
 
     Attributes:
         rrt_samples: RRT iterations (MapEx: 2500; an integer in ``[1, MAX_RRT_SAMPLES]``).
-        expand_cells: RRT step length in cells (MapEx: 5; positive, finite).
+        expand_m: RRT step length (metres, positive, finite; MapEx: 5 cells of 0.1 m). The old ``expand_cells``
+            is refused, naming it.
         reach_horizon: the longest path scored, in RRT edges (MapEx: 50; an integer >= 1).
         min_goal_distance_m: a goal this close to the robot counts as reached already (MapEx's
             ``cur_pose_dist_threshold_m``: 1 m; finite, >= 0).
@@ -192,13 +194,13 @@ class UpenConfig:
     """
 
     rrt_samples: int = 2500
-    expand_cells: float = 5.0
+    expand_m: float = 0.5
     reach_horizon: int = 50
     min_goal_distance_m: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rrt_samples", check_int("rrt_samples", self.rrt_samples, 1, MAX_RRT_SAMPLES))
-        object.__setattr__(self, "expand_cells", check_real("expand_cells", self.expand_cells, 0.0, low_open=True))
+        object.__setattr__(self, "expand_m", check_real("expand_m", self.expand_m, 0.0, low_open=True))
         object.__setattr__(self, "reach_horizon", check_int("reach_horizon", self.reach_horizon, 1))
         object.__setattr__(self, "min_goal_distance_m",
                            check_real("min_goal_distance_m", self.min_goal_distance_m, 0.0))
@@ -208,7 +210,7 @@ class UpenPlanner(Planner):
     """UPEN: grow an RRT from the robot through everything not known to be a wall, score each root-to-node path
     of up to ``reach_horizon`` edges by the ensemble variance summed along it, and head along the best path.
 
-    As MapEx: the tree crosses unknown cells (only observed walls block it), 2500 samples of 5-cell steps, and
+    As MapEx: the tree crosses unknown cells (only observed walls block it), 2500 samples of 0.5 m steps (5 cells of 0.1 m), and
     the score is the summed variance of the ensemble's occupancy. Differences, and why:
 
     * A plain RRT: MapEx grows an RRT* whose rewiring radius, ``min(5, 20 sqrt(log n / n))`` cells, is half the
@@ -239,7 +241,8 @@ class UpenPlanner(Planner):
         variance = ctx.predict().variance
         passable = ctx.observed != OCCUPIED
         if np.any(variance > 0.0) and passable[ctx.pose_rc]:
-            tree = grow_rrt(passable, ctx.pose_rc, self.cfg.rrt_samples, self.cfg.expand_cells, ctx.rng, variance,
+            expand_cells = in_cells(self.cfg.expand_m, ctx.resolution_m)
+            tree = grow_rrt(passable, ctx.pose_rc, self.cfg.rrt_samples, expand_cells, ctx.rng, variance,
                             reachable=np.isfinite(ctx.travel_cost))
             far_enough = np.hypot(tree.exit_rc[:, 0] - ctx.pose_rc[0], tree.exit_rc[:, 1] - ctx.pose_rc[1]) > (
                 self.cfg.min_goal_distance_m / ctx.resolution_m)
