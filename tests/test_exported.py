@@ -219,6 +219,33 @@ def test_missing_corrupt_and_mismatched_models_raise(tmp_path):
         read_manifest(models)
 
 
+def test_models_expose_the_training_resolution_the_manifest_and_their_metadata_give(tmp_path):
+    assert {entry.resolution_m for entry in MANIFEST} == {0.1}
+    assert Pix2PixFilter.from_manifest().resolution_m == 0.1
+    assert LamaEnsemble.from_manifest(ModelKind.LAMA_BP).resolution_m == 0.1
+    models = _copy_models(tmp_path)
+    manifest = json.loads((models / "manifest.json").read_text())
+    for record in manifest["models"]:
+        record["resolution_m"] = 0.05 if record["file"] == "lama_los_2.onnx" else record["resolution_m"]
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="different resolutions"):
+        LamaEnsemble.from_manifest(ModelKind.LAMA_LOS, models)
+    for record in manifest["models"]:
+        record["resolution_m"] = 0.05
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="trained at 0.1 m/cell, its manifest says 0.05"):
+        Pix2PixFilter.from_manifest(models)
+    for record in manifest["models"]:
+        del record["resolution_m"]  # a manifest written before the field: the file's metadata alone
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    assert read_manifest(models)[0].resolution_m is None
+    assert LamaEnsemble.from_manifest(ModelKind.LAMA_LOS, models).resolution_m == 0.1
+    manifest["models"][0]["resolution_m"] = -1
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="malformed.*resolution_m must be a positive number"):
+        read_manifest(models)
+
+
 def test_session_factory_applies_its_config():
     entry = ENTRIES["pix2pix"]
     quiet = make_session(entry.path, SessionConfig(intra_op_threads=1, allow_spinning=False))
