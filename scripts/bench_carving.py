@@ -40,13 +40,13 @@ VARIANTS = {
     "today": (64, {}),
     "fan128": (128, {}),
     "fan256": (256, {}),
-    "strip0.5": (64, {"wall_strip_cells": 0.5}),
+    "strip0.5": (64, {"wall_strip_m": 0.05}),
     "sector20": (64, {"sector_margin_deg": 20.0}),
     "sector10": (64, {"sector_margin_deg": 10.0}),
-    "fan256_strip0.5": (256, {"wall_strip_cells": 0.5}),
+    "fan256_strip0.5": (256, {"wall_strip_m": 0.05}),
     "fan256_sector20": (256, {"sector_margin_deg": 20.0}),
     "fan256_sector10": (256, {"sector_margin_deg": 10.0}),
-    "fan256_sector10_strip0.5": (256, {"sector_margin_deg": 10.0, "wall_strip_cells": 0.5}),
+    "fan256_sector10_strip0.5": (256, {"sector_margin_deg": 10.0, "wall_strip_m": 0.05}),
     "sector15": (64, {"sector_margin_deg": 15.0}),
     "fan256_sector15": (256, {"sector_margin_deg": 15.0}),
     "fan512": (512, {}),
@@ -123,8 +123,9 @@ def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np
     points = los.wall_cells + 0.5
     normals, straight, apex = np.zeros((n, 2)), np.zeros(n, bool), np.empty((n, 2))
     # Interior 0: every straight, contiguous run of hits, its ends included.
-    hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio, cfg.normal_max_residual_cells,
-                cfg.normal_max_gap_cells, np.zeros(n), normals, straight, 1)
+    cells = cfg.in_cells(scan.resolution_m)
+    hit_normals(points, cells.normal_radius, cfg.normal_max_minor_ratio, cells.normal_max_residual,
+                cells.normal_max_gap, np.zeros(n), normals, straight, 1)
     face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, straight, apex)
     ends = straight & ~los.normal_reliable
     margin = min(cfg.sector_margin_deg + extra_margin_deg, 89.0)
@@ -158,7 +159,7 @@ def _scenario(task: tuple) -> dict:
         for v, cfg in configs.items():
             k = VARIANTS[v][0]
             # The estimate depends on the normal fields only; the variants here change the carving's.
-            key = (k, replace(cfg, sector_margin_deg=0.0, wall_strip_cells=0.0, apex_margin_cells=0.0))
+            key = (k, replace(cfg, sector_margin_deg=0.0, wall_strip_m=0.0, apex_margin_m=0.0))
             if key not in estimates:
                 estimates[key] = estimate_los(scans[k], cfg)
             carved[v] |= variant_carving(v, scans[k], estimates[key], cfg)

@@ -313,7 +313,8 @@ def write_manifest(directory: PathLike, records: Sequence[ExportRecord]) -> Path
         return path.resolve().relative_to(directory.resolve()).as_posix()
 
     models = [{"file": relative(r.path), "kind": r.kind.value, "member": r.member, "sha256": r.sha256,
-               "bytes": r.bytes, "parameters": r.parameters, "max_abs_error": r.max_abs_error,
+               "resolution_m": RESOLUTION_M, "bytes": r.bytes, "parameters": r.parameters,
+               "max_abs_error": r.max_abs_error,
                "training_data_sha256": r.training_data_sha256, "reference": relative(r.reference),
                "reference_sha256": sha256_file(r.reference)}
               for r in records]

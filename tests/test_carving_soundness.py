@@ -151,7 +151,7 @@ def test_hits_from_two_walls_do_not_make_a_trusted_normal():
     assert not np.any(carve(scan, los, NlosConfig()) & grid.occupied)
     # The old, looser rule (no residual or gap bound; the gap bound alone also rejects these hits) trusted that
     # normal and carved into the far wall.
-    loose = NlosConfig(normal_max_residual_cells=1e9, normal_max_gap_cells=1e9)
+    loose = NlosConfig(normal_max_residual_m=1e8, normal_max_gap_m=1e8)
     assert np.any(carve(scan, estimate_los(scan, loose), loose) & grid.occupied)
 
 
@@ -162,5 +162,5 @@ def test_a_wall_end_whose_hits_run_on_to_another_wall_is_not_carved_from():
     grid = load_map("50032446")
     scan = simulate_scan(grid, (198, 177), SpadConfig(n_rays=360, n_secondary=128))
     assert not np.any(carve(scan, estimate_los(scan), NlosConfig()) & grid.occupied)
-    loose = NlosConfig(normal_max_gap_cells=1e9)
+    loose = NlosConfig(normal_max_gap_m=1e8)
     assert np.any(carve(scan, estimate_los(scan, loose), loose) & grid.occupied)

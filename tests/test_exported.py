@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -216,6 +217,35 @@ def test_missing_corrupt_and_mismatched_models_raise(tmp_path):
         read_manifest(tmp_path)
     (models / "manifest.json").write_text("{\"format_version\": \"1\", \"models\": [{\"file\": 3}]}")
     with pytest.raises(ValueError, match="malformed"):
+        read_manifest(models)
+
+
+def test_models_expose_the_training_resolution_the_manifest_and_their_metadata_give(tmp_path):
+    committed = Path(__file__).resolve().parents[1] / "exported"  # this checkout's (the installed may be another's)
+    assert {entry.resolution_m for entry in read_manifest(committed)} == {0.1}
+    assert Pix2PixFilter.from_manifest(committed).resolution_m == 0.1
+    assert LamaEnsemble.from_manifest(ModelKind.LAMA_BP, committed).resolution_m == 0.1
+    models = tmp_path / "models"
+    shutil.copytree(committed, models, ignore=shutil.ignore_patterns("checkpoints"))
+    manifest = json.loads((models / "manifest.json").read_text())
+    for record in manifest["models"]:
+        record["resolution_m"] = 0.05 if record["file"] == "lama_los_2.onnx" else record["resolution_m"]
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="different resolutions"):
+        LamaEnsemble.from_manifest(ModelKind.LAMA_LOS, models)
+    for record in manifest["models"]:
+        record["resolution_m"] = 0.05
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="trained at 0.1 m/cell, its manifest says 0.05"):
+        Pix2PixFilter.from_manifest(models)
+    for record in manifest["models"]:
+        del record["resolution_m"]  # a manifest written before the field: the file's metadata alone
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    assert read_manifest(models)[0].resolution_m is None
+    assert LamaEnsemble.from_manifest(ModelKind.LAMA_LOS, models).resolution_m == 0.1
+    manifest["models"][0]["resolution_m"] = -1
+    (models / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="malformed.*resolution_m must be a positive number"):
         read_manifest(models)
 
 

@@ -33,8 +33,6 @@ def build_explorer(metadata: dict, frame, models=None):
         ValueError: metadata that names no planner or predictor, the oracle predictor (it reads the truth), or
             configurations this package cannot build.
     """
-    from dataclasses import fields
-
     from superex_deploy import pipeline
     from superex_deploy.onboard.planning.motion import MotionConfig
     from superex_deploy.onboard.checks import from_cells, without_retired
@@ -87,8 +85,7 @@ def build_explorer(metadata: dict, frame, models=None):
         if metadata.get("spad"):
             sensor = dict(metadata["sensor"])
             sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
-            nlos_cfg = NlosConfig(**{f.name: metadata["nlos"][f.name] for f in fields(NlosConfig)
-                                     if f.name in metadata["nlos"]})
+            nlos_cfg = NlosConfig.from_recorded(dict(metadata["nlos"]), frame.resolution_m)
     except KeyError as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt: it lacks the field {error}") from None
     except (TypeError, ValueError) as error:

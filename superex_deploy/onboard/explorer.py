@@ -56,6 +56,7 @@ from superex_deploy.onboard.planning.motion import (MotionConfig, PlanningMap, c
                                                     planning_map)
 from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
+from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
 from superex_deploy.onboard.prediction.schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
                                                         StalePrediction, set_numba_threads)
@@ -209,10 +210,15 @@ class Explorer:
         check_wall_reach(cfg.motion, frame.resolution_m)  # a grid too fine for the motion settings: refused now
         self.frame, self.planner, self.predictor, self.cfg = frame, planner, predictor, cfg
         self.spad_processing = spad_processing
-        # What the steps call: the predictor itself, or the wrapper that keeps its last prediction.
-        self.reusing: Optional[ReusingPredictor] = (ReusingPredictor(predictor, cfg.reuse, frame.resolution_m)
+        # A learned model runs at the resolution it was trained at (the map pooled or repeated to it, its answer
+        # brought back): a grid it cannot serve is refused here, before the first step.
+        native = at_resolution(predictor, frame.resolution_m)
+        if spad_processing is not None:
+            spad_processing.check_resolution(frame.resolution_m)
+        # What the steps call: the predictor (at its scale), or the wrapper that keeps its last prediction.
+        self.reusing: Optional[ReusingPredictor] = (ReusingPredictor(native, cfg.reuse, frame.resolution_m)
                                                     if cfg.reuse.reuses else None)
-        self._predictor: MapPredictor = self.reusing if self.reusing is not None else predictor
+        self._predictor: MapPredictor = self.reusing if self.reusing is not None else native
         self.mapper = Mapper(frame.shape, cfg.occupancy)
         self.scan_matcher = ScanMatcher(cfg.scan_matching)
         self.pose_estimate = None

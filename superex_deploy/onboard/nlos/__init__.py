@@ -54,4 +54,5 @@ def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional
     los = estimate_los(scan, cfg)
     bp = back_project_patch(scan, los, cfg, known)
     return NlosResult(carved_patch=carve_patch(scan, los, cfg, pose_sigma), bp_patch=bp,
-                      bp_filtered_patch=laplacian_filter_patch(bp, 1.0), los=los)
+                      bp_filtered_patch=laplacian_filter_patch(bp, cfg.in_cells(scan.resolution_m).laplacian_sigma),
+                      los=los)

@@ -15,14 +15,14 @@ needs three more arguments, each a margin below:
    fan (``SpadConfig.n_secondary``) carves further (2.0 m at 64 rays of 0.1 m cells, 8.1 m at 256).
 2. **Where the wall point is.** The processing knows ``h1`` only from the direct-return bin: its estimate can
    be one cell off, and the simulator's fans start at ``X1`` on the cell's face. The radius is reduced by
-   ``apex_margin_cells`` plus ``s / sqrt(2)`` (a cell counts as a wall when any part of it is hit, and we test
+   ``apex_margin_m`` plus ``s / sqrt(2)`` (a cell counts as a wall when any part of it is hit, and we test
    cell centres).
 3. **Which side.** The fan spans +-90 degrees about the true normal, the carve uses a normal estimated from the
    scan's own wall hits; the carved sector is narrowed to +-(90 - sector_margin_deg) and a strip of
-   ``wall_strip_cells`` along the wall itself is left out (it is seen directly anyway). A normal is trusted
+   ``wall_strip_m`` along the wall itself is left out (it is seen directly anyway). A normal is trusted
    only where the hits around the wall cell lie on one straight line (small minor/major variance ratio and
-   every hit within ``normal_max_residual_cells`` of the fitted line, no gap along it wider than
-   ``normal_max_gap_cells``), the cell is inside that line, and
+   every hit within ``normal_max_residual_m`` of the fitted line, no gap along it wider than
+   ``normal_max_gap_m``), the cell is inside that line, and
    the robot does not see it at grazing incidence; other wall cells are not carved from. The property test
    found each of these cases: three hits from two walls (a thin wall's face and a wall seen past its end)
    fitted a line tilted 25 degrees, which flipped the carved sector onto the far wall; and a wall-end cell
@@ -36,7 +36,7 @@ needs three more arguments, each a margin below:
    cell borders, so a wall cell's estimate may land beside a corner or a wall end whose hits, re-drawn, look
    straight: the property test found a 4.6 m distant staircase corner trusted under a 2 cm / 0.7 degree error,
    whose true fan faced elsewhere. A normal is therefore trusted for carving only with the interior distance
-   (``normal_interior_cells``) widened by the same margin at the wall cell (``sigma_xy + rho sigma_yaw``, ``rho``
+   (``normal_interior_m``) widened by the same margin at the wall cell (``sigma_xy + rho sigma_yaw``, ``rho``
    its distance). Without a covariance every margin is zero and the carving is the noise-free one, bit for bit.
 """
 
@@ -122,11 +122,11 @@ def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, 
                  sigma_yaw_rad, strip_out):
     """Carve radius (cells) of each wall cell: the smallest empty radius of the rays that share it (rays sharing
     a wall-cell estimate may come from different true wall points), capped at ``cap_m`` and reduced by
-    ``apex_margin_cells``, half a cell diagonal and the pose-error margin; zero for a wall cell with a ray that
-    saw no late photon (at grazing incidence no three-bounce light exists however empty the space is), without
-    a ``reliable`` normal, or seen more obliquely than ``cos_max_incidence``. ``strip_out[u]`` (float64,
-    preset to ``strip_cells``) gets the wall strip widened by the same margin: ``sigma_xy_cells + rho
-    sigma_yaw_rad`` with ``rho`` the distance from the robot to the wall cell's centre plus the radius and a
+    ``apex_margin_cells`` (the config's ``apex_margin_m`` in cells), half a cell diagonal and the pose-error
+    margin; zero for a wall cell with a ray that saw no late photon (at grazing incidence no three-bounce light
+    exists however empty the space is), without a ``reliable`` normal, or seen more obliquely than
+    ``cos_max_incidence``. ``strip_out[u]`` (float64, preset to ``strip_cells``) gets the wall strip widened by
+    the same margin: ``sigma_xy_cells + rho sigma_yaw_rad`` with ``rho`` the distance from the robot to the wall cell's centre plus the radius and a
     cell (both sigmas already multiplied by the margin factor; zero: no pose error)."""
     n_walls = wall_cells.shape[0]
     bound = np.full(n_walls, np.inf)
@@ -193,19 +193,20 @@ def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0
     if len(los.wall_cells) == 0:
         return GridPatch(np.zeros((0, 0), bool), 0, 0, shape)
     sigma_xy, sigma_yaw = check_pose_sigma(pose_sigma)
-    strip_cells = np.full(len(los.wall_cells), float(cfg.wall_strip_cells))
+    cells = cfg.in_cells(scan.resolution_m)
+    strip_cells = np.full(len(los.wall_cells), cells.wall_strip)
     reliable = los.normal_reliable
     if sigma_xy > 0.0 or sigma_yaw > 0.0:
         distance = np.hypot(los.wall_cells[:, 0] + 0.5 - scan.origin_yx[0],
                             los.wall_cells[:, 1] + 0.5 - scan.origin_yx[1])
-        widened = cfg.normal_interior_cells + cfg.pose_sigma_margin * (sigma_xy / scan.resolution_m
-                                                                       + distance * sigma_yaw)
-        reliable = reliable & reliable_with_interior(los.wall_cells, cfg, widened)
+        widened = cells.normal_interior + cfg.pose_sigma_margin * (sigma_xy / scan.resolution_m
+                                                                   + distance * sigma_yaw)
+        reliable = reliable & reliable_with_interior(los.wall_cells, cfg, scan.resolution_m, widened)
     radius_cells = _carve_radii(los.ray_wall, los.first_late_bin, los.empty_radius_m, los.wall_cells,
                                 los.wall_normal, reliable, scan.origin_yx[0], scan.origin_yx[1],
                                 carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
-                                cfg.apex_margin_cells, np.cos(np.deg2rad(cfg.max_incidence_deg)),
-                                float(cfg.wall_strip_cells), cfg.pose_sigma_margin * sigma_xy / scan.resolution_m,
+                                cells.apex_margin, np.cos(np.deg2rad(cfg.max_incidence_deg)),
+                                cells.wall_strip, cfg.pose_sigma_margin * sigma_xy / scan.resolution_m,
                                 cfg.pose_sigma_margin * sigma_yaw, strip_cells)
     top, left, bottom, right = _carved_box(los.wall_apex, radius_cells, strip_cells, shape[0], shape[1])
     carved = np.zeros((bottom - top, right - left), bool)

@@ -18,41 +18,43 @@ ROW_BLOCK = 8
 
 @dataclass(frozen=True)
 class NlosConfig:
-    """NLOS processing parameters. The ``*_cells`` fields are tolerances of the grid's own discretisation (a cell
-    centre's distance to a wall face, a wall cell estimated one cell off, the hits a normal is fitted to), so they
-    are counted in cells and scale with the cell on purpose; every physical distance is in metres.
+    """NLOS processing parameters, in metres (and degrees): the same parameters serve every grid resolution
+    (:meth:`in_cells` converts them for one).
 
     Attributes:
         window_m: back-projection is computed within this distance of the robot (square window, metres).
-        apex_margin_cells: carve-radius reduction for the wall point's estimate (cells).
+        apex_margin_m: carve-radius reduction for the wall point's estimate (metres).
         sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal: near
             grazing, a small error in the estimated normal would carve past the wall's end. 20 carves more and no
             true wall on the benchmark trajectories, 15 carves true walls (measured in
             docs/benchmarks/spad.md, "Carving nearer its bound"); the default stays at 35 until the learned filter
             is retrained for 256 secondary rays.
-        wall_strip_cells: cells within this distance of the wall's own line are never carved.
+        wall_strip_m: cells within this distance of the wall's own line are never carved (metres).
         false_alarm_rate: noisy mode: probability that a ray's late part holds a false detection.
-        normal_radius_cells: observed wall hits within this radius of a wall cell estimate its normal.
+        normal_radius_m: observed wall hits within this radius of a wall cell estimate its normal (metres; at
+            least 1.5 cells of the grid, so that a straight wall gives three hits).
         normal_max_minor_ratio: a normal is trusted for carving only if the hits' minor/major variance ratio is
             below this (the hits lie on a line, not around a corner).
-        normal_max_residual_cells: ... and only if every one of those hits lies within this distance of the
-            fitted line (the cells a straight wall face exposes have centres within sqrt(2)/2 of it; a larger
-            residual means hits from two walls, e.g. a thin wall's face and a wall seen past its end, whose
-            fitted line and normal can be tilted far enough to put the carved sector on the far side).
-        normal_max_gap_cells: ... and only if consecutive hits along that line are at most this far apart (a
-            wider gap can be a wall end followed by another wall, and the end's true normal turns away; the
-            property test found a wall-end cell whose line ran on to a second wall 4 cells away).
-        normal_interior_cells: ... and only if observed hits extend at least this far on both sides of the
-            cell along the wall (wall ends and corners carry normals of their own; the margin also covers a
-            wall-cell estimate one cell off).
+        normal_max_residual_m: ... and only if every one of those hits lies within this distance of the
+            fitted line (metres; the cells a straight wall face exposes have centres within sqrt(2)/2 of a cell
+            of it; a larger residual means hits from two walls, e.g. a thin wall's face and a wall seen past its
+            end, whose fitted line and normal can be tilted far enough to put the carved sector on the far side).
+        normal_max_gap_m: ... and only if consecutive hits along that line are at most this far apart (metres, at
+            least one cell of the grid: a wider gap can be a wall end followed by another wall, and the end's true
+            normal turns away; the property test found a wall-end cell whose line ran on to a second wall 0.4 m
+            away).
+        normal_interior_m: ... and only if observed hits extend at least this far on both sides of the
+            cell along the wall (metres; wall ends and corners carry normals of their own; the margin also covers
+            a wall-cell estimate one cell off).
         max_incidence_deg: wall points seen more obliquely than this are not carved: at grazing incidence a
             small error in the estimated normal flips which side of the wall faces the robot.
         pose_sigma_margin: with an uncertain pose, each wall point's carve radius shrinks, and its wall strip
-            and the interior distance its normal needs (``normal_interior_cells``) widen, by this many times
+            and the interior distance its normal needs (``normal_interior_m``) widen, by this many times
             ``sigma_xy + rho sigma_yaw`` (the pose covariance's position and yaw standard deviations; ``rho`` the
             distance from the robot; see :mod:`.carving`, point 4). 2 carves no true wall at 5 cm / 1 degree
             nor at 10 cm / 2 degrees, where 1 does (measured in docs/on-a-robot.md, "Carving under
             uncertainty").
+        laplacian_sigma_m: standard deviation of the Gaussian of the Laplacian baseline filter (metres).
         threads: the parallel kernels (wall normals, votes, carving, the back-projection's rings) split their
             work into this many parts (0: numba's thread count, ``NUMBA_NUM_THREADS`` or
             ``numba.set_num_threads``; 1: sequential). Every part owns its outputs (wall cells, rows), so the
@@ -60,38 +62,94 @@ class NlosConfig:
     """
 
     window_m: float = 8.0
-    apex_margin_cells: float = 1.5
+    apex_margin_m: float = 0.15
     sector_margin_deg: float = 35.0
-    wall_strip_cells: float = 1.5
+    wall_strip_m: float = 0.15
     false_alarm_rate: float = 1e-3
-    normal_radius_cells: float = 5.0
+    normal_radius_m: float = 0.5
     normal_max_minor_ratio: float = 0.1
-    normal_max_residual_cells: float = 0.9
-    normal_max_gap_cells: float = 2.0
-    normal_interior_cells: float = 2.5
+    normal_max_residual_m: float = 0.09
+    normal_max_gap_m: float = 0.2
+    normal_interior_m: float = 0.25
     max_incidence_deg: float = 70.0
     pose_sigma_margin: float = 2.0
+    laplacian_sigma_m: float = 0.1
     threads: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("window_m", "apex_margin_cells", "wall_strip_cells", "pose_sigma_margin"):
+        for name in ("window_m", "apex_margin_m", "wall_strip_m", "normal_interior_m", "laplacian_sigma_m",
+                     "pose_sigma_margin"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"NlosConfig.{name} must be finite and >= 0, got {value}")
+        for name in ("normal_radius_m", "normal_max_residual_m", "normal_max_gap_m"):
+            value = getattr(self, name)
+            if not value > 0.0:
+                raise ValueError(f"NlosConfig.{name} must be > 0, got {value}")
         if not 0.0 <= self.sector_margin_deg < 90.0:
             raise ValueError(f"NlosConfig.sector_margin_deg must lie in [0, 90), got {self.sector_margin_deg}")
         if not 0.0 < self.false_alarm_rate < 1.0:
             raise ValueError(f"NlosConfig.false_alarm_rate must lie in (0, 1), got {self.false_alarm_rate}")
         if not 0.0 < self.max_incidence_deg <= 90.0:
             raise ValueError(f"NlosConfig.max_incidence_deg must lie in (0, 90], got {self.max_incidence_deg}")
-        if not self.normal_max_gap_cells >= 1.0:
-            raise ValueError(f"NlosConfig.normal_max_gap_cells must be >= 1, got {self.normal_max_gap_cells}")
-        if not self.normal_max_residual_cells > 0.0:
-            raise ValueError(f"NlosConfig.normal_max_residual_cells must be > 0, got {self.normal_max_residual_cells}")
         if int(self.threads) != self.threads or self.threads < 0:
             raise ValueError(f"NlosConfig.threads must be an integer >= 0, got {self.threads}")
-        if not self.normal_radius_cells >= 1.5:
-            raise ValueError(f"NlosConfig.normal_radius_cells must be >= 1.5, got {self.normal_radius_cells}")
+
+    @classmethod
+    def from_recorded(cls, values: dict, resolution_m: float) -> "NlosConfig":
+        """The configuration a recording (or an earlier version's settings) holds as ``values`` on a grid of
+        ``resolution_m``: the lengths an earlier version gave in cells (``wall_strip_cells`` ...) are read as that
+        many cells of the grid; names this version does not know are left out.
+
+        Raises:
+            ValueError: a value :class:`NlosConfig` refuses.
+        """
+        known = set(cls.__dataclass_fields__)
+        kept = {name: value for name, value in values.items() if name in known}
+        for name, value in values.items():
+            metric = name.removesuffix("_cells") + "_m"
+            if name.endswith("_cells") and metric in known and metric not in kept:
+                kept[metric] = float(value) * float(resolution_m)
+        return cls(**kept)
+
+    def in_cells(self, resolution_m: float) -> "NlosCells":
+        """The metric lengths in cells of a grid of ``resolution_m`` metres per cell (the kernels work in cells).
+
+        Raises:
+            ValueError: a resolution that is not positive, or so coarse that ``normal_radius_m`` is under 1.5 cells
+                or ``normal_max_gap_m`` under one cell (no straight wall could then support a normal).
+        """
+        if not (np.isfinite(resolution_m) and resolution_m > 0):
+            raise ValueError(f"resolution_m must be a positive number of metres, got {resolution_m!r}")
+        cells = NlosCells(**{name: metres_to_cells(getattr(self, f"{name}_m"), resolution_m)
+                             for name in ("apex_margin", "wall_strip", "normal_radius", "normal_max_residual",
+                                          "normal_max_gap", "normal_interior", "laplacian_sigma")})
+        if cells.normal_radius < 1.5 or cells.normal_max_gap < 1.0:
+            raise ValueError(f"NlosConfig.normal_radius_m {self.normal_radius_m} m and normal_max_gap_m "
+                             f"{self.normal_max_gap_m} m must span at least 1.5 and 1 cells of a {resolution_m} m "
+                             f"grid")
+        return cells
+
+
+def metres_to_cells(value_m: float, resolution_m: float) -> float:
+    """``value_m / resolution_m`` rounded to 1e-6 of a cell, so that a length given in metres is the number of
+    cells the decimal division says (0.15 m at 0.1 m is 1.5 cells, not 1.4999999999999998), also on a grid whose
+    resolution came as float32 (a ROS map's 0.1 is 0.10000000149011612)."""
+    return round(float(value_m) / float(resolution_m), 6)
+
+
+@dataclass(frozen=True)
+class NlosCells:
+    """:class:`NlosConfig`'s lengths in cells of one grid (:meth:`NlosConfig.in_cells`); each attribute is the
+    config's ``<name>_m`` divided by the resolution."""
+
+    apex_margin: float
+    wall_strip: float
+    normal_radius: float
+    normal_max_residual: float
+    normal_max_gap: float
+    normal_interior: float
+    laplacian_sigma: float
 
 
 @dataclass(frozen=True)

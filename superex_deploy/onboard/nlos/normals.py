@@ -128,13 +128,13 @@ def face_the_robot(points, origin_y, origin_x, normals, reliable, apex):
 def observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normals from the scan's own wall hits: the minor principal axis of the hits within
-    ``normal_radius_cells`` of each wall cell, facing the robot.
+    ``normal_radius_m`` of each wall cell, facing the robot (the config's lengths in cells of the scan's grid).
 
     Returns ``(normals float64 [U, 2], reliable bool [U], apex float64 [U, 2])`` (apex: the fan origin X1, see
     :attr:`LosEstimate.wall_apex`). A normal is reliable when at least three hits
     with a clearly linear spread (minor/major variance below ``normal_max_minor_ratio``, every hit within
-    ``normal_max_residual_cells`` of the line, no gap along it wider than ``normal_max_gap_cells``) support it
-    and the cell lies inside that line (``normal_interior_cells`` from its observed ends); elsewhere (corners,
+    ``normal_max_residual_m`` of the line, no gap along it wider than ``normal_max_gap_m``) support it
+    and the cell lies inside that line (``normal_interior_m`` from its observed ends); elsewhere (corners,
     wall ends, sparse hits) the direction back to the robot stands in, for back-projection only: carving skips
     unreliable normals, since a wrong normal would turn the carved sector onto the wall itself.
     """
@@ -145,22 +145,25 @@ def observed_normals(wall_cells: np.ndarray, scan: SpadScan, cfg: NlosConfig
     if n_walls == 0:
         return normals, reliable, apex
     points = wall_cells + 0.5
-    hit_normals(points, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
-                np.full(n_walls, float(cfg.normal_interior_cells)), normals, reliable, kernel_parts(cfg.threads))
+    cells = cfg.in_cells(scan.resolution_m)
+    hit_normals(points, cells.normal_radius, cfg.normal_max_minor_ratio, cells.normal_max_residual,
+                cells.normal_max_gap, np.full(n_walls, cells.normal_interior), normals, reliable,
+                kernel_parts(cfg.threads))
     face_the_robot(points, scan.origin_yx[0], scan.origin_yx[1], normals, reliable, apex)
     return normals, reliable, apex
 
 
-def reliable_with_interior(wall_cells: np.ndarray, cfg: NlosConfig, interior_cells: np.ndarray) -> np.ndarray:
-    """bool ``[U]``: which wall cells' normals :func:`observed_normals` would trust with a per-cell interior
-    distance ``interior_cells`` (float64 ``[U]``) in place of ``cfg.normal_interior_cells`` (the carving's stricter
-    test under pose uncertainty)."""
+def reliable_with_interior(wall_cells: np.ndarray, cfg: NlosConfig, resolution_m: float,
+                           interior_cells: np.ndarray) -> np.ndarray:
+    """bool ``[U]``: which wall cells' normals :func:`observed_normals` would trust, on a grid of ``resolution_m``,
+    with a per-cell interior distance ``interior_cells`` (float64 ``[U]``, cells) in place of
+    ``cfg.normal_interior_m`` (the carving's stricter test under pose uncertainty)."""
     n_walls = len(wall_cells)
     reliable = np.zeros(n_walls, bool)
     if n_walls:
-        hit_normals(wall_cells + 0.5, float(cfg.normal_radius_cells), cfg.normal_max_minor_ratio,
-                    cfg.normal_max_residual_cells, cfg.normal_max_gap_cells,
+        cells = cfg.in_cells(resolution_m)
+        hit_normals(wall_cells + 0.5, cells.normal_radius, cfg.normal_max_minor_ratio,
+                    cells.normal_max_residual, cells.normal_max_gap,
                     np.ascontiguousarray(interior_cells, np.float64), np.zeros((n_walls, 2)), reliable,
                     kernel_parts(cfg.threads))
     return reliable

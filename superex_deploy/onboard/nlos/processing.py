@@ -17,6 +17,7 @@ from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame,
 from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
 from superex_deploy.onboard.nlos.back_projection import back_project_patch, rays_reaching_unknown
 from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
+from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
 __all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame", "check_frame_matches"]
@@ -118,6 +119,8 @@ class SpadProcessing:
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.prediction.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
+            A filter that gives its training resolution (a learned model's) runs at that scale on every scan's grid
+            (:func:`~superex_deploy.onboard.prediction.scale.at_resolution`; unchanged at its own resolution).
         skips: work left out (:class:`NlosSkips`).
         counts: since :meth:`reset`: ``frames`` seen; frames skipped whole (``no_unknown``, ``still``); frames
             whose evidence was skipped (``evidence_skipped``: ``evidence_every``); filter runs skipped
@@ -132,6 +135,7 @@ class SpadProcessing:
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
     _last_view: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
     _last_filter_input: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
+    _scaled_filter: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
     counts: dict = field(default_factory=lambda: dict.fromkeys(COUNTS, 0), init=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -151,6 +155,24 @@ class SpadProcessing:
             ValueError: see :func:`check_frame_matches`.
         """
         check_frame_matches(frame, self.sensor)
+
+    def check_resolution(self, resolution_m: float) -> None:
+        """Refuse a grid the filter's model cannot serve, before the first frame.
+
+        Raises:
+            ValueError: see :func:`~superex_deploy.onboard.prediction.scale.scale_factors`.
+        """
+        self._filter_at(resolution_m)
+
+    def _filter_at(self, resolution_m: float):
+        """The filter serving a grid of ``resolution_m`` (``bp_filter`` itself at its model's resolution), made
+        once per filter and resolution."""
+        key = (self.bp_filter, float(resolution_m))
+        if self.bp_filter is None:
+            return None
+        if self._scaled_filter is None or self._scaled_filter[0] != key:
+            self._scaled_filter = (key, at_resolution(self.bp_filter, resolution_m))
+        return self._scaled_filter[1]
 
     def regrid(self, regrid) -> None:
         """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): the evidence keeps its
@@ -213,7 +235,7 @@ class SpadProcessing:
         los = estimate_los(scan, self.nlos_cfg)
         bp = self._back_projection(scan, los, known)
         if self.bp_filter is None:
-            filtered = laplacian_filter_patch(bp, 1.0)
+            filtered = laplacian_filter_patch(bp, self.nlos_cfg.in_cells(scan.resolution_m).laplacian_sigma)
             area = filtered.slices
             np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
         elif self.skips.filter_without_votes and not bp.values.any():
@@ -222,7 +244,8 @@ class SpadProcessing:
             self.counts["same_input"] += 1
         else:
             # The learned filter replaces the Laplacian one: that is not computed.
-            np.maximum(self._evidence, self.bp_filter(bp.to_grid(), scan.pose_rc), out=self._evidence)
+            bp_filter = self._filter_at(scan.resolution_m)
+            np.maximum(self._evidence, bp_filter(bp.to_grid(), scan.pose_rc), out=self._evidence)
         return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
 
     def _back_projection(self, scan: SpadScan, los, known: np.ndarray):

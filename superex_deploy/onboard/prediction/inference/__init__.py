@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, FORMAT_VERSION, MANIFEST_NAME, METADATA_KEYS,
                                                        MODEL_CHANNELS, ManifestEntry, ModelKind, PathLike,
-                                                       read_manifest, sha256_file)
+                                                       manifest_resolution, read_manifest, sha256_file)
 from superex_deploy.onboard.prediction.inference.encoding import (NORMALISATION, RESOLUTION_M, BpEncoding, crop_window,
                                                        encode_bp_windows, encode_map)
 from superex_deploy.onboard.prediction.inference.sessions import (GraphOptimization, SessionConfig, ThreadBudget, available_cores,
@@ -38,6 +38,6 @@ from superex_deploy.onboard.prediction.inference.lama import LamaEnsemble, check
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "ThreadBudget", "available_cores", "make_session",
-           "sha256_file", "ManifestEntry",
+           "sha256_file", "ManifestEntry", "manifest_resolution",
            "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble",
            "check_member_options", "NORMALISATION", "RESOLUTION_M", "PathLike"]

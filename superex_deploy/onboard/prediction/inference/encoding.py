@@ -10,8 +10,9 @@
   map frame; LAMA_BP only) and ``unknown`` (1 where UNKNOWN) (:func:`encode_map`). The output is the wall
   probability of every cell.
 
-Every model is trained at :data:`RESOLUTION_M` metres per cell; :data:`NORMALISATION` is the encoding each kind
-declares in its metadata.
+The models are trained at :data:`RESOLUTION_M` metres per cell (each file declares its own in its
+``resolution_m`` metadata; maps on other grids are brought to it by :mod:`superex_deploy.onboard.prediction.scale`);
+:data:`NORMALISATION` is the encoding each kind declares in its metadata.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ declare any :class:`BpEncoding`'s description; this is the default one (datasets
 
 
 RESOLUTION_M = 0.1
-"""Grid resolution the models are trained at (metres per cell)."""
+"""Grid resolution the models are trained and exported at (metres per cell): the training datasets' grid."""
 
 
 def encode_bp_windows(windows: np.ndarray, encoding: BpEncoding = BpEncoding.LINEAR) -> np.ndarray:

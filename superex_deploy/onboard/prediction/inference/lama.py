@@ -14,7 +14,7 @@ import numpy as np
 
 from superex_deploy.onboard.prediction.inference.encoding import encode_map
 from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind, PathLike,
-                                                       manifest_entries)
+                                                       manifest_entries, manifest_resolution)
 from superex_deploy.onboard.prediction.inference.sessions import SessionConfig, load_model
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
@@ -57,9 +57,13 @@ class LamaEnsemble:
         expected_sha256: one hex sha256 per file, or None (not checked; :meth:`from_manifest` passes them).
         session: ONNX Runtime settings.
         keep_observed: see above.
+        expected_resolution_m: the training resolution the manifest gives the members (None: not checked).
 
     Attributes:
         kind: LAMA_BP or LAMA_LOS.
+        resolution_m: metres per cell of the maps the members were trained on (from their metadata; all
+            members share it): :meth:`predict` takes maps at this scale,
+            :func:`superex_deploy.onboard.prediction.scale.at_resolution` serves other grids.
         name: ``"lama_bp"`` or ``"lama_los"`` (the predictor's name in episode logs).
         size_multiple, min_size: padding targets (cells).
         max_members: members run per prediction (None: all).
@@ -70,17 +74,19 @@ class LamaEnsemble:
     accepts_crops = True  # a fully convolutional network: any sub-map is a valid input
 
     def __init__(self, paths: Sequence[PathLike], expected_sha256: Optional[Sequence[str]] = None,
-                 session: SessionConfig = SessionConfig(), keep_observed: bool = True):
+                 session: SessionConfig = SessionConfig(), keep_observed: bool = True,
+                 expected_resolution_m: Optional[float] = None):
         paths = list(paths)
         if not paths:
             raise ValueError("a LamaEnsemble needs at least one member file")
         if expected_sha256 is not None and len(expected_sha256) != len(paths):
             raise ValueError(f"got {len(expected_sha256)} hashes for {len(paths)} member files")
         hashes = list(expected_sha256) if expected_sha256 is not None else [None] * len(paths)
-        self._members = [load_model(p, (ModelKind.LAMA_BP, ModelKind.LAMA_LOS), h, session)
+        self._members = [load_model(p, (ModelKind.LAMA_BP, ModelKind.LAMA_LOS), h, session, expected_resolution_m)
                          for p, h in zip(paths, hashes)]
         first = self._members[0]
         self.kind = first.kind
+        self.resolution_m = first.resolution_m
         self.name = self.kind.value
         self.size_multiple = int(first.metadata.get("size_multiple", 0))
         self.min_size = int(first.metadata.get("min_size", 0))
@@ -93,6 +99,9 @@ class LamaEnsemble:
             if (int(member.metadata.get("size_multiple", 0)), int(member.metadata.get("min_size", 0))) != (
                     self.size_multiple, self.min_size):
                 raise ValueError(f"ensemble members {first.path} and {member.path} need different input sizes")
+            if member.resolution_m != self.resolution_m:
+                raise ValueError(f"ensemble members {first.path} and {member.path} were trained at different "
+                                 f"resolutions ({self.resolution_m} and {member.resolution_m} m/cell)")
         self.keep_observed = bool(keep_observed)
         self.max_members: Optional[int] = None
         self.agreement_stop: Optional[float] = None
@@ -120,7 +129,8 @@ class LamaEnsemble:
         if kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
             raise ValueError(f"a LamaEnsemble is made of lama_bp or lama_los models, got {kind}")
         entries = manifest_entries(directory, kind)
-        return cls([e.path for e in entries], [e.sha256 for e in entries], session, keep_observed)
+        return cls([e.path for e in entries], [e.sha256 for e in entries], session, keep_observed,
+                   manifest_resolution(entries))
 
     @property
     def members(self) -> int:

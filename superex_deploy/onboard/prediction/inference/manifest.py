@@ -16,10 +16,13 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
+
+import numpy as np
 
 __all__ = ["PathLike", "FORMAT_VERSION", "MANIFEST_NAME", "METADATA_KEYS", "ModelKind", "MODEL_CHANNELS",
-           "DEFAULT_MODEL_DIR", "sha256_file", "ManifestEntry", "read_manifest", "manifest_entries"]
+           "DEFAULT_MODEL_DIR", "sha256_file", "ManifestEntry", "read_manifest", "manifest_entries",
+           "manifest_resolution"]
 
 PathLike = Union[str, Path]
 
@@ -90,12 +93,15 @@ class ManifestEntry:
         kind: its :class:`ModelKind`.
         member: ensemble member index (0 for Pix2Pix).
         sha256: hex sha256 of the file as exported.
+        resolution_m: metres per cell of the maps the model was trained on (None: a manifest written before the
+            field existed; the file's own ``resolution_m`` metadata is then the only record).
     """
 
     path: Path
     kind: ModelKind
     member: int
     sha256: str
+    resolution_m: Optional[float] = None
 
 
 def read_manifest(directory: PathLike = DEFAULT_MODEL_DIR) -> list[ManifestEntry]:
@@ -113,10 +119,34 @@ def read_manifest(directory: PathLike = DEFAULT_MODEL_DIR) -> list[ManifestEntry
         if str(manifest["format_version"]) != FORMAT_VERSION:
             raise ValueError(f"format_version {manifest['format_version']!r}, this package reads {FORMAT_VERSION}")
         return [ManifestEntry(path=(directory / item["file"]).resolve(), kind=ModelKind(item["kind"]),
-                              member=int(item["member"]), sha256=str(item["sha256"]))
+                              member=int(item["member"]), sha256=str(item["sha256"]),
+                              resolution_m=_resolution(item.get("resolution_m")))
                 for item in manifest["models"]]
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as error:
         raise ValueError(f"malformed model manifest {path}: {error}") from error
+
+
+def _resolution(value) -> Optional[float]:
+    """A manifest entry's ``resolution_m``: None if absent, else a positive finite float (ValueError)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value > 0):
+        raise ValueError(f"resolution_m must be a positive number of metres, got {value!r}")
+    return float(value)
+
+
+def manifest_resolution(entries: list[ManifestEntry]) -> Optional[float]:
+    """The one training resolution (metres per cell) the manifest gives ``entries`` (members of one model), None
+    where it gives none.
+
+    Raises:
+        ValueError: entries that give different resolutions (an ensemble's members must share their scale).
+    """
+    given = {e.resolution_m for e in entries if e.resolution_m is not None}
+    if len(given) > 1:
+        raise ValueError(f"the manifest gives the {entries[0].kind.value} members different resolutions "
+                         f"{sorted(given)} m/cell; an ensemble's members must be trained at one")
+    return given.pop() if given else None
 
 
 def manifest_entries(directory: PathLike, kind: ModelKind) -> list[ManifestEntry]:

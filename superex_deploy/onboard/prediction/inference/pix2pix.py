@@ -12,7 +12,8 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.onboard.prediction.inference.encoding import BpEncoding, crop_window, encode_bp_windows, paste_window
-from superex_deploy.onboard.prediction.inference.manifest import DEFAULT_MODEL_DIR, ModelKind, PathLike, manifest_entries
+from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, ModelKind, PathLike,
+                                                                  manifest_entries, manifest_resolution)
 from superex_deploy.onboard.prediction.inference.sessions import SessionConfig, load_model
 
 __all__ = ["Pix2PixFilter"]
@@ -26,16 +27,22 @@ class Pix2PixFilter:
         expected_sha256: hex sha256 the file must have (None: not checked; :meth:`from_manifest` passes the
             manifest's).
         session: ONNX Runtime settings.
+        expected_resolution_m: the training resolution the manifest gives (None: not checked).
 
     Attributes:
         window_cells: side ``S`` of the window the model reads (cells; from the metadata).
+        resolution_m: metres per cell of the back-projections it was trained on (from the metadata);
+            :meth:`filter_map` takes maps at this scale, :func:`superex_deploy.onboard.prediction.scale.at_resolution`
+            serves other grids.
         encoding: the :class:`BpEncoding` the model reads (from the metadata's ``normalisation``).
         metadata: the model's ``metadata_props``.
     """
 
-    def __init__(self, path: PathLike, expected_sha256: Optional[str] = None, session: SessionConfig = SessionConfig()):
-        self._model = load_model(path, (ModelKind.PIX2PIX,), expected_sha256, session)
+    def __init__(self, path: PathLike, expected_sha256: Optional[str] = None, session: SessionConfig = SessionConfig(),
+                 expected_resolution_m: Optional[float] = None):
+        self._model = load_model(path, (ModelKind.PIX2PIX,), expected_sha256, session, expected_resolution_m)
         self.metadata = self._model.metadata
+        self.resolution_m = self._model.resolution_m
         self.window_cells = int(self.metadata.get("window_cells", -1))
         self.encoding = BpEncoding.from_description(self.metadata["normalisation"])
         if self._model.input_shape[2:] != (self.window_cells, self.window_cells):
@@ -49,7 +56,7 @@ class Pix2PixFilter:
         entries = manifest_entries(directory, ModelKind.PIX2PIX)
         if len(entries) != 1:
             raise ValueError(f"the manifest in {directory} lists {len(entries)} pix2pix models, expected one")
-        return cls(entries[0].path, entries[0].sha256, session)
+        return cls(entries[0].path, entries[0].sha256, session, manifest_resolution(entries))
 
     def filter_windows(self, windows: np.ndarray) -> np.ndarray:
         """Wall probability of back-projection windows.

@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from superex_deploy.onboard.prediction.inference.encoding import NORMALISATION, RESOLUTION_M, BpEncoding
+from superex_deploy.onboard.prediction.inference.encoding import NORMALISATION, BpEncoding
 from superex_deploy.onboard.prediction.inference.manifest import FORMAT_VERSION, MODEL_CHANNELS, ModelKind, PathLike, sha256_file
 
 __all__ = ["GraphOptimization", "SessionConfig", "make_session", "LoadedModel", "load_model", "available_cores",
@@ -162,6 +162,8 @@ class LoadedModel:
         metadata: its ``metadata_props``.
         input_name, output_name: its one input and one output tensor.
         input_shape: the input's declared shape ``[N, C, H, W]`` (symbolic dimensions as ONNX Runtime gives them).
+        resolution_m: metres per cell of the maps it was trained on (its ``resolution_m`` metadata): inputs are
+            brought to that scale (:mod:`superex_deploy.onboard.prediction.scale`).
     """
 
     session: object
@@ -171,10 +173,11 @@ class LoadedModel:
     input_name: str
     output_name: str
     input_shape: tuple
+    resolution_m: float
 
 
 def load_model(path: PathLike, kinds: Sequence[ModelKind], expected_sha256: Optional[str],
-               session_cfg: SessionConfig) -> LoadedModel:
+               session_cfg: SessionConfig, expected_resolution_m: Optional[float] = None) -> LoadedModel:
     """Open one model and check its hash, metadata and input shape against the expected kinds.
 
     Args:
@@ -182,10 +185,12 @@ def load_model(path: PathLike, kinds: Sequence[ModelKind], expected_sha256: Opti
         kinds: the kinds the caller accepts.
         expected_sha256: hex sha256 the file must have (None: not checked).
         session_cfg: ONNX Runtime settings (:func:`make_session`).
+        expected_resolution_m: the training resolution (metres per cell) the manifest gives it (None: not checked).
 
     Raises:
         ValueError: the file is missing, changed since export, not loadable, or its metadata, channels,
-            normalisation, input shape or resolution differ from what this package encodes.
+            normalisation or input shape differ from what this package encodes, its resolution is missing or
+            not a positive number of metres, or differs from ``expected_resolution_m``.
     """
     path = Path(path)
     if not path.is_file():
@@ -229,9 +234,15 @@ def load_model(path: PathLike, kinds: Sequence[ModelKind], expected_sha256: Opti
     if len(shape) != 4 or shape[1] != len(channels):
         raise ValueError(f"model file {path} takes input shape {list(shape)}, expected [N, {len(channels)}, H, W] "
                          f"for its channels {list(channels)}")
-    resolution = float(metadata.get("resolution_m", "nan"))
-    if not np.isclose(resolution, RESOLUTION_M):
-        raise ValueError(f"model file {path} was trained at {resolution} m/cell, this package maps at "
-                         f"{RESOLUTION_M} m/cell")
+    try:
+        resolution = float(metadata.get("resolution_m", "nan"))
+    except ValueError:
+        resolution = float("nan")
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"model file {path} gives no training resolution (resolution_m metadata "
+                         f"{metadata.get('resolution_m')!r}); it was not written by superex export")
+    if expected_resolution_m is not None and not np.isclose(resolution, expected_resolution_m, rtol=1e-9, atol=0):
+        raise ValueError(f"model file {path} was trained at {resolution} m/cell, its manifest says "
+                         f"{expected_resolution_m} m/cell")
     return LoadedModel(session=session, path=path, kind=kind, metadata=metadata, input_name=inputs[0].name,
-                       output_name=outputs[0].name, input_shape=shape)
+                       output_name=outputs[0].name, input_shape=shape, resolution_m=resolution)

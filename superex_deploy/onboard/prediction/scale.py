@@ -1,0 +1,289 @@
+"""Learned models at their native scale: a map on another grid is brought to the resolution a model was trained at,
+and its answer back.
+
+The learned models (the LaMa ensembles, the Pix2Pix filter) read their training resolution from their files
+(``resolution_m``: 0.1 m for the committed ones); run unchanged on a 0.05 m grid they would see every wall and room
+twice the size they learned. :func:`at_resolution` wraps a model for a grid of ``resolution_m`` metres per cell:
+
+* the same resolution: the model itself, unwrapped (the same arrays reach the same sessions);
+* a grid ``k`` times finer (``k`` an integer up to :data:`MAX_POOL`: 0.05, 0.0333.., 0.025 m for a 0.1 m model):
+  blocks of ``k x k`` cells are pooled into one model cell (:func:`pool_observed`: a wall where any cell of the
+  block is a wall, unknown only where the whole block is unknown, free otherwise; :func:`pool_mean`: the evidence
+  and the back-projection averaged), and the model's answer comes back by bilinear interpolation between the model
+  cells' centres (:func:`upsample_linear`); observed cells then keep their observed value, as the model keeps them
+  on its own grid;
+* a grid ``u`` times coarser (``u`` an integer up to :data:`MAX_UPSAMPLE`: 0.2 m for a 0.1 m model): every cell is
+  repeated ``u x u`` times (:func:`repeat_cells`) and the answer of a block is its cells' mean (the variance that of
+  the block's cells taken as one mixture, :func:`pool_prediction`);
+* any other ratio (not an integer either way, or beyond those limits): one ValueError when the wrapper is made.
+
+Maps whose sides are not multiples of ``k`` are padded at the bottom and right (unknown, no evidence) and the
+answer cropped back. :class:`NativeScalePredictor` wraps a map predictor, :class:`NativeScaleFilter` a
+back-projection filter; the explorer wraps its predictor for its frame, the SPAD processing its filter for each
+scan's grid.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import numpy as np
+
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, MapPredictor, Prediction, check_observed
+
+__all__ = ["MAX_POOL", "MAX_UPSAMPLE", "scale_factors", "model_resolution", "pool_observed", "pool_mean",
+           "repeat_cells", "upsample_linear", "pool_prediction", "NativeScalePredictor", "NativeScaleFilter",
+           "at_resolution"]
+
+MAX_POOL = 4
+"""Finest grid served: the model's resolution divided by this (0.025 m for a 0.1 m model). Finer, a model cell
+pools more than 16 cells and thin walls would blur into blocks the models never saw."""
+MAX_UPSAMPLE = 2
+"""Coarsest grid served: the model's resolution times this (0.2 m for a 0.1 m model). Coarser, a wall cell is
+wider than the walls the models learned."""
+
+_RATIO_TOLERANCE = 1e-6  # relative: 0.1 / (0.1 / 3) is 3.0000000000000004, not 3
+
+
+def scale_factors(resolution_m: float, model_resolution_m: float) -> tuple[int, int]:
+    """``(pool, repeat)``: the grid is ``pool`` times finer than the model's (``repeat == 1``) or ``repeat`` times
+    coarser (``pool == 1``); ``(1, 1)`` at the model's own resolution.
+
+    Raises:
+        ValueError: a resolution that is not a positive number of metres, or a ratio the models cannot serve (not
+            an integer either way, finer than ``MAX_POOL`` or coarser than ``MAX_UPSAMPLE`` times).
+    """
+    for name, value in (("resolution_m", resolution_m), ("model_resolution_m", model_resolution_m)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number of metres, got {value!r}")
+    ratio = float(model_resolution_m) / float(resolution_m)
+    finer = ratio >= 1.0
+    factor = ratio if finer else 1.0 / ratio
+    whole = int(round(factor))
+    limit = MAX_POOL if finer else MAX_UPSAMPLE
+    if abs(factor - whole) > _RATIO_TOLERANCE * factor or whole > limit:
+        low, high = model_resolution_m / MAX_POOL, model_resolution_m * MAX_UPSAMPLE
+        raise ValueError(f"a {resolution_m} m grid cannot be served by a model trained at {model_resolution_m} m/cell: "
+                         f"the grid must be an integer fraction (1/2, 1/3, 1/4) of the model's resolution or twice "
+                         f"it, within [{low:g}, {high:g}] m")
+    return (whole, 1) if finer else (1, whole)
+
+
+def model_resolution(model) -> Optional[float]:
+    """The training resolution (metres per cell) of a model, of a predictor, or of a bound method of one (the
+    SPAD processing is given ``Pix2PixFilter.filter_map``): its ``resolution_m`` attribute; None for anything
+    without one (the baselines, the oracle, a plain function), which works at any resolution."""
+    value = getattr(model, "resolution_m", None)
+    if value is None:
+        value = getattr(getattr(model, "__self__", None), "resolution_m", None)
+    return None if value is None else float(value)
+
+
+def _blocks(values: np.ndarray, k: int, fill) -> np.ndarray:
+    """``values`` ``[H, W]`` padded with ``fill`` to multiples of ``k`` and viewed as ``[H/k, k, W/k, k]``."""
+    rows, cols = -(-values.shape[0] // k) * k, -(-values.shape[1] // k) * k
+    if (rows, cols) != values.shape:
+        padded = np.full((rows, cols), fill, values.dtype)
+        padded[:values.shape[0], :values.shape[1]] = values
+        values = padded
+    return values.reshape(rows // k, k, cols // k, k)
+
+
+def pool_observed(observed: np.ndarray, k: int) -> np.ndarray:
+    """An observed map on a ``k`` times coarser grid: int8 ``[ceil(H/k), ceil(W/k)]``; a cell is OCCUPIED where any
+    cell of its ``k x k`` block is, UNKNOWN only where all of them are (cells past the map's edge count as unknown),
+    FREE otherwise. Walls are kept whole (a one-cell wall stays a wall) and a block seen at all is not unknown.
+
+    Raises:
+        ValueError: not an observed map, ``k`` not an integer >= 1.
+    """
+    observed = check_observed(observed, codes=True)
+    k = _check_factor(k)
+    blocks = _blocks(observed, k, UNKNOWN)
+    wall = (blocks == OCCUPIED).any(axis=(1, 3))
+    unknown = (blocks == UNKNOWN).all(axis=(1, 3))
+    return np.where(wall, OCCUPIED, np.where(unknown, UNKNOWN, FREE)).astype(np.int8)
+
+
+def pool_mean(values: np.ndarray, k: int) -> np.ndarray:
+    """float32 ``[ceil(H/k), ceil(W/k)]``: the mean of each ``k x k`` block of a float ``[H, W]`` map (probabilities,
+    evidence, a back-projection); a block cut by the map's edge averages the cells it has."""
+    values = _check_map(values, "values")
+    k = _check_factor(k)
+    sums = _blocks(values.astype(np.float64), k, 0.0).sum(axis=(1, 3))
+    counts = _blocks(np.ones(values.shape), k, 0.0).sum(axis=(1, 3))
+    return (sums / counts).astype(np.float32)
+
+
+def repeat_cells(values: np.ndarray, u: int) -> np.ndarray:
+    """``values`` ``[H, W]`` on a ``u`` times finer grid: every cell repeated ``u x u`` times, ``[u H, u W]``, same
+    dtype (exact for observed maps and evidence: nothing is invented between cells)."""
+    values = np.asarray(values)
+    if values.ndim != 2:
+        raise ValueError(f"values must be a 2-D map, got shape {values.shape}")
+    u = _check_factor(u)
+    return np.repeat(np.repeat(values, u, axis=0), u, axis=1)
+
+
+def upsample_linear(values: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
+    """float32 ``shape``: a map of ``k`` times coarser cells ``[h, w]`` (with ``h = ceil(shape[0] / k)``, likewise
+    ``w``) interpolated bilinearly between the coarse cells' centres onto the fine cells' centres; beyond the
+    outermost centres the edge value holds. A constant block stays constant."""
+    values = _check_map(values, "values")
+    k = _check_factor(k)
+    rows, cols = int(shape[0]), int(shape[1])
+    if values.shape != (-(-rows // k), -(-cols // k)):
+        raise ValueError(f"a {values.shape} map of {k} x {k} blocks cannot cover a {(rows, cols)} map")
+    out = values.astype(np.float64)
+    for axis, size in ((0, rows), (1, cols)):
+        coarse = out.shape[axis]
+        # Fine cell j's centre (j + 0.5) in coarse cells, where coarse cell i's centre lies at i + 0.5.
+        position = np.clip((np.arange(size) + 0.5) / k - 0.5, 0.0, coarse - 1.0)
+        low = np.floor(position).astype(np.int64)
+        high = np.minimum(low + 1, coarse - 1)
+        weight = position - low
+        shape_w = (-1, 1) if axis == 0 else (1, -1)
+        out = (np.take(out, low, axis=axis) * (1.0 - weight).reshape(shape_w)
+               + np.take(out, high, axis=axis) * weight.reshape(shape_w))
+    return out.astype(np.float32)
+
+
+def pool_prediction(prediction: Prediction, u: int, shape: tuple[int, int]) -> Prediction:
+    """A prediction made on a ``u`` times finer grid, ``[u H, u W]``, brought back to ``shape`` ``(H, W)``: each
+    cell's mean is its block's mean, its variance the block's as one mixture (the mean of the variances plus the
+    variance of the means, the ensemble's rule for pooled members)."""
+    u = _check_factor(u)
+    rows, cols = int(shape[0]), int(shape[1])
+    if prediction.mean.shape != (rows * u, cols * u):
+        raise ValueError(f"a {prediction.mean.shape} prediction is not a {(rows, cols)} map of {u} x {u} blocks")
+    mean = prediction.mean.astype(np.float64).reshape(rows, u, cols, u)
+    variance = prediction.variance.astype(np.float64).reshape(rows, u, cols, u)
+    pooled = mean.mean(axis=(1, 3))
+    spread = variance.mean(axis=(1, 3)) + mean.var(axis=(1, 3))
+    return Prediction(mean=pooled.astype(np.float32), variance=spread.astype(np.float32))
+
+
+def _check_factor(k) -> int:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"the scale factor must be an integer >= 1, got {k!r}")
+    return int(k)
+
+
+def _check_map(values, name: str) -> np.ndarray:
+    values = np.asarray(values)
+    if values.ndim != 2 or not np.issubdtype(values.dtype, np.floating):
+        raise ValueError(f"{name} must be a float [H, W] map, got {values.dtype} with shape {values.shape}")
+    return values
+
+
+class NativeScalePredictor:
+    """A :class:`~superex_deploy.onboard.types.MapPredictor` on a grid of ``resolution_m`` that runs ``predictor``
+    (trained at ``predictor.resolution_m``) at its own scale (see the module docstring).
+
+    Args:
+        predictor: the wrapped predictor; its ``resolution_m`` is its training resolution.
+        resolution_m: metres per cell of the maps :meth:`predict` is given.
+
+    Attributes:
+        predictor, resolution_m: as given; ``model_resolution_m``: the predictor's.
+        pool, repeat: :func:`scale_factors` of the two.
+        name, accepts_crops, keep_observed: the wrapped predictor's.
+        size_multiple: the multiple (grid cells) a crop of this grid is best cut to, so that its model-scale
+            input needs no padding.
+
+    Raises:
+        ValueError: a predictor without a predict method or a training resolution; a ratio
+            :func:`scale_factors` refuses.
+    """
+
+    def __init__(self, predictor: MapPredictor, resolution_m: float):
+        if not callable(getattr(predictor, "predict", None)):
+            raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
+        model_resolution_m = model_resolution(predictor)
+        if model_resolution_m is None:
+            raise ValueError(f"{type(predictor).__name__} gives no training resolution (resolution_m)")
+        self.pool, self.repeat = scale_factors(resolution_m, model_resolution_m)
+        self.predictor = predictor
+        self.resolution_m, self.model_resolution_m = float(resolution_m), model_resolution_m
+        self.name = getattr(predictor, "name", type(predictor).__name__)
+        self.accepts_crops = bool(getattr(predictor, "accepts_crops", False))
+        self.keep_observed = bool(getattr(predictor, "keep_observed", True))
+        multiple = int(getattr(predictor, "size_multiple", 1) or 1)
+        self.size_multiple = multiple * self.pool if self.repeat == 1 else (
+            multiple // self.repeat if multiple % self.repeat == 0 else 1)
+
+    def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
+        """The wrapped predictor's answer for ``observed`` (int8 ``[H, W]`` on this grid) and the evidence
+        ``extra`` (float32 ``[H, W]`` in [0, 1], or None), on this grid: float32 ``[H, W]`` mean and variance."""
+        observed = check_observed(observed, codes=True)
+        if extra is not None:
+            extra = np.asarray(extra)
+            if extra.shape != observed.shape or not np.issubdtype(extra.dtype, np.floating):
+                raise ValueError(f"evidence must be a float {observed.shape} array, got {extra.dtype} {extra.shape}")
+        if self.repeat > 1:
+            coarse = self.predictor.predict(repeat_cells(observed, self.repeat),
+                                            None if extra is None else repeat_cells(extra, self.repeat))
+            return pool_prediction(coarse, self.repeat, observed.shape)
+        k = self.pool
+        pooled = self.predictor.predict(pool_observed(observed, k), None if extra is None else pool_mean(extra, k))
+        mean = upsample_linear(pooled.mean, k, observed.shape)
+        variance = upsample_linear(pooled.variance, k, observed.shape)
+        if self.keep_observed:
+            known = observed != UNKNOWN
+            mean[known] = observed[known] == OCCUPIED
+            variance[known] = 0.0
+        return Prediction(mean=mean, variance=variance)
+
+
+class NativeScaleFilter:
+    """A back-projection filter (``bp_filter(bp, pose_rc)``, e.g. ``Pix2PixFilter.filter_map``) on a grid of
+    ``resolution_m``, run at its model's scale: the raw back-projection is averaged over blocks (and brought back to
+    [0, 1] by its maximum, as the back-projection is normalised on the model's own grid) or its cells repeated, the
+    robot cell moved to the block that holds it, and the filtered map brought back as a prediction is (see the
+    module docstring).
+
+    Raises:
+        ValueError: a filter without a training resolution, a ratio :func:`scale_factors` refuses.
+    """
+
+    def __init__(self, bp_filter: Callable[[np.ndarray, tuple[int, int]], np.ndarray], resolution_m: float):
+        model_resolution_m = model_resolution(bp_filter)
+        if model_resolution_m is None or not callable(bp_filter):
+            raise ValueError("bp_filter must be a callable filter that gives its training resolution (resolution_m)")
+        self.pool, self.repeat = scale_factors(resolution_m, model_resolution_m)
+        self.bp_filter = bp_filter
+        self.resolution_m, self.model_resolution_m = float(resolution_m), model_resolution_m
+
+    def __call__(self, bp: np.ndarray, pose_rc) -> np.ndarray:
+        """float32 ``[H, W]`` wall probability from the raw back-projection float32 ``[H, W]`` in [0, 1] taken at
+        robot cell ``pose_rc`` (row, col) of this grid."""
+        bp = _check_map(bp, "bp")
+        row, col = int(pose_rc[0]), int(pose_rc[1])
+        if self.repeat > 1:
+            u = self.repeat
+            fine = self.bp_filter(repeat_cells(bp, u), (row * u + u // 2, col * u + u // 2))
+            blank = np.zeros((u * bp.shape[0], u * bp.shape[1]), np.float32)
+            return pool_prediction(Prediction(mean=np.asarray(fine, np.float32), variance=blank), u, bp.shape).mean
+        k = self.pool
+        pooled = pool_mean(bp, k)
+        top = float(pooled.max(initial=0.0))
+        if top > 0:
+            pooled = (pooled / top).astype(np.float32)
+        return upsample_linear(np.asarray(self.bp_filter(pooled, (row // k, col // k)), np.float32), k, bp.shape)
+
+
+def at_resolution(model, resolution_m: float):
+    """``model`` serving a grid of ``resolution_m`` metres per cell: the model itself where it gives no training
+    resolution (it works at any: the baselines, the oracle) or was trained at this one (nothing changes), else a
+    :class:`NativeScalePredictor` (a predictor) or :class:`NativeScaleFilter` (a back-projection filter).
+
+    Raises:
+        ValueError: a resolution the model cannot serve (:func:`scale_factors`).
+    """
+    model_resolution_m = model_resolution(model)
+    if model_resolution_m is None or scale_factors(resolution_m, model_resolution_m) == (1, 1):
+        return model
+    if callable(getattr(model, "predict", None)):
+        return NativeScalePredictor(model, resolution_m)
+    return NativeScaleFilter(model, resolution_m)
