@@ -2,39 +2,33 @@
 
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
-1. **scan**: the line-of-sight ranges are integrated into the explorer's own log-odds map (misses along each ray,
-   a hit at its return: :mod:`superex_deploy.onboard.mapping.mapper`; invalid readings, REP 117's NaN and too-close ranges,
-   are skipped: see :class:`~superex_deploy.messages.LaserScan`); or, when the observation carries a SLAM map
-   (``nav_msgs/OccupancyGrid``), the line-of-sight layer is taken from it and the scan is not read;
-2. **map_update**: the SPAD frame, if any, is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
-   its carving margins widened by the pose covariance when the observation carries one): carved cells join the
-   map as evidence towards free, the back-projection evidence is kept for the predictor;
-3. **frontiers**: frontier regions of the map (regions shorter than ``frontier_min_m`` are offered only when the
-   larger ones give no goal);
-4. **path / scoring / prediction**: a locked goal is kept until it is reached (within ``goal_reached_m`` *and* in
-   line of sight on the map, see :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), the planner lets it go (``Planner.keep_goal``), or its path is
-   blocked by a newly seen wall and no other path reaches it (MapEx's locked frontier); otherwise the planner
-   chooses a new goal from the Dijkstra cost-to-go among the frontiers offered in tiers (:func:`~superex_deploy.onboard.planning.goal_choice.choose_goal`), calling
-   the predictor lazily (once per step at most). Paths cross only cells the map holds free with confidence
-   (log-odds at or below the free threshold). Cells known free only by carving count for coverage and for the
-   prediction; for frontiers, paths and goal checks only as ``MotionConfig.drive_carved`` allows (by default:
-   while the pose is exact, i.e. without a pose covariance). Otherwise the planning runs on the line-of-sight map
-   (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.observed` without carving): a planner then sees carved cells as
-   unknown, and the prediction it reads as free.
+1. **scan**: the scan is integrated into the explorer's log-odds map (:mod:`~superex_deploy.onboard.mapping.mapper`;
+   invalid readings are skipped, :class:`~superex_deploy.messages.LaserScan`), or a SLAM map in the observation
+   replaces the line-of-sight layer; a growing map first moves to a grid that holds what the step can touch
+   (:mod:`~superex_deploy.onboard.mapping.growth`);
+2. **map_update**: a SPAD frame is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
+   margins widened by the pose covariance): carved cells join the map as evidence towards free, the back-projection
+   evidence is kept for the predictor;
+3. **frontiers**: frontier regions of the map (those shorter than ``frontier_min_m`` only as a last tier);
+4. **path / scoring / prediction**: a locked goal is kept until reached (within ``goal_reached_m`` and in line of
+   sight, :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), let go by the planner, or blocked with
+   no other path (MapEx's locked frontier); otherwise the planner chooses among the frontiers offered in tiers
+   (:func:`~superex_deploy.onboard.planning.goal_choice.choose_goal`) from the Dijkstra cost-to-go, calling the
+   predictor lazily. Paths cross only cells held free with confidence. Cells free only by carving count for
+   coverage and the prediction, and for planning only as ``MotionConfig.drive_carved`` allows (by default while the
+   pose is exact).
 
-How the predictor runs is configured, not fixed, so that a step fits the sensor's frame on a small CPU (measured
-in docs/benchmarks/realtime.md): inside the asking step, in a worker thread that a step
-never waits for, or on a simulated clock (:class:`PredictionSchedule`), on the whole map or on a crop around what
-changed since the last prediction, and only when enough changed
-(:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`). The explorer sets its own numba threads, and
-those of its prediction worker, from the cores it is given (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`),
-so that the two never oversubscribe them; it restores the caller's numba threads when a step returns.
+How the predictor runs is configured so that a step fits the sensor's frame on a small CPU (measured in
+docs/benchmarks/realtime.md): inline, in a worker thread no step waits for, or on a simulated clock
+(:class:`PredictionSchedule`), on the whole map or a crop around what changed
+(:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`). The explorer sets its numba threads and its
+worker's from the cores it is given (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`) and
+restores the caller's when a step returns.
 
-The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell; the robot
-drives along it and sends the next observation from wherever it stopped. Exploration is **finished** when the map
-holds known cells and no goal is left in any tier; while the map is still empty (every reading so far was invalid)
-a step answers no goal and not finished, since the next scan may see something. The explorer is deterministic for a
-seed (the seed feeds only the planner's generator).
+The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell.
+Exploration is **finished** when the map holds known cells and no goal has been found in any tier for
+``finish_after_s`` seconds; while the map is still empty a step answers no goal and not finished. The explorer is
+deterministic for a seed (the seed feeds only the planner's generator).
 """
 
 from __future__ import annotations
@@ -43,24 +37,22 @@ import dataclasses
 import threading
 import time
 import weakref
-from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.checks import cells_at_least, check_real, renames
+from superex_deploy.onboard.config import ExplorerConfig
 from superex_deploy.onboard.planning.frontiers import find_frontiers
-from superex_deploy.onboard.mapping.growth import MapGrowth, Regrid, grown_frame, reach_of
-from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig
-from superex_deploy.onboard.planning.motion import (MotionConfig, PlanningMap, check_wall_reach, path_is_clear,
-                                                    planning_map)
+from superex_deploy.onboard.mapping.growth import Regrid, grown_frame, reach_of
+from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, path_is_clear, planning_map
 from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
 from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
 from superex_deploy.onboard.prediction.schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
                                                         StalePrediction, set_numba_threads)
-from superex_deploy.onboard.mapping.scan_matching import ScanMatch, ScanMatcher, ScanMatchingConfig
+from superex_deploy.onboard.mapping.scan_matching import ScanMatch, ScanMatcher
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
 from superex_deploy.messages import Command, MapFrame, Observation
@@ -70,84 +62,6 @@ __all__ = ["STAGES", "ExplorerConfig", "Explorer", "PredictionSchedule", "Predic
 
 STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
 """The stages of a step whose wall-clock time :attr:`Command.timings_s` reports (seconds)."""
-
-
-@renames(frontier_min_cells=("frontier_min_m", 1))
-@dataclass(frozen=True)
-class ExplorerConfig:
-    """Onboard exploration parameters.
-
-    Attributes:
-        motion: robot radius, proximity cost, goal tolerance (``step_m`` is how far the robot is expected to
-            drive per step; the explorer follows wherever it actually stops).
-        frontier_min_m: a frontier region's size in metres is its cells times the cell size; regions smaller than
-            this (:meth:`frontier_min_cells` cells) are offered to the planner only when no larger region gives a
-            goal (MapEx drops them: 10 cells of 0.1 m, 1 m). They are kept as a last tier because a room whose
-            open door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at
-            its first step (docs/benchmarks/exploration.md). The old ``frontier_min_cells`` is refused, naming it.
-        prediction: when the predictor runs (:class:`PredictionSchedule`).
-        reuse: what the explorer keeps of its last prediction
-            (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map
-            changed enough, and only a crop around the change).
-        occupancy: the map's log-odds parameters and the SLAM map's thresholds
-            (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
-            recording's metadata holds it).
-        growth: None (the default): the grid is the frame the explorer was built with, and what lies beyond it is
-            dropped; a :class:`~superex_deploy.onboard.mapping.growth.MapGrowth`: the grid grows as scans, SPAD
-            frames or SLAM maps reach beyond it (a robot entering a building of unknown size; start from a small
-            frame around the start, e.g. :meth:`~superex_deploy.messages.MapFrame` of 10 m). Cells in commands
-            (``goal_rc``, ``path_rc``) are then the grid's of that step (:attr:`Explorer.frame`); the map-frame
-            fields (``goal_xy``, ``path_xy``) never move.
-        finish_after_s: how long (seconds, on the observations' clock) no reachable frontier must be left before a
-            step says ``finished`` (explore_lite's progress timeout). 0: at the first step without one, as the
-            simulated benchmarks run it (there a map never reopens by itself). A robot whose map is built from
-            noisy scans or a SLAM map that is still being corrected should give a few seconds: a doorway closed by
-            one noisy scan then reopens before exploration is declared over.
-        scan_matching: the correlative scan-to-map matcher
-            (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
-            observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
-            start from the corrected pose when the match passes its acceptance rule).
-    """
-
-    motion: MotionConfig = field(default_factory=MotionConfig)
-    frontier_min_m: float = 1.0
-    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
-    reuse: PredictionReuse = field(default_factory=PredictionReuse)
-    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
-    scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
-    finish_after_s: float = 0.0
-    growth: Optional[MapGrowth] = None
-
-    def __post_init__(self) -> None:
-        if isinstance(self.growth, dict):
-            object.__setattr__(self, "growth", MapGrowth(**self.growth))
-        if self.growth is not None and not isinstance(self.growth, MapGrowth):
-            raise ValueError(f"growth must be a MapGrowth or None, got {type(self.growth).__name__}")
-        if isinstance(self.occupancy, dict):
-            object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
-        if isinstance(self.scan_matching, dict):
-            object.__setattr__(self, "scan_matching", ScanMatchingConfig(**self.scan_matching))
-        if not isinstance(self.scan_matching, ScanMatchingConfig):
-            raise ValueError(f"scan_matching must be a ScanMatchingConfig, got {type(self.scan_matching).__name__}")
-        if not isinstance(self.occupancy, OccupancyConfig):
-            raise ValueError(f"occupancy must be an OccupancyConfig, got {type(self.occupancy).__name__}")
-        if not isinstance(self.motion, MotionConfig):
-            raise ValueError(f"motion must be a MotionConfig, got {type(self.motion).__name__}")
-        if not isinstance(self.prediction, PredictionSchedule):
-            raise ValueError(f"prediction must be a PredictionSchedule, got {type(self.prediction).__name__}")
-        if not isinstance(self.reuse, PredictionReuse):
-            raise ValueError(f"reuse must be a PredictionReuse, got {type(self.reuse).__name__}")
-        if isinstance(self.finish_after_s, bool) or not isinstance(self.finish_after_s, (int, float)) \
-                or not (np.isfinite(self.finish_after_s) and self.finish_after_s >= 0.0):
-            raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")
-        object.__setattr__(self, "frontier_min_m", check_real("frontier_min_m", self.frontier_min_m, 0.0,
-                                                              low_open=True))
-
-    def frontier_min_cells(self, resolution_m: float) -> int:
-        """The fewest cells of a frontier region offered in the first tier on a grid of ``resolution_m`` metres per
-        cell: those that reach ``frontier_min_m`` (10 at 0.1 m, 20 at 0.05 m, 40 at 0.025 m), at least one."""
-        return max(1, cells_at_least(self.frontier_min_m, check_real("resolution_m", resolution_m, 0.0,
-                                                                     low_open=True)))
 
 
 class Explorer:
@@ -266,12 +180,10 @@ class Explorer:
         return frozenset(self._visited)
 
     def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
-        """The latest map's frontier regions, of every size, that :meth:`step` would offer a planner with the robot
-        at cell ``pose_rc`` (row, col): those not counted as reached already (:func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`) and whose goal cell
-        is no goal reached before nor next to one (:func:`~superex_deploy.onboard.planning.goal_choice.near_visited_goal`), in ``find_frontiers`` order; ``()``
-        before the first observation. :meth:`step` offers the regions of :attr:`frontier_min_cells` cells or more
-        first, the smaller ones only when those give no goal. For a goal chosen outside the explorer (a learning
-        agent): a goal among these is one the explorer does not let go of at once.
+        """The frontier regions, of every size, :meth:`step` would offer a planner with the robot at cell
+        ``pose_rc``: not reached already (:func:`~.planning.goal_choice.goal_reached`), their goal cell no goal
+        reached before nor next to one, in ``find_frontiers`` order (``()`` before the first observation). For a
+        goal chosen outside the explorer (a learning agent): one among these is not let go of at once.
 
         Raises:
             ValueError: a cell outside the map.

@@ -1,0 +1,97 @@
+"""The explorer's configuration (:class:`ExplorerConfig`): the parts of the onboard loop a user chooses, composed of
+each part's own frozen config (motion, prediction schedule and reuse, occupancy, scan matching, map growth)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from superex_deploy.onboard.checks import cells_at_least, check_real, renames
+from superex_deploy.onboard.mapping.growth import MapGrowth
+from superex_deploy.onboard.mapping.mapper import OccupancyConfig
+from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+from superex_deploy.onboard.planning.motion import MotionConfig
+from superex_deploy.onboard.prediction.reuse import PredictionReuse
+from superex_deploy.onboard.prediction.schedule import PredictionSchedule
+
+__all__ = ["ExplorerConfig"]
+
+
+@renames(frontier_min_cells=("frontier_min_m", 1))
+@dataclass(frozen=True)
+class ExplorerConfig:
+    """Onboard exploration parameters.
+
+    Attributes:
+        motion: robot radius, proximity cost, goal tolerance (``step_m`` is how far the robot is expected to
+            drive per step; the explorer follows wherever it actually stops).
+        frontier_min_m: a frontier region's size in metres is its cells times the cell size; regions smaller than
+            this (:meth:`frontier_min_cells` cells) are offered to the planner only when no larger region gives a
+            goal (MapEx drops them: 10 cells of 0.1 m, 1 m). They are kept as a last tier because a room whose
+            open door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at
+            its first step (docs/benchmarks/exploration.md). The old ``frontier_min_cells`` is refused, naming it.
+        prediction: when the predictor runs (:class:`PredictionSchedule`).
+        reuse: what the explorer keeps of its last prediction
+            (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map
+            changed enough, and only a crop around the change).
+        occupancy: the map's log-odds parameters and the SLAM map's thresholds
+            (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
+            recording's metadata holds it).
+        growth: None (the default): the grid is the frame the explorer was built with, and what lies beyond it is
+            dropped; a :class:`~superex_deploy.onboard.mapping.growth.MapGrowth`: the grid grows as scans, SPAD
+            frames or SLAM maps reach beyond it (a robot entering a building of unknown size; start from a small
+            frame around the start, e.g. :meth:`~superex_deploy.messages.MapFrame` of 10 m). Cells in commands
+            (``goal_rc``, ``path_rc``) are then the grid's of that step (:attr:`Explorer.frame`); the map-frame
+            fields (``goal_xy``, ``path_xy``) never move.
+        finish_after_s: how long (seconds, on the observations' clock) no reachable frontier must be left before a
+            step says ``finished`` (explore_lite's progress timeout). 0: at the first step without one, as the
+            simulated benchmarks run it (there a map never reopens by itself). A robot whose map is built from
+            noisy scans or a SLAM map that is still being corrected should give a few seconds: a doorway closed by
+            one noisy scan then reopens before exploration is declared over.
+        scan_matching: the correlative scan-to-map matcher
+            (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
+            observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
+            start from the corrected pose when the match passes its acceptance rule).
+    """
+
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    frontier_min_m: float = 1.0
+    prediction: PredictionSchedule = field(default_factory=PredictionSchedule)
+    reuse: PredictionReuse = field(default_factory=PredictionReuse)
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
+    finish_after_s: float = 0.0
+    growth: Optional[MapGrowth] = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.growth, dict):
+            object.__setattr__(self, "growth", MapGrowth(**self.growth))
+        if self.growth is not None and not isinstance(self.growth, MapGrowth):
+            raise ValueError(f"growth must be a MapGrowth or None, got {type(self.growth).__name__}")
+        if isinstance(self.occupancy, dict):
+            object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
+        if isinstance(self.scan_matching, dict):
+            object.__setattr__(self, "scan_matching", ScanMatchingConfig(**self.scan_matching))
+        if not isinstance(self.scan_matching, ScanMatchingConfig):
+            raise ValueError(f"scan_matching must be a ScanMatchingConfig, got {type(self.scan_matching).__name__}")
+        if not isinstance(self.occupancy, OccupancyConfig):
+            raise ValueError(f"occupancy must be an OccupancyConfig, got {type(self.occupancy).__name__}")
+        if not isinstance(self.motion, MotionConfig):
+            raise ValueError(f"motion must be a MotionConfig, got {type(self.motion).__name__}")
+        if not isinstance(self.prediction, PredictionSchedule):
+            raise ValueError(f"prediction must be a PredictionSchedule, got {type(self.prediction).__name__}")
+        if not isinstance(self.reuse, PredictionReuse):
+            raise ValueError(f"reuse must be a PredictionReuse, got {type(self.reuse).__name__}")
+        if isinstance(self.finish_after_s, bool) or not isinstance(self.finish_after_s, (int, float)) \
+                or not (np.isfinite(self.finish_after_s) and self.finish_after_s >= 0.0):
+            raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")
+        object.__setattr__(self, "frontier_min_m", check_real("frontier_min_m", self.frontier_min_m, 0.0,
+                                                              low_open=True))
+
+    def frontier_min_cells(self, resolution_m: float) -> int:
+        """The fewest cells of a frontier region offered in the first tier on a grid of ``resolution_m`` metres per
+        cell: those that reach ``frontier_min_m`` (10 at 0.1 m, 20 at 0.05 m, 40 at 0.025 m), at least one."""
+        return max(1, cells_at_least(self.frontier_min_m, check_real("resolution_m", resolution_m, 0.0,
+                                                                     low_open=True)))
