@@ -12,7 +12,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, Pr
 from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame, reach_of
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-from superex_deploy.onboard.types import UNKNOWN
+from superex_deploy.onboard.types import UNKNOWN, Prediction
 from superex_deploy.sim.world import World, WorldConfig
 
 GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
@@ -133,3 +133,55 @@ def test_grown_frame_and_embed_on_hand_made_cases():
     assert (x0, y0, x1, y1) == pytest.approx((5.0, 5.0, 6.0, 8.0))  # east return, north no-return to range_max
     with pytest.raises(ValueError, match="MapGrowth.margin_m must be a finite number"):
         MapGrowth(margin_m=-1.0)
+
+
+class _ShapeDependentPredictor:
+    """A predictor whose every cell depends on the grid it is asked on (LaMa's output does, through its context)."""
+
+    name = "shape_dependent"
+
+    def predict(self, observed, extra=None):
+        mean = np.full(observed.shape, 1.0 / observed.shape[1], np.float32)
+        return Prediction(mean=mean, variance=np.zeros_like(mean))
+
+
+def _westward_observations():
+    open_scan = LaserScan(0.0, 2 * np.pi / 360, 0.05, 2.0, np.full(360, np.inf, np.float32))
+    poses = [Pose2D(5.05 - 0.6 * t, 5.05 + 0.4 * (t % 3), 0.0) for t in range(12)]  # westwards: grows on the left
+    return [Observation(0.1 * t, pose, open_scan) for t, pose in enumerate(poses)]
+
+
+def _run(cfg, observations, recorded_steps=None):
+    frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
+    with Explorer(frame, make_planner("nearest"), _ShapeDependentPredictor(), cfg=cfg) as explorer:
+        if recorded_steps is not None:
+            explorer.follow_recorded_predictions(recorded_steps)
+        commands = [explorer.step(observation) for observation in observations]
+    assert explorer.frame.shape[1] > 100 and any(c.prediction_step >= 0 for c in commands)
+    return commands
+
+
+def test_a_growing_free_run_with_predictions_in_flight_replays_exactly():
+    # The recorded run's worker predicted each map on the grid it had then; a replay that predicted the kept map
+    # after embedding it in the grown grid got other predictions (and, with LaMa, other goals).
+    cfg = ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule("free"))
+    observations = _westward_observations()
+    recorded = _run(cfg, observations)
+    replayed = _run(cfg, observations, [c.prediction_step for c in recorded])
+    for command, again in zip(recorded, replayed):
+        assert again.prediction_step == command.prediction_step
+        if command.prediction is not None:
+            assert np.array_equal(again.prediction.mean, command.prediction.mean), again.step
+
+
+def test_the_simulated_schedule_is_the_thread_schedules_while_the_grid_grows():
+    # The thread mode takes its prediction in progress at a growth (predicted on the smaller grid): so does the
+    # simulated mode, which stands for it in the benchmarks.
+    observations = _westward_observations()
+    runs = [_run(ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule(mode, every_steps=3,
+                                                                               apply_after_steps=3)), observations)
+            for mode in ("thread", "simulated")]
+    for threaded, simulated in zip(*runs):
+        assert simulated.prediction_step == threaded.prediction_step
+        if threaded.prediction is not None:
+            assert np.array_equal(simulated.prediction.mean, threaded.prediction.mean), simulated.step
