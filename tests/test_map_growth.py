@@ -185,3 +185,45 @@ def test_the_simulated_schedule_is_the_thread_schedules_while_the_grid_grows():
         assert simulated.prediction_step == threaded.prediction_step
         if threaded.prediction is not None:
             assert np.array_equal(simulated.prediction.mean, threaded.prediction.mean), simulated.step
+
+
+def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_path):
+    from dataclasses import asdict
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from superex_deploy.commands.replay import build_explorer as replay_explorer
+    from superex_deploy.recording import EpisodeRecorder, read_recording
+
+    cfg = ExplorerConfig(growth=GROWTH)
+    frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
+    metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": asdict(cfg),
+                "profile": "full"}
+    path = tmp_path / "growing.mcap"
+    frames = []
+    with Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=cfg) as explorer, \
+            EpisodeRecorder(path, frame, metadata, map_every=1) as recorder:
+        for observation in _westward_observations():
+            command = explorer.step(observation)
+            recorder.write(observation, command, explorer.observed, explorer.frame)
+            frames.append(explorer.frame)
+        with pytest.raises(ValueError, match="pass the explorer's frame"):  # the recording's frame: refused
+            recorder.write_map(explorer.observed)
+    assert frames[-1] != frame
+    with open(path, "rb") as file:
+        maps = [message for _, _, _, message in make_reader(file, decoder_factories=[DecoderFactory()])
+                .iter_decoded_messages(topics=["/map"])]
+    assert len(maps) == len(frames)
+    for message, step_frame in zip(maps, frames):  # each map a well-formed grid on the step's own frame
+        info = message.info
+        assert (info.height, info.width) == step_frame.shape and len(message.data) == info.width * info.height
+        assert (info.origin.position.x, info.origin.position.y) == pytest.approx(step_frame.origin_xy)
+    recording = read_recording(path)
+    with replay_explorer(recording.metadata, recording.frame) as replay:
+        assert replay.cfg.growth == GROWTH
+        for recorded in recording.steps:
+            command = replay.step(recorded.observation)
+            assert (command.goal_rc, command.new_goal, command.finished) == (recorded.goal_rc, recorded.new_goal,
+                                                                             recorded.finished)
+    assert replay.frame == frames[-1]
