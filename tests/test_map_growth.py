@@ -227,3 +227,17 @@ def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_
             assert (command.goal_rc, command.new_goal, command.finished) == (recorded.goal_rc, recorded.new_goal,
                                                                              recorded.finished)
     assert replay.frame == frames[-1]
+
+
+@pytest.mark.parametrize("origin_xy, resolution_m", [((-5.03, -5.0), 0.1), ((-5.0, -5.0), 0.05)])
+def test_a_slam_map_off_the_lattice_is_refused_before_the_grid_grows(origin_xy, resolution_m):
+    explorer = _explorer(MapFrame((40, 40), 0.1, (0.0, 0.0)), growth=GROWTH)
+    scan = LaserScan(0.0, 2 * np.pi / 8, 0.05, 1.0, np.full(8, np.inf, np.float32))
+    explorer.step(Observation(0.0, Pose2D(2.05, 2.05), scan))
+    before, frame = explorer.mapper.log_odds.copy(), explorer.frame
+    cells = round(10.0 / resolution_m)
+    message = OccupancyGridMessage(resolution_m, cells, cells, origin_xy, np.zeros(cells * cells, np.int8))
+    with pytest.raises(ValueError, match="whole number of cells|resolution"):
+        explorer.step(Observation(1.0, Pose2D(2.05, 2.05), None, occupancy_grid=message))
+    assert explorer.frame == frame and np.array_equal(explorer.mapper.log_odds, before)
+    explorer.step(Observation(1.0, Pose2D(2.05, 2.05), scan))  # and it goes on

@@ -381,6 +381,8 @@ class Explorer:
         if self._closed:
             raise RuntimeError("this explorer was closed")
         # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
+        if obs.occupancy_grid is not None:  # its resolution and lattice, before the grid grows for it
+            obs.occupancy_grid.lattice_offset(self.frame)
         regrid = self._regrid_for(obs) if self.cfg.growth is not None else None
         if regrid is None:
             pose = self._pose_cell(obs)
