@@ -215,3 +215,50 @@ def test_an_interrupted_offline_run_writes_the_steps_it_did(tmp_path, monkeypatc
     assert summary["interrupted"] and summary["steps"] == 5
     assert "wrote the 5 steps done" in capsys.readouterr().err
     assert not list((tmp_path / "out").glob("*.part"))
+
+
+def _write_items(path, items):
+    """A ROS 2 bag of ``(topic, stamp_s, message)`` items (types by topic name)."""
+    from rosbags.rosbag2 import Writer
+
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
+             "/tf_static": "tf2_msgs/msg/TFMessage", "/map": "nav_msgs/msg/OccupancyGrid"}
+    with Writer(path, version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+        for topic, t, message in items:
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+    return path
+
+
+def _tf(t, *transforms):
+    return T["tf2_msgs/msg/TFMessage"](transforms=[_transform(t, *link) for link in transforms])
+
+
+def _laser_mount():
+    return ("/tf_static", T0, _tf(T0, ("base_link", "laser", *LASER_OFFSET, 0.0)))
+
+
+def test_a_tf_tree_with_a_loop_is_no_pose_not_a_hang(tmp_path):
+    # odom -> base_link, and a second publisher's inverted base_link -> odom: looking the laser up in map looped
+    # for ever (laser -> base_link -> odom -> base_link ...).
+    _, drive = _drive(3)
+    items = [_laser_mount()]
+    for t, _, base, scan in drive:
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("base_link", "odom", 0.0, 0.0, 0.0), ("odom", "base_link", *base))),
+                  ("/scan", t, _scan_message(t, scan))]
+    bag = _write_items(tmp_path / "loop", items)
+    outcome = []
+
+    def read():  # in a thread, so that a hang fails the test instead of stopping the suite
+        try:
+            read_bag(bag, BagTopics(pose_source="tf"))
+        except ValueError as error:
+            outcome.append(str(error))
+
+    import threading
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout=30)
+    assert not reader.is_alive(), "read_bag looped on the tf tree"
+    assert outcome and "no scan on /scan has a pose from tf" in outcome[0]

@@ -162,9 +162,14 @@ class _TfTree:
         return True
 
     def lookup(self, root: str, frame: str, stamp: float, max_age_s: float):
-        """``frame``'s planar pose in ``root`` at ``stamp``, or None (a missing link, or a transform too old)."""
+        """``frame``'s planar pose in ``root`` at ``stamp``, or None (a missing link, a transform too old, or a
+        loop: a tree whose frames are each other's parents, as two publishers of one link inverted make it)."""
         pose = (0.0, 0.0, 0.0)
+        seen = set()
         while frame != root:
+            if frame in seen:
+                return None
+            seen.add(frame)
             if frame in self.static:
                 link = self.static[frame]
             elif frame in self.dynamic:
