@@ -262,3 +262,33 @@ def test_a_tf_tree_with_a_loop_is_no_pose_not_a_hang(tmp_path):
     reader.join(timeout=30)
     assert not reader.is_alive(), "read_bag looped on the tf tree"
     assert outcome and "no scan on /scan has a pose from tf" in outcome[0]
+
+
+def test_a_malformed_scan_is_skipped_and_counted(tmp_path):
+    # A driver's glitch (a scan with no ranges) stopped the whole reading with LaserScan's ValueError.
+    _, drive = _drive(5)
+    items = [_laser_mount()]
+    for k, (t, _, base, scan) in enumerate(drive):
+        message = _scan_message(t, scan)
+        if k == 2:
+            message.ranges = np.zeros(0, np.float32)
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, message)]
+    reading, observations = read_bag(_write_items(tmp_path / "glitch", items))
+    stamps = [observation.stamp_s for observation in observations]
+    assert reading.skipped["invalid"] == 1 and reading.scans == 4
+    assert stamps == pytest.approx([0.0, 0.1, 0.3, 0.4])
+
+
+def test_a_slam_map_the_explorer_cannot_take_is_refused_when_the_bag_opens(tmp_path):
+    # A rotated origin in the bag's fourth map: refused by read_bag, not in the middle of the run.
+    _, drive = _drive(5)
+    slam = OccupancyGridMessage(0.1, 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
+    items = [_laser_mount()]
+    for k, (t, _, base, scan) in enumerate(drive):
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, _scan_message(t, scan))]
+        grid = _grid_message(t, slam)
+        if k == 3:
+            grid.info.origin.orientation = _quaternion(0.4)
+        items.append(("/map", t + 0.01, grid))
+    with pytest.raises(ValueError, match=r"the SLAM map on /map stamped .*rotated origin"):
+        read_bag(_write_items(tmp_path / "rotated", items))

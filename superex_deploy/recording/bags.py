@@ -18,7 +18,10 @@ What is read:
   topic; ``""``: none), given to the explorer with the first scan after it.
 
 Stamps are the messages' header stamps, as seconds since the first scan's (the explorer's clock starts at 0). A scan
-without a pose within ``max_pose_age_s`` before it, or stamped before the scan it follows, is skipped and counted.
+without a pose within ``max_pose_age_s`` before it, stamped before the scan it follows, or malformed (no ranges,
+``range_min >= range_max``, angles that do not match its ranges: :class:`~superex_deploy.messages.LaserScan`'s
+checks; a driver's glitch) is skipped and counted. A SLAM map the explorer cannot take (a rotated origin, values
+outside -1..100) is refused when the bag is opened, before any scan is read.
 """
 
 from __future__ import annotations
@@ -77,7 +80,7 @@ class BagReading:
         scan_topic, pose_source, map_topic: what was used (``map_topic`` None: no SLAM map).
         scans: scans turned into observations.
         skipped: scans left out, by reason (``no_pose``: no pose within ``max_pose_age_s``; ``backwards``:
-            stamped before the scan before it).
+            stamped before the scan before it; ``invalid``: a malformed LaserScan).
         first_stamp_s: the first scan's header stamp (seconds since the epoch the bag uses).
         extent_xy: ``(x_min, y_min, x_max, y_max)`` (metres, map frame) of every sensor position and return (and
             SLAM map) of the bag: the area an explorer's frame must hold.
@@ -89,7 +92,7 @@ class BagReading:
     pose_source: str
     map_topic: Optional[str]
     scans: int = 0
-    skipped: dict = field(default_factory=lambda: {"no_pose": 0, "backwards": 0})
+    skipped: dict = field(default_factory=lambda: {"no_pose": 0, "backwards": 0, "invalid": 0})
     first_stamp_s: Optional[float] = None
     extent_xy: Optional[tuple[float, float, float, float]] = None
     map_resolution_m: Optional[float] = None
@@ -262,7 +265,15 @@ def _grid_message(message) -> OccupancyGridMessage:
                                 data=np.asarray(message.data, np.int8))
 
 
-def _scan_message(message) -> LaserScan:
+def _scan_message(message) -> Optional[LaserScan]:
+    """The scan, or None when :class:`LaserScan` refuses it (malformed)."""
+    try:
+        return _laser_scan(message)
+    except ValueError:
+        return None
+
+
+def _laser_scan(message) -> LaserScan:
     return LaserScan(angle_min=float(message.angle_min), angle_increment=float(message.angle_increment),
                      range_min=float(message.range_min), range_max=float(message.range_max),
                      ranges=np.asarray(message.ranges, np.float32))
@@ -328,18 +339,22 @@ def _measure_extent(reader, reading, topics, poses, tree) -> None:
     for connection, _, raw in reader.messages(connections=wanted):
         message = reader.deserialize(raw, connection.msgtype)
         if connection.msgtype == OCCUPANCY_GRID:
-            info = message.info
-            x0, y0 = float(info.origin.position.x), float(info.origin.position.y)
+            try:  # refused now, not when the run reaches it
+                grid = _grid_message(message)
+            except ValueError as error:
+                raise ValueError(f"the SLAM map on {reading.map_topic} stamped {_stamp(message.header):.9f} s: "
+                                 f"{error}") from None
+            x0, y0 = grid.origin_xy
             if reading.map_resolution_m is None:
-                reading.map_resolution_m, reading.map_origin_xy = float(info.resolution), (x0, y0)
-            xs += [x0, x0 + info.width * info.resolution]
-            ys += [y0, y0 + info.height * info.resolution]
+                reading.map_resolution_m, reading.map_origin_xy = grid.resolution_m, (x0, y0)
+            xs += [x0, x0 + grid.width * grid.resolution_m]
+            ys += [y0, y0 + grid.height * grid.resolution_m]
             continue
         found = _sensor_pose(reading, topics, poses, tree, message.header.frame_id, _stamp(message.header))
-        if found is None:
+        scan = None if found is None else _scan_message(message)
+        if scan is None:
             continue
         (x, y, yaw), _ = found
-        scan = _scan_message(message)
         ranges = scan.ranges.astype(np.float64)
         hit = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges < scan.range_max)
         angles = yaw + scan.angles()[hit]
@@ -369,6 +384,10 @@ def _observations(reader, reading, topics, poses, tree) -> Iterator[Observation]
             if found is None:
                 reading.skipped["no_pose"] += 1
                 continue
+            scan = _scan_message(message)
+            if scan is None:
+                reading.skipped["invalid"] += 1
+                continue
             if reading.first_stamp_s is None:
                 reading.first_stamp_s = stamp
             last = stamp
@@ -380,7 +399,7 @@ def _observations(reader, reading, topics, poses, tree) -> Iterator[Observation]
                                  f"{error}") from None
             reading.scans += 1
             yield Observation(stamp_s=stamp - reading.first_stamp_s, pose=Pose2D(x, y, yaw),
-                              scan=None if pending_map is not None else _scan_message(message),
+                              scan=None if pending_map is not None else scan,
                               pose_covariance=covariance, occupancy_grid=pending_map)
             pending_map = None
     finally:
