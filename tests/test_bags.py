@@ -292,3 +292,18 @@ def test_a_slam_map_the_explorer_cannot_take_is_refused_when_the_bag_opens(tmp_p
         items.append(("/map", t + 0.01, grid))
     with pytest.raises(ValueError, match=r"the SLAM map on /map stamped .*rotated origin"):
         read_bag(_write_items(tmp_path / "rotated", items))
+
+
+def test_offline_refuses_a_resolution_other_than_the_slam_maps_before_it_runs(tmp_path):
+    # It ran the scans up to the first map, then stopped with the explorer's resolution error and no output.
+    _, drive = _drive(4)
+    slam = OccupancyGridMessage(float(np.float32(0.1)), 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
+    bag = _write(tmp_path / "slam", 2, drive, slam=slam)
+    out = tmp_path / "out"
+    from superex_deploy.cli import build_parser
+    from superex_deploy.commands import offline
+
+    with pytest.raises(ValueError, match=r"--resolution 0.05 m: the SLAM map on /map has 0.1 m cells"):
+        offline.run(build_parser().parse_args(["offline", str(bag), "--out", str(out), "--resolution", "0.05"]))
+    assert not out.exists()
+    assert main(["offline", str(bag), "--out", str(out), "--resolution", "0.1", "--finish-after", "0"]) == 0

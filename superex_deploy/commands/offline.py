@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
 
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PROFILES, build_explorer, resolve_profile
+    from superex_deploy.messages import same_resolution
     from superex_deploy.recording.bags import BagTopics, read_bag
 
     if not (math.isfinite(args.finish_after) and args.finish_after >= 0):
@@ -100,9 +101,17 @@ def run(args: argparse.Namespace) -> int:
     topics = BagTopics(scan_topic=args.scan_topic, pose_source=args.pose_source, map_topic=args.map_topic,
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
+    try:
+        resolution = args.resolution or reading.map_resolution_m or 0.1
+        if reading.map_resolution_m is not None and not same_resolution(resolution, reading.map_resolution_m):
+            raise ValueError(f"--resolution {args.resolution} m: the SLAM map on {reading.map_topic} has "
+                             f"{reading.map_resolution_m:.6g} m cells, and the explorer takes it on its own lattice "
+                             f"(leave --resolution out, or give --map-topic '' to run on the scans alone)")
+        frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
+    except BaseException:
+        observations.close()  # the bag
+        raise
     out.mkdir(parents=True, exist_ok=True)
-    resolution = args.resolution or reading.map_resolution_m or 0.1
-    frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
     cfg = dataclasses.replace(PROFILES[profile_name].explorer_config("robot"), finish_after_s=float(args.finish_after))
     explorer = build_explorer(frame, planner, args.predictor, profile=profile_name, models=args.models, cfg=cfg)
     print(f"superex offline: {args.bag} -> {out}: scans {reading.scan_topic}, pose {reading.pose_source}, "
