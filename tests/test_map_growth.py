@@ -227,6 +227,13 @@ def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_
             assert (command.goal_rc, command.new_goal, command.finished) == (recorded.goal_rc, recorded.new_goal,
                                                                              recorded.finished)
     assert replay.frame == frames[-1]
+    # superex replay: the same goals, and the final map with the frame it lies on (the recording's is the first)
+    from superex_deploy.cli import main
+
+    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
+    saved = np.load(tmp_path / "replay" / "map.npz")
+    assert tuple(saved["shape"]) == frames[-1].shape == saved["observed"].shape
+    assert tuple(saved["origin_xy"]) == pytest.approx(frames[-1].origin_xy) and saved["resolution_m"] == 0.1
 
 
 @pytest.mark.parametrize("origin_xy, resolution_m", [((-5.03, -5.0), 0.1), ((-5.0, -5.0), 0.05)])
