@@ -307,3 +307,17 @@ def test_offline_refuses_a_resolution_other_than_the_slam_maps_before_it_runs(tm
         offline.run(build_parser().parse_args(["offline", str(bag), "--out", str(out), "--resolution", "0.05"]))
     assert not out.exists()
     assert main(["offline", str(bag), "--out", str(out), "--resolution", "0.1", "--finish-after", "0"]) == 0
+
+
+@pytest.mark.parametrize("option, value", [("--resolution", "0"), ("--resolution", "-0.1"), ("--margin-m", "-1")])
+def test_offline_refuses_a_bad_resolution_or_margin_before_reading_the_bag(tmp_path, option, value):
+    # --resolution 0 ran at the default resolution (0 read as "not given"); -0.1 with a SLAM map got the SLAM map's
+    # resolution error; neither named the option's own rule.
+    from superex_deploy.cli import build_parser
+    from superex_deploy.commands import offline
+
+    args = build_parser().parse_args(["offline", str(tmp_path / "no-bag"), "--out", str(tmp_path / "out"), option,
+                                      value])
+    with pytest.raises(ValueError, match=f"{option} must be"):
+        offline.run(args)
+    assert not (tmp_path / "out").exists()

@@ -92,6 +92,10 @@ def run(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.finish_after) and args.finish_after >= 0):
         raise ValueError(f"--finish-after must be >= 0 seconds, got {args.finish_after}")
+    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise ValueError(f"--resolution must be a positive number of metres, got {args.resolution}")
+    if not (math.isfinite(args.margin_m) and args.margin_m >= 0):
+        raise ValueError(f"--margin-m must be >= 0, got {args.margin_m}")
     if args.limit is not None and args.limit < 1:
         raise ValueError(f"--limit must be >= 1, got {args.limit}")
     out = check_output_folder(args.out)
@@ -102,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
     try:
-        resolution = args.resolution or reading.map_resolution_m or 0.1
+        resolution = args.resolution or reading.map_resolution_m or 0.1  # --resolution: checked > 0 above
         if reading.map_resolution_m is not None and not same_resolution(resolution, reading.map_resolution_m):
             raise ValueError(f"--resolution {args.resolution} m: the SLAM map on {reading.map_topic} has "
                              f"{reading.map_resolution_m:.6g} m cells, and the explorer takes it on its own lattice "
