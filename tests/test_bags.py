@@ -321,3 +321,36 @@ def test_offline_refuses_a_bad_resolution_or_margin_before_reading_the_bag(tmp_p
     with pytest.raises(ValueError, match=f"{option} must be"):
         offline.run(args)
     assert not (tmp_path / "out").exists()
+
+
+def test_auto_takes_the_odometry_when_the_tf_tree_has_no_map_frame(tmp_path):
+    # A robot without localisation: /odom, and /tf with odom -> base_link only. auto chose tf (the bag has /tf)
+    # and refused the bag: "no scan on /scan has a pose from tf".
+    from rosbags.rosbag2 import Writer
+
+    _, drive = _drive(4)
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
+             "/tf_static": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry"}
+    vector = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    with Writer(tmp_path / "odom", version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+
+        def put(topic, t, message):
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+
+        put("/tf_static", T0, _tf(T0, ("base_link", "laser", *LASER_OFFSET, 0.0)))
+        for t, _, base, scan in drive:
+            put("/tf", t - 0.02, _tf(t - 0.02, ("odom", "base_link", *base)))
+            put("/odom", t - 0.02, T["nav_msgs/msg/Odometry"](
+                header=_header(t - 0.02, "odom"), child_frame_id="base_link",
+                pose=_pose_message(t - 0.02, *base).pose,
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=T["geometry_msgs/msg/Twist"](linear=vector, angular=vector), covariance=np.zeros(36))))
+            put("/scan", t, _scan_message(t, scan))
+    reading, observations = read_bag(tmp_path / "odom")
+    observations = list(observations)
+    assert reading.pose_source == "/odom" and len(observations) == len(drive)
+    for observation, (_, laser, _, _) in zip(observations, drive):  # the base's odometry plus the laser's mount
+        assert (observation.pose.x, observation.pose.y) == pytest.approx((laser.x, laser.y), abs=1e-6)
+    with pytest.raises(ValueError, match="no scan on /scan has a pose from tf"):  # asked for: still refused
+        read_bag(tmp_path / "odom", BagTopics(pose_source="tf"))

@@ -11,8 +11,8 @@ What is read:
     ``header.frame_id`` (each transform the newest at or before the scan's stamp, planar: x, y and yaw);
   - a ``geometry_msgs/PoseWithCovarianceStamped`` or ``nav_msgs/Odometry`` topic: the robot base's pose and its
     covariance, then the static ``base_frame`` -> scan-frame transform of ``/tf_static`` when the bag has one;
-  - ``auto`` (default): a PoseWithCovarianceStamped topic if the bag has one, else ``tf`` if the tree reaches
-    ``map_frame``, else an Odometry topic;
+  - ``auto`` (default): a PoseWithCovarianceStamped topic if the bag has one, else ``tf`` if the tree holds
+    ``map_frame`` (or the bag has no Odometry topic), else an Odometry topic;
 
 * optionally **a SLAM map**: ``nav_msgs/OccupancyGrid`` on ``map_topic`` (default: the bag's only OccupancyGrid
   topic; ``""``: none), given to the explorer with the first scan after it.
@@ -155,6 +155,10 @@ class _TfTree:
             else:
                 self.dynamic.setdefault(child, _Series()).add(_stamp(transform.header), value)
 
+    def holds(self, frame: str) -> bool:
+        """Whether ``frame`` is in the tree (the parent or the child of a transform)."""
+        return frame in self.parent or frame in self.parent.values()
+
     def reaches(self, frame: str, root: str) -> bool:
         seen = set()
         while frame != root:
@@ -295,6 +299,13 @@ def read_bag(path, topics: BagTopics = BagTopics()) -> tuple[BagReading, Iterato
     try:
         reading = _choose(reader, topics)
         poses, tree = _read_poses(reader, reading, topics)
+        odometry = _topics_of(reader, ODOMETRY)
+        if topics.pose_source == "auto" and reading.pose_source == "tf" and odometry and not tree.holds(
+                topics.map_frame):
+            # A robot without localisation still has /tf (odom -> base_link, the mounts): it does not reach the
+            # map frame, and the odometry topic is the pose.
+            reading.pose_source = odometry[0]
+            poses, tree = _read_poses(reader, reading, topics)
         _measure_extent(reader, reading, topics, poses, tree)
     except BaseException:
         reader.close()
