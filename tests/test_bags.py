@@ -354,3 +354,25 @@ def test_auto_takes_the_odometry_when_the_tf_tree_has_no_map_frame(tmp_path):
         assert (observation.pose.x, observation.pose.y) == pytest.approx((laser.x, laser.y), abs=1e-6)
     with pytest.raises(ValueError, match="no scan on /scan has a pose from tf"):  # asked for: still refused
         read_bag(tmp_path / "odom", BagTopics(pose_source="tf"))
+
+
+def test_a_pose_topics_scans_without_the_scanners_mount_have_no_pose(tmp_path):
+    # A bag recorded without /tf_static: the scans in 'laser' were drawn from base_link, 10 cm off (a scanner
+    # mounted turned round: every scan mirrored), silently.
+    _, drive = _drive(3)
+    items = []
+    for t, _, base, scan in drive:
+        items += [("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02)), ("/scan", t, _scan_message(t, scan))]
+    from rosbags.rosbag2 import Writer
+
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/amcl_pose": "geometry_msgs/msg/PoseWithCovarianceStamped"}
+    with Writer(tmp_path / "no-mount", version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+        for topic, t, message in items:
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+    with pytest.raises(ValueError, match=r"no scan on /scan has a pose from /amcl_pose .*--base-frame 'base_link'"):
+        read_bag(tmp_path / "no-mount")
+    reading, observations = read_bag(tmp_path / "no-mount", BagTopics(base_frame="laser"))  # the pose is the laser's
+    observations = list(observations)
+    assert reading.scans == len(observations) == len(drive)
+    assert (observations[0].pose.x, observations[0].pose.y) == pytest.approx(drive[0][2][:2])

@@ -10,7 +10,8 @@ What is read:
   - ``tf``: the ``tf2_msgs/TFMessage`` tree of ``/tf`` and ``/tf_static``, from ``map_frame`` to the scan's
     ``header.frame_id`` (each transform the newest at or before the scan's stamp, planar: x, y and yaw);
   - a ``geometry_msgs/PoseWithCovarianceStamped`` or ``nav_msgs/Odometry`` topic: the robot base's pose and its
-    covariance, then the static ``base_frame`` -> scan-frame transform of ``/tf_static`` when the bag has one;
+    covariance, then the ``base_frame`` -> scan-frame transform of ``/tf_static`` (or ``/tf``): a scan in another
+    frame than ``base_frame`` (or an empty one) without that transform has no pose;
   - ``auto`` (default): a PoseWithCovarianceStamped topic if the bag has one, else ``tf`` if the tree holds
     ``map_frame`` (or the bag has no Odometry topic), else an Odometry topic;
 
@@ -340,8 +341,12 @@ def _sensor_pose(reading, topics, poses, tree, frame_id: str, stamp: float):
     if found is None:
         return None
     base, covariance = found
-    mount = tree.lookup(topics.base_frame, frame_id, stamp, None) if frame_id != topics.base_frame else None
-    return (_compose(base, mount) if mount is not None else base), covariance
+    if not frame_id or frame_id == topics.base_frame:  # the scan is the base's (an empty frame_id: taken as such)
+        return base, covariance
+    # A scanner elsewhere on the robot: without the mount its scans would be drawn from the wrong place, off by the
+    # mount's offset and turned by its yaw, so a scan without it has no pose.
+    mount = tree.lookup(topics.base_frame, frame_id, stamp, None)
+    return None if mount is None else (_compose(base, mount), covariance)
 
 
 def _measure_extent(reader, reading, topics, poses, tree) -> None:
@@ -372,8 +377,11 @@ def _measure_extent(reader, reading, topics, poses, tree) -> None:
         xs += [x, *(x + ranges[hit] * np.cos(angles)).tolist()]
         ys += [y, *(y + ranges[hit] * np.sin(angles)).tolist()]
     if not xs:
+        hint = (f"map frame {topics.map_frame!r}" if reading.pose_source == "tf" else
+                f"the pose is the robot's, --base-frame {topics.base_frame!r}, and a scan in another frame needs the "
+                f"transform from it in /tf_static or /tf; --base-frame <the scans' frame> if the pose is the scanner's")
         raise ValueError(f"no scan on {reading.scan_topic} has a pose from {reading.pose_source} within "
-                         f"{topics.max_pose_age_s} s (map frame {topics.map_frame!r})")
+                         f"{topics.max_pose_age_s} s ({hint})")
     reading.extent_xy = (min(xs), min(ys), max(xs), max(ys))
 
 
