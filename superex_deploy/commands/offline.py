@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-topic", default=None, help="sensor_msgs/LaserScan topic (default: the only one)")
     parser.add_argument("--pose-source", default="auto",
                         help="tf, a PoseWithCovarianceStamped or Odometry topic, or auto (default: a "
-                             "PoseWithCovarianceStamped topic, else /tf, else an Odometry topic)")
+                             "PoseWithCovarianceStamped topic, else /tf when it holds the map frame, else an Odometry "
+                             "topic)")
     parser.add_argument("--map-topic", default=None,
                         help="nav_msgs/OccupancyGrid topic (default: the only one, if any; '' for none)")
     parser.add_argument("--map-frame", default="map", help="the fixed frame of the poses (default: map)")
