@@ -111,6 +111,12 @@ def test_growth_past_the_map_size_limit_is_refused_before_anything_changes():
     with pytest.raises(ValueError, match="growing map"):
         explorer.step(Observation(1.0, Pose2D(far, far), scan))
     assert explorer.frame.shape == (100, 100) and np.array_equal(explorer.mapper.log_odds, before)
+    # a garbage pose (an uninitialised localiser's 1e300 m): the same ValueError, not an OverflowError
+    with pytest.raises(ValueError, match="growing map"):
+        explorer.step(Observation(1.0, Pose2D(1e300, -1e300), scan))
+    with pytest.raises(ValueError, match="growing map"):
+        grown_frame(explorer.frame, (0.0, 0.0, 1.0, 1.0), MapGrowth(margin_m=1e308))
+    assert explorer.frame.shape == (100, 100) and np.array_equal(explorer.mapper.log_odds, before)
 
 
 def test_grown_frame_and_embed_on_hand_made_cases():
