@@ -52,7 +52,8 @@ def test_every_command_stopped_by_a_signal_says_so_in_one_line(monkeypatch, caps
 
     monkeypatch.setattr(module, "run", interrupted_run)
     argv = {"scan": ["--map", MAP, "--out", str(tmp_path)], "explore": ["--map", MAP, "--out", str(tmp_path)],
-            "benchmark": ["--out", str(tmp_path)], "replay": ["x.mcap", "--out", str(tmp_path)], "warmup": []}[command]
+            "benchmark": ["--out", str(tmp_path)], "replay": ["x.mcap", "--out", str(tmp_path)], "warmup": [],
+            "offline": ["x.bag", "--out", str(tmp_path)]}[command]
     assert main([command, *argv]) == CODES[signum]
     err = capsys.readouterr().err
     assert err == f"superex {command}: stopped by {signal.Signals(signum).name}\n"
