@@ -362,7 +362,8 @@ def test_a_pose_topics_scans_without_the_scanners_mount_have_no_pose(tmp_path):
     _, drive = _drive(3)
     items = []
     for t, _, base, scan in drive:
-        items += [("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02)), ("/scan", t, _scan_message(t, scan))]
+        items += [("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02)),
+                  ("/scan", t, _scan_message(t, scan))]
     from rosbags.rosbag2 import Writer
 
     kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/amcl_pose": "geometry_msgs/msg/PoseWithCovarianceStamped"}
