@@ -254,3 +254,24 @@ def test_a_slam_map_off_the_lattice_is_refused_before_the_grid_grows(origin_xy, 
         explorer.step(Observation(1.0, Pose2D(2.05, 2.05), None, occupancy_grid=message))
     assert explorer.frame == frame and np.array_equal(explorer.mapper.log_odds, before)
     explorer.step(Observation(1.0, Pose2D(2.05, 2.05), scan))  # and it goes on
+
+
+class _SlowPredictor(_ShapeDependentPredictor):
+    def predict(self, observed, extra=None):
+        import time
+
+        time.sleep(1.0)
+        return super().predict(observed, extra)
+
+
+def test_a_growth_that_waits_for_the_prediction_in_progress_says_so_in_the_steps_timings():
+    # The free schedule's step waited for the worker at a growth, and neither timings_s nor blocking_waits said so.
+    observations = _westward_observations()
+    with Explorer(MapFrame((100, 100), 0.1, (0.0, 0.0)), make_planner("nearest"), _SlowPredictor(),
+                  cfg=ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule("free"))) as explorer:
+        explorer.step(observations[0])  # submits the prediction of map 0 (1 s)
+        explorer.step(observations[1])  # it is in progress: the step goes on without it
+        assert explorer.frame.shape == (100, 100) and explorer.scheduled.blocking_waits == 0
+        third = explorer.step(observations[2])  # grows at once: waits for it
+    assert explorer.frame.shape[1] > 100 and third.prediction_step == 0
+    assert third.timings_s["prediction"] >= 0.2 and explorer.scheduled.blocking_waits == 1

@@ -392,9 +392,11 @@ class Explorer:
                              f"Explorer)")
         if self.spad_processing is not None and obs.spad is not None:
             self.spad_processing.check_frame(obs.spad)
+        regrid_wait = 0.0
         if regrid is not None:
             self._regrid(regrid)
             pose = self._pose_cell(obs)
+            regrid_wait = 0.0 if self.scheduled is None else self.scheduled.last_regrid_wait_s
         self._pose_exact = obs.pose_covariance is None
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
@@ -451,7 +453,7 @@ class Explorer:
             self._settle_finished(obs.stamp_s)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished, self._no_goal_since = False, False, None
-        timings["prediction"] += waited
+        timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
         path_rc = np.asarray(self.path, np.int64).reshape(-1, 2)
