@@ -209,8 +209,9 @@ def _load_ros_yaml(path: Path) -> OccupancyGrid:
     ``free_thresh``) as map_server reads it: each pixel's occupancy probability ``p`` (``trinary`` / ``scale``:
     ``(255 - v) / 255``, or ``v / 255`` with ``negate``; ``raw``: ``v / 100`` for ``v <= 100``, unknown above, and
     ``negate`` ignored, as map_server does) is occupied above ``occupied_thresh``, free below ``free_thresh`` and
-    unknown in between. Unknown cells lie **outside the world**: walls to the simulator (not traversable, opaque
-    to the LiDAR and the SPAD) and outside the valid area, so that coverage counts known free space only.
+    unknown in between (a map without a free pixel is refused). Unknown cells lie **outside the world**: walls to
+    the simulator (not traversable, opaque to the LiDAR and the SPAD) and outside the valid area, so that coverage
+    counts known free space only.
 
     ``origin`` ``[x, y, yaw]`` is the map-frame position of the image's lower-left corner: it is checked (a yaw
     other than 0 is refused: rotate the image instead) and kept as :attr:`OccupancyGrid.origin_xy`; the simulator
@@ -262,6 +263,9 @@ def _load_ros_yaml(path: Path) -> OccupancyGrid:
     with np.errstate(invalid="ignore"):
         occupied = occupancy > occupied_thresh
         free = occupancy < free_thresh
+    if not free.any():  # a world with no free cell: every start would be refused as "inside a wall"
+        raise ValueError(f"map YAML {path}: no pixel is free (occupancy below free_thresh {free_thresh} in {mode} "
+                         f"mode{', negated' if negate and mode != 'raw' else ''}): check free_thresh, mode and negate")
     return OccupancyGrid(occupied=~free, valid=free & ~occupied, resolution_m=resolution, name=path.stem,
                          origin_xy=(float(origin[0]), float(origin[1])))
 

@@ -68,8 +68,9 @@ def test_finished_means_a_known_map_without_a_reachable_frontier():
 @example(value=5.0)  # exactly range_max: no return
 @example(value=4.999)
 def test_every_range_is_a_return_no_return_or_skipped_without_warnings(laser_scan, value):
-    """REP 117: [range_min, range_max) a return; +inf, range_max or above no return (free up to range_max: drivers
-    report no return as exactly range_max); NaN, -inf or below range_min invalid (skipped). float64 ranges beyond float32 become +-inf, without a warning."""
+    """REP 117: [range_min, range_max) a return; +inf, or range_max and above (how drivers and Gazebo report no
+    return), no return (free up to range_max); NaN, -inf or below range_min invalid (skipped). float64 ranges beyond
+    float32 become +-inf, without a warning."""
     frame, pose = MapFrame((120, 120), 0.1), Pose2D(6.0, 6.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -215,3 +215,165 @@ def test_an_interrupted_offline_run_writes_the_steps_it_did(tmp_path, monkeypatc
     assert summary["interrupted"] and summary["steps"] == 5
     assert "wrote the 5 steps done" in capsys.readouterr().err
     assert not list((tmp_path / "out").glob("*.part"))
+
+
+def _write_items(path, items):
+    """A ROS 2 bag of ``(topic, stamp_s, message)`` items (types by topic name)."""
+    from rosbags.rosbag2 import Writer
+
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
+             "/tf_static": "tf2_msgs/msg/TFMessage", "/map": "nav_msgs/msg/OccupancyGrid"}
+    with Writer(path, version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+        for topic, t, message in items:
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+    return path
+
+
+def _tf(t, *transforms):
+    return T["tf2_msgs/msg/TFMessage"](transforms=[_transform(t, *link) for link in transforms])
+
+
+def _laser_mount():
+    return ("/tf_static", T0, _tf(T0, ("base_link", "laser", *LASER_OFFSET, 0.0)))
+
+
+def test_a_tf_tree_with_a_loop_is_no_pose_not_a_hang(tmp_path):
+    # odom -> base_link, and a second publisher's inverted base_link -> odom: looking the laser up in map looped
+    # for ever (laser -> base_link -> odom -> base_link ...).
+    _, drive = _drive(3)
+    items = [_laser_mount()]
+    for t, _, base, scan in drive:
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("base_link", "odom", 0.0, 0.0, 0.0), ("odom", "base_link", *base))),
+                  ("/scan", t, _scan_message(t, scan))]
+    bag = _write_items(tmp_path / "loop", items)
+    outcome = []
+
+    def read():  # in a thread, so that a hang fails the test instead of stopping the suite
+        try:
+            read_bag(bag, BagTopics(pose_source="tf"))
+        except ValueError as error:
+            outcome.append(str(error))
+
+    import threading
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout=30)
+    assert not reader.is_alive(), "read_bag looped on the tf tree"
+    assert outcome and "no scan on /scan has a pose from tf" in outcome[0]
+
+
+def test_a_malformed_scan_is_skipped_and_counted(tmp_path):
+    # A driver's glitch (a scan with no ranges) stopped the whole reading with LaserScan's ValueError.
+    _, drive = _drive(5)
+    items = [_laser_mount()]
+    for k, (t, _, base, scan) in enumerate(drive):
+        message = _scan_message(t, scan)
+        if k == 2:
+            message.ranges = np.zeros(0, np.float32)
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, message)]
+    reading, observations = read_bag(_write_items(tmp_path / "glitch", items))
+    stamps = [observation.stamp_s for observation in observations]
+    assert reading.skipped["invalid"] == 1 and reading.scans == 4
+    assert stamps == pytest.approx([0.0, 0.1, 0.3, 0.4])
+
+
+def test_a_slam_map_the_explorer_cannot_take_is_refused_when_the_bag_opens(tmp_path):
+    # A rotated origin in the bag's fourth map: refused by read_bag, not in the middle of the run.
+    _, drive = _drive(5)
+    slam = OccupancyGridMessage(0.1, 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
+    items = [_laser_mount()]
+    for k, (t, _, base, scan) in enumerate(drive):
+        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, _scan_message(t, scan))]
+        grid = _grid_message(t, slam)
+        if k == 3:
+            grid.info.origin.orientation = _quaternion(0.4)
+        items.append(("/map", t + 0.01, grid))
+    with pytest.raises(ValueError, match=r"the SLAM map on /map stamped .*rotated origin"):
+        read_bag(_write_items(tmp_path / "rotated", items))
+
+
+def test_offline_refuses_a_resolution_other_than_the_slam_maps_before_it_runs(tmp_path):
+    # It ran the scans up to the first map, then stopped with the explorer's resolution error and no output.
+    _, drive = _drive(4)
+    slam = OccupancyGridMessage(float(np.float32(0.1)), 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
+    bag = _write(tmp_path / "slam", 2, drive, slam=slam)
+    out = tmp_path / "out"
+    from superex_deploy.cli import build_parser
+    from superex_deploy.commands import offline
+
+    with pytest.raises(ValueError, match=r"--resolution 0.05 m: the SLAM map on /map has 0.1 m cells"):
+        offline.run(build_parser().parse_args(["offline", str(bag), "--out", str(out), "--resolution", "0.05"]))
+    assert not out.exists()
+    assert main(["offline", str(bag), "--out", str(out), "--resolution", "0.1", "--finish-after", "0"]) == 0
+
+
+@pytest.mark.parametrize("option, value", [("--resolution", "0"), ("--resolution", "-0.1"), ("--margin-m", "-1")])
+def test_offline_refuses_a_bad_resolution_or_margin_before_reading_the_bag(tmp_path, option, value):
+    # --resolution 0 ran at the default resolution (0 read as "not given"); -0.1 with a SLAM map got the SLAM map's
+    # resolution error; neither named the option's own rule.
+    from superex_deploy.cli import build_parser
+    from superex_deploy.commands import offline
+
+    args = build_parser().parse_args(["offline", str(tmp_path / "no-bag"), "--out", str(tmp_path / "out"), option,
+                                      value])
+    with pytest.raises(ValueError, match=f"{option} must be"):
+        offline.run(args)
+    assert not (tmp_path / "out").exists()
+
+
+def test_auto_takes_the_odometry_when_the_tf_tree_has_no_map_frame(tmp_path):
+    # A robot without localisation: /odom, and /tf with odom -> base_link only. auto chose tf (the bag has /tf)
+    # and refused the bag: "no scan on /scan has a pose from tf".
+    from rosbags.rosbag2 import Writer
+
+    _, drive = _drive(4)
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
+             "/tf_static": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry"}
+    vector = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    with Writer(tmp_path / "odom", version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+
+        def put(topic, t, message):
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+
+        put("/tf_static", T0, _tf(T0, ("base_link", "laser", *LASER_OFFSET, 0.0)))
+        for t, _, base, scan in drive:
+            put("/tf", t - 0.02, _tf(t - 0.02, ("odom", "base_link", *base)))
+            put("/odom", t - 0.02, T["nav_msgs/msg/Odometry"](
+                header=_header(t - 0.02, "odom"), child_frame_id="base_link",
+                pose=_pose_message(t - 0.02, *base).pose,
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=T["geometry_msgs/msg/Twist"](linear=vector, angular=vector), covariance=np.zeros(36))))
+            put("/scan", t, _scan_message(t, scan))
+    reading, observations = read_bag(tmp_path / "odom")
+    observations = list(observations)
+    assert reading.pose_source == "/odom" and len(observations) == len(drive)
+    for observation, (_, laser, _, _) in zip(observations, drive):  # the base's odometry plus the laser's mount
+        assert (observation.pose.x, observation.pose.y) == pytest.approx((laser.x, laser.y), abs=1e-6)
+    with pytest.raises(ValueError, match="no scan on /scan has a pose from tf"):  # asked for: still refused
+        read_bag(tmp_path / "odom", BagTopics(pose_source="tf"))
+
+
+def test_a_pose_topics_scans_without_the_scanners_mount_have_no_pose(tmp_path):
+    # A bag recorded without /tf_static: the scans in 'laser' were drawn from base_link, 10 cm off (a scanner
+    # mounted turned round: every scan mirrored), silently.
+    _, drive = _drive(3)
+    items = []
+    for t, _, base, scan in drive:
+        items += [("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02)),
+                  ("/scan", t, _scan_message(t, scan))]
+    from rosbags.rosbag2 import Writer
+
+    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/amcl_pose": "geometry_msgs/msg/PoseWithCovarianceStamped"}
+    with Writer(tmp_path / "no-mount", version=9) as writer:
+        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+        for topic, t, message in items:
+            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+    with pytest.raises(ValueError, match=r"no scan on /scan has a pose from /amcl_pose .*--base-frame 'base_link'"):
+        read_bag(tmp_path / "no-mount")
+    reading, observations = read_bag(tmp_path / "no-mount", BagTopics(base_frame="laser"))  # the pose is the laser's
+    observations = list(observations)
+    assert reading.scans == len(observations) == len(drive)
+    assert (observations[0].pose.x, observations[0].pose.y) == pytest.approx(drive[0][2][:2])

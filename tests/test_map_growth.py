@@ -12,7 +12,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, Pr
 from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame, reach_of
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-from superex_deploy.onboard.types import UNKNOWN
+from superex_deploy.onboard.types import UNKNOWN, Prediction
 from superex_deploy.sim.world import World, WorldConfig
 
 GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
@@ -111,6 +111,12 @@ def test_growth_past_the_map_size_limit_is_refused_before_anything_changes():
     with pytest.raises(ValueError, match="growing map"):
         explorer.step(Observation(1.0, Pose2D(far, far), scan))
     assert explorer.frame.shape == (100, 100) and np.array_equal(explorer.mapper.log_odds, before)
+    # a garbage pose (an uninitialised localiser's 1e300 m): the same ValueError, not an OverflowError
+    with pytest.raises(ValueError, match="growing map"):
+        explorer.step(Observation(1.0, Pose2D(1e300, -1e300), scan))
+    with pytest.raises(ValueError, match="growing map"):
+        grown_frame(explorer.frame, (0.0, 0.0, 1.0, 1.0), MapGrowth(margin_m=1e308))
+    assert explorer.frame.shape == (100, 100) and np.array_equal(explorer.mapper.log_odds, before)
 
 
 def test_grown_frame_and_embed_on_hand_made_cases():
@@ -133,3 +139,139 @@ def test_grown_frame_and_embed_on_hand_made_cases():
     assert (x0, y0, x1, y1) == pytest.approx((5.0, 5.0, 6.0, 8.0))  # east return, north no-return to range_max
     with pytest.raises(ValueError, match="MapGrowth.margin_m must be a finite number"):
         MapGrowth(margin_m=-1.0)
+
+
+class _ShapeDependentPredictor:
+    """A predictor whose every cell depends on the grid it is asked on (LaMa's output does, through its context)."""
+
+    name = "shape_dependent"
+
+    def predict(self, observed, extra=None):
+        mean = np.full(observed.shape, 1.0 / observed.shape[1], np.float32)
+        return Prediction(mean=mean, variance=np.zeros_like(mean))
+
+
+def _westward_observations():
+    open_scan = LaserScan(0.0, 2 * np.pi / 360, 0.05, 2.0, np.full(360, np.inf, np.float32))
+    poses = [Pose2D(5.05 - 0.6 * t, 5.05 + 0.4 * (t % 3), 0.0) for t in range(12)]  # westwards: grows on the left
+    return [Observation(0.1 * t, pose, open_scan) for t, pose in enumerate(poses)]
+
+
+def _run(cfg, observations, recorded_steps=None):
+    frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
+    with Explorer(frame, make_planner("nearest"), _ShapeDependentPredictor(), cfg=cfg) as explorer:
+        if recorded_steps is not None:
+            explorer.follow_recorded_predictions(recorded_steps)
+        commands = [explorer.step(observation) for observation in observations]
+    assert explorer.frame.shape[1] > 100 and any(c.prediction_step >= 0 for c in commands)
+    return commands
+
+
+def test_a_growing_free_run_with_predictions_in_flight_replays_exactly():
+    # The recorded run's worker predicted each map on the grid it had then; a replay that predicted the kept map
+    # after embedding it in the grown grid got other predictions (and, with LaMa, other goals).
+    cfg = ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule("free"))
+    observations = _westward_observations()
+    recorded = _run(cfg, observations)
+    replayed = _run(cfg, observations, [c.prediction_step for c in recorded])
+    for command, again in zip(recorded, replayed):
+        assert again.prediction_step == command.prediction_step
+        if command.prediction is not None:
+            assert np.array_equal(again.prediction.mean, command.prediction.mean), again.step
+
+
+def test_the_simulated_schedule_is_the_thread_schedules_while_the_grid_grows():
+    # The thread mode takes its prediction in progress at a growth (predicted on the smaller grid): so does the
+    # simulated mode, which stands for it in the benchmarks.
+    observations = _westward_observations()
+    runs = [_run(ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule(mode, every_steps=3,
+                                                                               apply_after_steps=3)), observations)
+            for mode in ("thread", "simulated")]
+    for threaded, simulated in zip(*runs):
+        assert simulated.prediction_step == threaded.prediction_step
+        if threaded.prediction is not None:
+            assert np.array_equal(simulated.prediction.mean, threaded.prediction.mean), simulated.step
+
+
+def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_path):
+    from dataclasses import asdict
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from superex_deploy.commands.replay import build_explorer as replay_explorer
+    from superex_deploy.recording import EpisodeRecorder, read_recording
+
+    cfg = ExplorerConfig(growth=GROWTH)
+    frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
+    metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": asdict(cfg),
+                "profile": "full"}
+    path = tmp_path / "growing.mcap"
+    frames = []
+    with Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=cfg) as explorer, \
+            EpisodeRecorder(path, frame, metadata, map_every=1) as recorder:
+        for observation in _westward_observations():
+            command = explorer.step(observation)
+            recorder.write(observation, command, explorer.observed, explorer.frame)
+            frames.append(explorer.frame)
+        with pytest.raises(ValueError, match="pass the explorer's frame"):  # the recording's frame: refused
+            recorder.write_map(explorer.observed)
+    assert frames[-1] != frame
+    with open(path, "rb") as file:
+        maps = [message for _, _, _, message in make_reader(file, decoder_factories=[DecoderFactory()])
+                .iter_decoded_messages(topics=["/map"])]
+    assert len(maps) == len(frames)
+    for message, step_frame in zip(maps, frames):  # each map a well-formed grid on the step's own frame
+        info = message.info
+        assert (info.height, info.width) == step_frame.shape and len(message.data) == info.width * info.height
+        assert (info.origin.position.x, info.origin.position.y) == pytest.approx(step_frame.origin_xy)
+    recording = read_recording(path)
+    with replay_explorer(recording.metadata, recording.frame) as replay:
+        assert replay.cfg.growth == GROWTH
+        for recorded in recording.steps:
+            command = replay.step(recorded.observation)
+            assert (command.goal_rc, command.new_goal, command.finished) == (recorded.goal_rc, recorded.new_goal,
+                                                                             recorded.finished)
+    assert replay.frame == frames[-1]
+    # superex replay: the same goals, and the final map with the frame it lies on (the recording's is the first)
+    from superex_deploy.cli import main
+
+    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
+    saved = np.load(tmp_path / "replay" / "map.npz")
+    assert tuple(saved["shape"]) == frames[-1].shape == saved["observed"].shape
+    assert tuple(saved["origin_xy"]) == pytest.approx(frames[-1].origin_xy) and saved["resolution_m"] == 0.1
+
+
+@pytest.mark.parametrize("origin_xy, resolution_m", [((-5.03, -5.0), 0.1), ((-5.0, -5.0), 0.05)])
+def test_a_slam_map_off_the_lattice_is_refused_before_the_grid_grows(origin_xy, resolution_m):
+    explorer = _explorer(MapFrame((40, 40), 0.1, (0.0, 0.0)), growth=GROWTH)
+    scan = LaserScan(0.0, 2 * np.pi / 8, 0.05, 1.0, np.full(8, np.inf, np.float32))
+    explorer.step(Observation(0.0, Pose2D(2.05, 2.05), scan))
+    before, frame = explorer.mapper.log_odds.copy(), explorer.frame
+    cells = round(10.0 / resolution_m)
+    message = OccupancyGridMessage(resolution_m, cells, cells, origin_xy, np.zeros(cells * cells, np.int8))
+    with pytest.raises(ValueError, match="whole number of cells|resolution"):
+        explorer.step(Observation(1.0, Pose2D(2.05, 2.05), None, occupancy_grid=message))
+    assert explorer.frame == frame and np.array_equal(explorer.mapper.log_odds, before)
+    explorer.step(Observation(1.0, Pose2D(2.05, 2.05), scan))  # and it goes on
+
+
+class _SlowPredictor(_ShapeDependentPredictor):
+    def predict(self, observed, extra=None):
+        import time
+
+        time.sleep(1.0)
+        return super().predict(observed, extra)
+
+
+def test_a_growth_that_waits_for_the_prediction_in_progress_says_so_in_the_steps_timings():
+    # The free schedule's step waited for the worker at a growth, and neither timings_s nor blocking_waits said so.
+    observations = _westward_observations()
+    with Explorer(MapFrame((100, 100), 0.1, (0.0, 0.0)), make_planner("nearest"), _SlowPredictor(),
+                  cfg=ExplorerConfig(growth=GROWTH, prediction=PredictionSchedule("free"))) as explorer:
+        explorer.step(observations[0])  # submits the prediction of map 0 (1 s)
+        explorer.step(observations[1])  # it is in progress: the step goes on without it
+        assert explorer.frame.shape == (100, 100) and explorer.scheduled.blocking_waits == 0
+        third = explorer.step(observations[2])  # grows at once: waits for it
+    assert explorer.frame.shape[1] > 100 and third.prediction_step == 0
+    assert third.timings_s["prediction"] >= 0.2 and explorer.scheduled.blocking_waits == 1

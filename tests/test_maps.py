@@ -155,3 +155,15 @@ def test_deploy_package_imports_without_torch():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     assert int(result.stdout.strip()) >= 5
+
+
+def test_a_map_yaml_whose_thresholds_leave_no_free_cell_is_refused(tmp_path):
+    # free_thresh 0 ("0 means free"): every pixel unknown, outside the world; a start was then refused as "inside a
+    # wall", which named neither the YAML nor its thresholds.
+    pixels = np.full((10, 12), 254, np.uint8)
+    pixels[0, :] = 0
+    with pytest.raises(ValueError, match=r"f.yaml: no pixel is free .*free_thresh 0.0 in trinary mode"):
+        _map_server(tmp_path, pixels, free_thresh=0.0)
+    with pytest.raises(ValueError, match=r"no pixel is free .*negated"):  # a white map read negated
+        _map_server(tmp_path, np.full((10, 12), 254, np.uint8), negate=1)
+    assert _map_server(tmp_path, pixels).valid.sum() == 9 * 12

@@ -152,7 +152,7 @@ def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record):
                 done.goals["steps"].append(command.step)
                 done.goals["cells"].append(list(command.goal_rc))
             if record is not None:
-                record.write(observation, command, explorer.observed)
+                record.write(observation, command, explorer.observed, explorer.frame)
 
         return run_episode(grid, start, explorer=explorer, steps=args.steps, seed=args.seed, cfg=cfg,
                            on_step=on_step, sensing=sensing, on_observation=on_observation)

@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-topic", default=None, help="sensor_msgs/LaserScan topic (default: the only one)")
     parser.add_argument("--pose-source", default="auto",
                         help="tf, a PoseWithCovarianceStamped or Odometry topic, or auto (default: a "
-                             "PoseWithCovarianceStamped topic, else /tf, else an Odometry topic)")
+                             "PoseWithCovarianceStamped topic, else /tf when it holds the map frame, else an Odometry "
+                             "topic)")
     parser.add_argument("--map-topic", default=None,
                         help="nav_msgs/OccupancyGrid topic (default: the only one, if any; '' for none)")
     parser.add_argument("--map-frame", default="map", help="the fixed frame of the poses (default: map)")
@@ -87,10 +88,15 @@ def run(args: argparse.Namespace) -> int:
 
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PROFILES, build_explorer, resolve_profile
+    from superex_deploy.messages import same_resolution
     from superex_deploy.recording.bags import BagTopics, read_bag
 
     if not (math.isfinite(args.finish_after) and args.finish_after >= 0):
         raise ValueError(f"--finish-after must be >= 0 seconds, got {args.finish_after}")
+    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise ValueError(f"--resolution must be a positive number of metres, got {args.resolution}")
+    if not (math.isfinite(args.margin_m) and args.margin_m >= 0):
+        raise ValueError(f"--margin-m must be >= 0, got {args.margin_m}")
     if args.limit is not None and args.limit < 1:
         raise ValueError(f"--limit must be >= 1, got {args.limit}")
     out = check_output_folder(args.out)
@@ -100,9 +106,17 @@ def run(args: argparse.Namespace) -> int:
     topics = BagTopics(scan_topic=args.scan_topic, pose_source=args.pose_source, map_topic=args.map_topic,
                        map_frame=args.map_frame, base_frame=args.base_frame)
     reading, observations = read_bag(args.bag, topics)
+    try:
+        resolution = args.resolution or reading.map_resolution_m or 0.1  # --resolution: checked > 0 above
+        if reading.map_resolution_m is not None and not same_resolution(resolution, reading.map_resolution_m):
+            raise ValueError(f"--resolution {args.resolution} m: the SLAM map on {reading.map_topic} has "
+                             f"{reading.map_resolution_m:.6g} m cells, and the explorer takes it on its own lattice "
+                             f"(leave --resolution out, or give --map-topic '' to run on the scans alone)")
+        frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
+    except BaseException:
+        observations.close()  # the bag
+        raise
     out.mkdir(parents=True, exist_ok=True)
-    resolution = args.resolution or reading.map_resolution_m or 0.1
-    frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
     cfg = dataclasses.replace(PROFILES[profile_name].explorer_config("robot"), finish_after_s=float(args.finish_after))
     explorer = build_explorer(frame, planner, args.predictor, profile=profile_name, models=args.models, cfg=cfg)
     print(f"superex offline: {args.bag} -> {out}: scans {reading.scan_topic}, pose {reading.pose_source}, "

@@ -3,8 +3,9 @@
 The explorer is rebuilt from the recording's metadata (planner and options, predictor, seed, sensor model, NLOS and
 explorer configuration) and given no map: it sees exactly the recorded observations. Its goals are compared with the
 recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything
-that stopped the reading) and ``DIR/map.npz`` (the explorer's final map and evidence). A recording without a
-single whole step is refused: there is nothing to compare.
+that stopped the reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its
+frame: ``shape``, ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's
+first). A recording without a single whole step is refused: there is nothing to compare.
 """
 
 from __future__ import annotations
@@ -172,6 +173,8 @@ def _replay(args, recording, explorer) -> int:
                "finished": finished, "goals": {"steps": goal_steps, "cells": goals},
                "goals_match": not mismatches, "mismatches": mismatches[:20], "read_error": recording.error,
                "known_cells": int(explorer.mapper.known().sum()),
+               "frame": {"shape": list(explorer.frame.shape), "resolution_m": explorer.frame.resolution_m,
+                         "origin_xy": list(explorer.frame.origin_xy)},
                "step_s": {"mean": float(step_total.mean()) if step_total.size else 0.0,
                           "p50": float(np.median(step_total)) if step_total.size else 0.0,
                           "p99": float(np.percentile(step_total, 99)) if step_total.size else 0.0},
@@ -179,10 +182,13 @@ def _replay(args, recording, explorer) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomically(args.out / "metrics.json", json.dumps(metrics))
     evidence = explorer.evidence if explorer.evidence is not None else np.zeros(0, np.float32)
+    frame = explorer.frame  # the final grid's: a map that grows ends on another frame than the recording's first
 
     def save_map(part: Path) -> None:
         with open(part, "wb") as file:
-            np.savez_compressed(file, observed=explorer.observed, carved=explorer.mapper.carved, evidence=evidence)
+            np.savez_compressed(file, observed=explorer.observed, carved=explorer.mapper.carved, evidence=evidence,
+                                shape=np.asarray(frame.shape), resolution_m=frame.resolution_m,
+                                origin_xy=np.asarray(frame.origin_xy))
 
     write_atomically(args.out / "map.npz", save_map)
     verdict = "goals match the recording" if not mismatches else f"{len(mismatches)} steps differ from the recording"

@@ -105,16 +105,7 @@ class OccupancyGridMessage:
         Raises:
             ValueError: another resolution, or an origin off the frame's lattice.
         """
-        if not same_resolution(self.resolution_m, frame.resolution_m):
-            raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the explorer's map "
-                             f"frame's {frame.resolution_m} m")
-        shift = [(m - f) / frame.resolution_m for m, f in zip(self.origin_xy, frame.origin_xy)]
-        cells = [round(s) for s in shift]
-        # A resolution sent as float32 is off by up to half a float32 ulp: over |s| cells that is |s| ulps of s.
-        if any(abs(s - c) > _LATTICE_TOLERANCE_CELLS + 4 * _FLOAT32_EPS * abs(s) for s, c in zip(shift, cells)):
-            raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
-                             f"map frame's {frame.origin_xy} m")
-        dx, dy = cells  # the message's cell (0, 0) is frame column dx, frame row counted from the bottom dy
+        dx, dy = self.lattice_offset(frame)  # the message's cell (0, 0) is frame column dx, row from the bottom dy
         height, width = frame.shape
         out = np.full((height, width), OCCUPANCY_UNKNOWN, np.int8)
         bottom_up = self.data.reshape(self.height, self.width)
@@ -127,6 +118,25 @@ class OccupancyGridMessage:
         bottom = height - 1 - (dy + rows.start)
         out[top:bottom + 1, cols.start + dx:cols.stop + dx] = bottom_up[rows, cols][::-1]
         return out
+
+    def lattice_offset(self, frame: MapFrame) -> tuple[int, int]:
+        """``(columns, rows)`` from ``frame``'s origin to the message's (its cell ``(0, 0)`` is frame column
+        ``columns``, frame row ``rows`` counted from the bottom), after the checks of :meth:`in_frame`: what an
+        explorer asks before it changes anything for the message (a grid that grows keeps the lattice).
+
+        Raises:
+            ValueError: another resolution, or an origin off the frame's lattice.
+        """
+        if not same_resolution(self.resolution_m, frame.resolution_m):
+            raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the explorer's map "
+                             f"frame's {frame.resolution_m} m")
+        shift = [(m - f) / frame.resolution_m for m, f in zip(self.origin_xy, frame.origin_xy)]
+        cells = [round(s) for s in shift]
+        # A resolution sent as float32 is off by up to half a float32 ulp: over |s| cells that is |s| ulps of s.
+        if any(abs(s - c) > _LATTICE_TOLERANCE_CELLS + 4 * _FLOAT32_EPS * abs(s) for s, c in zip(shift, cells)):
+            raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
+                             f"map frame's {frame.origin_xy} m")
+        return int(cells[0]), int(cells[1])
 
 
 @dataclass(frozen=True, eq=False)

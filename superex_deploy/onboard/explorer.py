@@ -226,10 +226,8 @@ class Explorer:
         return self._prediction.look()
 
     def close(self) -> None:
-        """Stop the prediction worker (``free`` and ``thread`` schedules); the explorer cannot step afterwards (a
-        later :meth:`step` raises ``RuntimeError("this explorer was closed")``). Safe from another thread while a
-        step runs (a ROS shutdown callback against a timer): it waits for that step to return, then stops the
-        worker. Closing twice is harmless."""
+        """Stop the prediction worker; a later :meth:`step` raises ``RuntimeError("this explorer was closed")``.
+        From another thread while a step runs (a ROS shutdown callback), it waits for that step. Idempotent."""
         self._closed = True  # a step that has not started yet refuses
         with self._stepping:  # a step that has started finishes first
             if self._stop_worker is not None:
@@ -263,10 +261,9 @@ class Explorer:
         return None if self._prediction is None else self._prediction.value
 
     def _footprint_cells(self, obs: Observation) -> Optional[float]:
-        """The radius (cells) of the footprint cleared at the robot (None: clearing off): the robot's body is free
-        space, so a spurious short return under it (a phantom wall that would make every neighbour
-        untraversable) is cleared at once (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.clear_footprint`),
-        on a disc of the robot radius shrunk by ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
+        """The radius (cells) of the footprint cleared at the robot, the robot's body being free space
+        (:meth:`~.mapping.mapper.Mapper.clear_footprint`; None: clearing off): the robot radius less
+        ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
         occupancy = self.cfg.occupancy
         if not occupancy.footprint_clearing:
             return None
@@ -310,6 +307,8 @@ class Explorer:
         if self._closed:
             raise RuntimeError("this explorer was closed")
         # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
+        if obs.occupancy_grid is not None:  # its resolution and lattice, before the grid grows for it
+            obs.occupancy_grid.lattice_offset(self.frame)
         regrid = self._regrid_for(obs) if self.cfg.growth is not None else None
         if regrid is None:
             pose = self._pose_cell(obs)
@@ -319,9 +318,11 @@ class Explorer:
                              f"Explorer)")
         if self.spad_processing is not None and obs.spad is not None:
             self.spad_processing.check_frame(obs.spad)
+        regrid_wait = 0.0
         if regrid is not None:
             self._regrid(regrid)
             pose = self._pose_cell(obs)
+            regrid_wait = 0.0 if self.scheduled is None else self.scheduled.last_regrid_wait_s
         self._pose_exact = obs.pose_covariance is None
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
@@ -378,7 +379,7 @@ class Explorer:
             self._settle_finished(obs.stamp_s)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished, self._no_goal_since = False, False, None
-        timings["prediction"] += waited
+        timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
         path_rc = np.asarray(self.path, np.int64).reshape(-1, 2)

@@ -10,15 +10,19 @@ What is read:
   - ``tf``: the ``tf2_msgs/TFMessage`` tree of ``/tf`` and ``/tf_static``, from ``map_frame`` to the scan's
     ``header.frame_id`` (each transform the newest at or before the scan's stamp, planar: x, y and yaw);
   - a ``geometry_msgs/PoseWithCovarianceStamped`` or ``nav_msgs/Odometry`` topic: the robot base's pose and its
-    covariance, then the static ``base_frame`` -> scan-frame transform of ``/tf_static`` when the bag has one;
-  - ``auto`` (default): a PoseWithCovarianceStamped topic if the bag has one, else ``tf`` if the tree reaches
-    ``map_frame``, else an Odometry topic;
+    covariance, then the ``base_frame`` -> scan-frame transform of ``/tf_static`` (or ``/tf``): a scan in another
+    frame than ``base_frame`` (or an empty one) without that transform has no pose;
+  - ``auto`` (default): a PoseWithCovarianceStamped topic if the bag has one, else ``tf`` if the tree holds
+    ``map_frame`` (or the bag has no Odometry topic), else an Odometry topic;
 
 * optionally **a SLAM map**: ``nav_msgs/OccupancyGrid`` on ``map_topic`` (default: the bag's only OccupancyGrid
   topic; ``""``: none), given to the explorer with the first scan after it.
 
 Stamps are the messages' header stamps, as seconds since the first scan's (the explorer's clock starts at 0). A scan
-without a pose within ``max_pose_age_s`` before it, or stamped before the scan it follows, is skipped and counted.
+without a pose within ``max_pose_age_s`` before it, stamped before the scan it follows, or malformed (no ranges,
+``range_min >= range_max``, angles that do not match its ranges: :class:`~superex_deploy.messages.LaserScan`'s
+checks; a driver's glitch) is skipped and counted. A SLAM map the explorer cannot take (a rotated origin, values
+outside -1..100) is refused when the bag is opened, before any scan is read.
 """
 
 from __future__ import annotations
@@ -77,7 +81,7 @@ class BagReading:
         scan_topic, pose_source, map_topic: what was used (``map_topic`` None: no SLAM map).
         scans: scans turned into observations.
         skipped: scans left out, by reason (``no_pose``: no pose within ``max_pose_age_s``; ``backwards``:
-            stamped before the scan before it).
+            stamped before the scan before it; ``invalid``: a malformed LaserScan).
         first_stamp_s: the first scan's header stamp (seconds since the epoch the bag uses).
         extent_xy: ``(x_min, y_min, x_max, y_max)`` (metres, map frame) of every sensor position and return (and
             SLAM map) of the bag: the area an explorer's frame must hold.
@@ -89,7 +93,7 @@ class BagReading:
     pose_source: str
     map_topic: Optional[str]
     scans: int = 0
-    skipped: dict = field(default_factory=lambda: {"no_pose": 0, "backwards": 0})
+    skipped: dict = field(default_factory=lambda: {"no_pose": 0, "backwards": 0, "invalid": 0})
     first_stamp_s: Optional[float] = None
     extent_xy: Optional[tuple[float, float, float, float]] = None
     map_resolution_m: Optional[float] = None
@@ -152,6 +156,10 @@ class _TfTree:
             else:
                 self.dynamic.setdefault(child, _Series()).add(_stamp(transform.header), value)
 
+    def holds(self, frame: str) -> bool:
+        """Whether ``frame`` is in the tree (the parent or the child of a transform)."""
+        return frame in self.parent or frame in self.parent.values()
+
     def reaches(self, frame: str, root: str) -> bool:
         seen = set()
         while frame != root:
@@ -162,9 +170,14 @@ class _TfTree:
         return True
 
     def lookup(self, root: str, frame: str, stamp: float, max_age_s: float):
-        """``frame``'s planar pose in ``root`` at ``stamp``, or None (a missing link, or a transform too old)."""
+        """``frame``'s planar pose in ``root`` at ``stamp``, or None (a missing link, a transform too old, or a
+        loop: a tree whose frames are each other's parents, as two publishers of one link inverted make it)."""
         pose = (0.0, 0.0, 0.0)
+        seen = set()
         while frame != root:
+            if frame in seen:
+                return None
+            seen.add(frame)
             if frame in self.static:
                 link = self.static[frame]
             elif frame in self.dynamic:
@@ -257,7 +270,15 @@ def _grid_message(message) -> OccupancyGridMessage:
                                 data=np.asarray(message.data, np.int8))
 
 
-def _scan_message(message) -> LaserScan:
+def _scan_message(message) -> Optional[LaserScan]:
+    """The scan, or None when :class:`LaserScan` refuses it (malformed)."""
+    try:
+        return _laser_scan(message)
+    except ValueError:
+        return None
+
+
+def _laser_scan(message) -> LaserScan:
     return LaserScan(angle_min=float(message.angle_min), angle_increment=float(message.angle_increment),
                      range_min=float(message.range_min), range_max=float(message.range_max),
                      ranges=np.asarray(message.ranges, np.float32))
@@ -279,6 +300,13 @@ def read_bag(path, topics: BagTopics = BagTopics()) -> tuple[BagReading, Iterato
     try:
         reading = _choose(reader, topics)
         poses, tree = _read_poses(reader, reading, topics)
+        odometry = _topics_of(reader, ODOMETRY)
+        if topics.pose_source == "auto" and reading.pose_source == "tf" and odometry and not tree.holds(
+                topics.map_frame):
+            # A robot without localisation still has /tf (odom -> base_link, the mounts): it does not reach the
+            # map frame, and the odometry topic is the pose.
+            reading.pose_source = odometry[0]
+            poses, tree = _read_poses(reader, reading, topics)
         _measure_extent(reader, reading, topics, poses, tree)
     except BaseException:
         reader.close()
@@ -313,8 +341,12 @@ def _sensor_pose(reading, topics, poses, tree, frame_id: str, stamp: float):
     if found is None:
         return None
     base, covariance = found
-    mount = tree.lookup(topics.base_frame, frame_id, stamp, None) if frame_id != topics.base_frame else None
-    return (_compose(base, mount) if mount is not None else base), covariance
+    if not frame_id or frame_id == topics.base_frame:  # the scan is the base's (an empty frame_id: taken as such)
+        return base, covariance
+    # A scanner elsewhere on the robot: without the mount its scans would be drawn from the wrong place, off by the
+    # mount's offset and turned by its yaw, so a scan without it has no pose.
+    mount = tree.lookup(topics.base_frame, frame_id, stamp, None)
+    return None if mount is None else (_compose(base, mount), covariance)
 
 
 def _measure_extent(reader, reading, topics, poses, tree) -> None:
@@ -323,26 +355,33 @@ def _measure_extent(reader, reading, topics, poses, tree) -> None:
     for connection, _, raw in reader.messages(connections=wanted):
         message = reader.deserialize(raw, connection.msgtype)
         if connection.msgtype == OCCUPANCY_GRID:
-            info = message.info
-            x0, y0 = float(info.origin.position.x), float(info.origin.position.y)
+            try:  # refused now, not when the run reaches it
+                grid = _grid_message(message)
+            except ValueError as error:
+                raise ValueError(f"the SLAM map on {reading.map_topic} stamped {_stamp(message.header):.9f} s: "
+                                 f"{error}") from None
+            x0, y0 = grid.origin_xy
             if reading.map_resolution_m is None:
-                reading.map_resolution_m, reading.map_origin_xy = float(info.resolution), (x0, y0)
-            xs += [x0, x0 + info.width * info.resolution]
-            ys += [y0, y0 + info.height * info.resolution]
+                reading.map_resolution_m, reading.map_origin_xy = grid.resolution_m, (x0, y0)
+            xs += [x0, x0 + grid.width * grid.resolution_m]
+            ys += [y0, y0 + grid.height * grid.resolution_m]
             continue
         found = _sensor_pose(reading, topics, poses, tree, message.header.frame_id, _stamp(message.header))
-        if found is None:
+        scan = None if found is None else _scan_message(message)
+        if scan is None:
             continue
         (x, y, yaw), _ = found
-        scan = _scan_message(message)
         ranges = scan.ranges.astype(np.float64)
         hit = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges < scan.range_max)
         angles = yaw + scan.angles()[hit]
         xs += [x, *(x + ranges[hit] * np.cos(angles)).tolist()]
         ys += [y, *(y + ranges[hit] * np.sin(angles)).tolist()]
     if not xs:
+        hint = (f"map frame {topics.map_frame!r}" if reading.pose_source == "tf" else
+                f"the pose is the robot's, --base-frame {topics.base_frame!r}, and a scan in another frame needs the "
+                f"transform from it in /tf_static or /tf; --base-frame <the scans' frame> if the pose is the scanner's")
         raise ValueError(f"no scan on {reading.scan_topic} has a pose from {reading.pose_source} within "
-                         f"{topics.max_pose_age_s} s (map frame {topics.map_frame!r})")
+                         f"{topics.max_pose_age_s} s ({hint})")
     reading.extent_xy = (min(xs), min(ys), max(xs), max(ys))
 
 
@@ -364,6 +403,10 @@ def _observations(reader, reading, topics, poses, tree) -> Iterator[Observation]
             if found is None:
                 reading.skipped["no_pose"] += 1
                 continue
+            scan = _scan_message(message)
+            if scan is None:
+                reading.skipped["invalid"] += 1
+                continue
             if reading.first_stamp_s is None:
                 reading.first_stamp_s = stamp
             last = stamp
@@ -375,7 +418,7 @@ def _observations(reader, reading, topics, poses, tree) -> Iterator[Observation]
                                  f"{error}") from None
             reading.scans += 1
             yield Observation(stamp_s=stamp - reading.first_stamp_s, pose=Pose2D(x, y, yaw),
-                              scan=None if pending_map is not None else _scan_message(message),
+                              scan=None if pending_map is not None else scan,
                               pose_covariance=covariance, occupancy_grid=pending_map)
             pending_map = None
     finally:

@@ -80,15 +80,30 @@ class EpisodeRecorder:
         self._writer.write_message(topic, self._schemas[topic], message, log_time=nanoseconds,
                                    publish_time=nanoseconds, sequence=step)
 
-    def write(self, observation: Observation, command: Command, observed: Optional[np.ndarray] = None) -> None:
+    def write(self, observation: Observation, command: Command, observed: Optional[np.ndarray] = None,
+              frame: Optional[MapFrame] = None) -> None:
         """Record one step: the observation, the command and, every ``map_every`` steps, ``observed`` (int8
-        ``[H, W]``, the explorer's map after the step). A signal arriving meanwhile is handled after the step is
-        whole."""
+        ``[H, W]``, the explorer's map after the step) on ``frame`` (the explorer's frame of that step, which a
+        map that grows changes; default: the recording's). A signal arriving meanwhile is handled after the step
+        is whole.
+
+        Raises:
+            ValueError: ``observed`` is not of ``frame``'s shape (nothing of the step is written).
+        """
+        frame = self._frame_of(observed, frame)
         with signals_deferred():
-            self._write_step(observation, command, observed)
+            self._write_step(observation, command, observed, frame)
             self.steps_written += 1
 
-    def _write_step(self, observation: Observation, command: Command, observed: Optional[np.ndarray]) -> None:
+    def _frame_of(self, observed: Optional[np.ndarray], frame: Optional[MapFrame]) -> MapFrame:
+        frame = self.frame if frame is None else frame
+        if observed is not None and np.shape(observed) != tuple(frame.shape):
+            raise ValueError(f"the map to record has shape {np.shape(observed)}, its frame {tuple(frame.shape)} (a "
+                             f"map that grows: pass the explorer's frame of the step)")
+        return frame
+
+    def _write_step(self, observation: Observation, command: Command, observed: Optional[np.ndarray],
+                    frame: MapFrame) -> None:
         stamp, step = observation.stamp_s, command.step
         self._last = (stamp, step)
         pose = observation.pose
@@ -126,7 +141,7 @@ class EpisodeRecorder:
                                          "pose": pose_message(float(x), float(y), 0.0)}
                                         for x, y in command.path_xy]}, stamp, step)
         if observed is not None and (step % self.map_every == 0 or command.finished):
-            self._write_map(observed, stamp, step)
+            self._write_map(observed, stamp, step, frame)
 
     def _write_robot_inputs(self, observation: Observation, stamp: float, step: int) -> None:
         """The SLAM map and the pose covariance of an observation that carries them."""
@@ -146,13 +161,21 @@ class EpisodeRecorder:
                                              "pose": {"pose": pose_message(pose.x, pose.y, pose.yaw),
                                                       "covariance": full.ravel().tolist()}}, stamp, step)
 
-    def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None) -> None:
-        """Record the explorer's int8 ``[H, W]`` map (rows flipped: ROS grids start at the bottom row), stamped
-        with the last recorded step unless told otherwise (once per step at most)."""
-        with signals_deferred():
-            self._write_map(observed, stamp_s, step)
+    def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None,
+                  frame: Optional[MapFrame] = None) -> None:
+        """Record the explorer's int8 ``[H, W]`` map (rows flipped: ROS grids start at the bottom row) on ``frame``
+        (default: the recording's), stamped with the last recorded step unless told otherwise (once per step at
+        most).
 
-    def _write_map(self, observed: np.ndarray, stamp_s: Optional[float], step: Optional[int]) -> None:
+        Raises:
+            ValueError: ``observed`` is not of ``frame``'s shape.
+        """
+        frame = self._frame_of(observed, frame)
+        with signals_deferred():
+            self._write_map(observed, stamp_s, step, frame)
+
+    def _write_map(self, observed: np.ndarray, stamp_s: Optional[float], step: Optional[int],
+                   frame: MapFrame) -> None:
         if stamp_s is None or step is None:
             stamp_s, step = self._last
         stamp_s = check_stamp("stamp_s", stamp_s)
@@ -160,11 +183,11 @@ class EpisodeRecorder:
             return
         observed = np.asarray(observed)
         data = np.where(observed > 0, 100, observed).astype(np.int8)[::-1]
-        height, width = self.frame.shape
+        height, width = frame.shape
         self._write("/map", {"header": header_message(stamp_s, "map"),
-                             "info": {"map_load_time": stamp_message(0.0), "resolution": self.frame.resolution_m,
+                             "info": {"map_load_time": stamp_message(0.0), "resolution": frame.resolution_m,
                                       "width": width, "height": height,
-                                      "origin": pose_message(self.frame.origin_xy[0], self.frame.origin_xy[1], 0.0)},
+                                      "origin": pose_message(frame.origin_xy[0], frame.origin_xy[1], 0.0)},
                              "data": data.ravel().tolist()}, stamp_s, step)
         self._last_map_step = step
 

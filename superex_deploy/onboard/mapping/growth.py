@@ -19,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.messages import MapFrame, Observation, check_map_size
+from superex_deploy.messages import MapFrame, Observation, check_map_size, max_map_cells
 
 __all__ = ["MapGrowth", "Regrid", "reach_of", "grown_frame", "embed"]
 
@@ -125,11 +125,16 @@ def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth) -> Optional[Regrid
     x0, y0, x1, y1 = reach_xy
     margin, chunk = growth.margin_m, growth.chunk_m
     # Cells (columns from the left edge, rows from the bottom edge) the reach plus the margin needs.
-    need_left = math.floor((x0 - margin - ox) / res)
-    need_right = math.ceil((x1 + margin - ox) / res)
-    need_bottom = math.floor((y0 - margin - oy) / res)
-    need_top = math.ceil((y1 + margin - oy) / res)
-    extra = math.ceil(chunk / res - 1e-9)
+    try:
+        need_left = math.floor((x0 - margin - ox) / res)
+        need_right = math.ceil((x1 + margin - ox) / res)
+        need_bottom = math.floor((y0 - margin - oy) / res)
+        need_top = math.ceil((y1 + margin - oy) / res)
+        extra = math.ceil(chunk / res - 1e-9)
+    except OverflowError:  # a reach, margin or chunk of ~1e300 m (a garbage pose): infinitely many cells
+        raise ValueError(f"the explorer's growing map would have to reach x {x0:.3g}..{x1:.3g} m, y {y0:.3g}..{y1:.3g} "
+                         f"m (margin {margin:.3g} m, chunk {chunk:.3g} m): beyond the map size limit of "
+                         f"{max_map_cells():,} cells") from None
     left = -need_left + extra if need_left < 0 else 0
     right = need_right - cols + extra if need_right > cols else 0
     bottom = -need_bottom + extra if need_bottom < 0 else 0

@@ -195,9 +195,11 @@ class ScheduledPredictions:
         latest: the newest applied prediction, or None.
         latest_step: the step whose map it was made from, or -1.
         blocking_waits: steps that waited for an unfinished prediction (``free`` mode: at most the first, with
-            ``wait_first``; ``thread`` mode: whenever the worker is slower than the schedule).
+            ``wait_first``, and a step whose grid grew while one was in progress; ``thread`` mode: whenever the
+            worker is slower than the schedule, and at a growth).
         last_wait_s: seconds the latest step waited for the predictor: blocked on an unfinished prediction
             (``free``, ``thread``) or computing one inline (``simulated``, a followed recording); 0 otherwise.
+        last_regrid_wait_s: the same for the latest move to a larger grid (:meth:`regrid`).
     """
 
     def __init__(self, schedule: PredictionSchedule, predict: Callable, worker_threads: int = 1):
@@ -212,6 +214,8 @@ class ScheduledPredictions:
         self._pending_step = -1
         self._kept: dict[int, tuple[np.ndarray, Optional[np.ndarray]]] = {}  # inline: step -> its map, evidence
         self._recorded: Optional[tuple[int, ...]] = None
+        self._next_step = 0  # the step the next advance() is for (a regrid comes before it)
+        self.last_regrid_wait_s = 0.0
         self.latest: Optional[Prediction] = None
         self.latest_step = -1
         self.blocking_waits = 0
@@ -235,12 +239,28 @@ class ScheduledPredictions:
             self._worker = None
 
     def regrid(self, regrid) -> None:
-        """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): a prediction in
-        progress is waited for and becomes the newest; the newest prediction and the maps kept for later
-        predictions are embedded in the new grid (new cells unknown, predicted free with no variance)."""
+        """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`) before the next step
+        advances: a prediction in progress is waited for and becomes the newest (``simulated``: the kept map's is
+        computed now; a followed recording: the one its next step applies), on the grid it was asked on; then the
+        newest prediction and the maps kept for later predictions are embedded in the new grid (new cells unknown,
+        predicted free with no variance). Predicting before the move keeps a replay exact: the recorded run's
+        worker predicted the smaller map, and a prediction of the embedded map differs. The seconds spent waiting
+        or predicting are :attr:`last_regrid_wait_s` (a wait for an unfinished prediction counts in
+        :attr:`blocking_waits`)."""
+        self.last_wait_s = 0.0
         if self._pending is not None:
-            pending, self._pending = self._pending, None
-            self.latest, self.latest_step = pending.result(), self._pending_step
+            self._take()
+        if self._recorded is not None:
+            upcoming = self._next_step
+            source = self._recorded[upcoming] if upcoming < len(self._recorded) else self.latest_step
+            if source >= 0 and source != self.latest_step and source in self._kept:
+                for step in [s for s in self._kept if s < source]:
+                    del self._kept[step]
+                self._apply_kept(source)
+        elif self.schedule.mode == "simulated":
+            for step in sorted(self._kept):
+                self._apply_kept(step)
+        self.last_regrid_wait_s = self.last_wait_s
         if self.latest is not None:
             self.latest = Prediction(mean=regrid.embed(self.latest.mean, 0.0),
                                      variance=regrid.embed(self.latest.variance, 0.0))
@@ -254,6 +274,7 @@ class ScheduledPredictions:
         returns the seconds spent waiting for the worker or computing inline."""
         clock = time.perf_counter()
         self.last_wait_s = 0.0
+        self._next_step = t + 1
         if self._recorded is not None:
             self._advance_recorded(t, observed, evidence)
         elif self.schedule.mode == "free":
