@@ -402,13 +402,9 @@ class Explorer:
     def _regrid(self, regrid: Regrid) -> None:
         """Move every per-cell state to the larger grid ``regrid``: the map's layers, the SPAD evidence, the
         predictions kept and in progress, the goal, its path and the goals reached."""
-        if self.scheduled is not None:
-            self.scheduled.regrid(regrid)
-        if self.reusing is not None:
-            self.reusing.regrid(regrid)
-        self.mapper.regrid(regrid)
-        if self.spad_processing is not None:
-            self.spad_processing.regrid(regrid)
+        for part in (self.scheduled, self.reusing, self.mapper, self.spad_processing):  # the scheduled one first
+            if part is not None:
+                part.regrid(regrid)
         if self._latest is not None:
             self._latest = Prediction(mean=regrid.embed(self._latest.mean, 0.0),
                                       variance=regrid.embed(self._latest.variance, 0.0))
