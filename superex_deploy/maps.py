@@ -171,14 +171,12 @@ def _normalised(pixels: np.ndarray) -> np.ndarray:
     return pixels / top
 
 
-def _grid_from_image(path: Path, resolution_m: float, occupied_thresh: float = 0.65, negate: bool = False,
+def _grid_from_image(path: Path, resolution_m: float, occupied_thresh: float = 0.65,
                      valid_path: Path | None = None, name: str | None = None,
                      source: str | None = None) -> OccupancyGrid:
-    # ROS map_server semantics: occupancy probability p = (255 - v) / 255 (or v / 255 when negated).
+    # A plain image: dark is wall, occupancy probability p = (255 - v) / 255 (YAML maps: _load_ros_yaml).
     source = source or f"map image {path}"
-    brightness = _normalised(_read_image(path, resolution_m, source))
-    occupancy = brightness if negate else 1.0 - brightness
-    occupied = occupancy > occupied_thresh
+    occupied = 1.0 - _normalised(_read_image(path, resolution_m, source)) > occupied_thresh
     if valid_path is not None and valid_path.exists():
         valid_pixels = _read_image(valid_path, resolution_m, f"valid mask {valid_path}")
         if valid_pixels.shape != occupied.shape:

@@ -160,3 +160,24 @@ def write_recording():
                                        False, step=step), np.zeros(frame.shape, np.int8))
         return path
     return write
+
+
+@pytest.fixture(scope="session")
+def record_episode():
+    """``record_episode(path, world, explorer, metadata, steps=15)``: drive ``explorer`` in ``world`` for ``steps``
+    steps, recording every observation and command to ``path``; returns the new goals' cells, in order (what a
+    replay of the recording must choose again)."""
+    def record(path, world, explorer, metadata, steps=15):
+        from superex_deploy.recording import EpisodeRecorder
+
+        goals = []
+        with EpisodeRecorder(path, world.frame, metadata) as recorder, explorer:
+            for _ in range(steps):
+                observation = world.observe()
+                command = explorer.step(observation)
+                recorder.write(observation, command, explorer.observed)
+                if command.new_goal:
+                    goals.append(list(command.goal_rc))
+                world.apply(command)
+        return goals
+    return record

@@ -118,11 +118,10 @@ def test_from_cells_converts_with_the_grid_and_refuses_both_names():
         from_cells(MotionConfig, {"step_cells": "x"}, 0.1)
 
 
-def test_a_recording_with_cell_count_settings_replays(tmp_path):
+def test_a_recording_with_cell_count_settings_replays(tmp_path, record_episode):
     """A recording of an earlier version carries ``step_cells``, ``frontier_min_cells``, ``min_changed_cells``
     (explorer and profile settings), the scan matcher's cell counts and ``expand_cells``: converted with the recording's grid, it replays the
     same goals."""
-    from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.sim.episode import make_world_and_explorer
 
     grid = load_map(MAP)
@@ -146,15 +145,7 @@ def test_a_recording_with_cell_count_settings_replays(tmp_path):
     path = tmp_path / "old.mcap"
     world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1], make_planner("upen", rrt_samples=300),
                                               ObservedAsPrediction(), 0, cfg)
-    goals = []
-    with EpisodeRecorder(path, world.frame, metadata) as recorder, explorer:
-        for _ in range(15):
-            observation = world.observe()
-            command = explorer.step(observation)
-            recorder.write(observation, command, explorer.observed)
-            if command.new_goal:
-                goals.append(list(command.goal_rc))
-            world.apply(command)
+    goals = record_episode(path, world, explorer, metadata)
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
     assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals

@@ -6,7 +6,6 @@ import inspect
 import json
 from dataclasses import asdict
 
-import numpy as np
 import pytest
 
 from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
@@ -166,10 +165,9 @@ def test_a_retired_scan_matching_option_is_refused_by_name(field):
     assert not hasattr(ScanMatchingConfig(), field)
 
 
-def _old_recording(tmp_path, scan_matching_extra: dict, planner_options: dict):
+def _old_recording(tmp_path, record_episode, scan_matching_extra: dict, planner_options: dict):
     """A short recording whose metadata is written as a version before the retirement wrote it: the scan matcher's
     retired fields in its explorer configuration, and retired planner options."""
-    from superex_deploy.recording import EpisodeRecorder
     from superex_deploy.sim.episode import make_world_and_explorer
 
     grid = load_map(MAP)
@@ -182,21 +180,14 @@ def _old_recording(tmp_path, scan_matching_extra: dict, planner_options: dict):
     path = tmp_path / "old.mcap"
     world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1], make_planner("superex"),
                                               ObservedAsPrediction(), 0, cfg)
-    goals = []
-    with EpisodeRecorder(path, world.frame, metadata) as recorder, explorer:
-        for _ in range(15):
-            observation = world.observe()
-            command = explorer.step(observation)
-            recorder.write(observation, command, explorer.observed)
-            if command.new_goal:
-                goals.append(list(command.goal_rc))
-            world.apply(command)
+    goals = record_episode(path, world, explorer, metadata)
     return path, goals
 
 
-def test_a_recording_made_before_the_retirement_replays(tmp_path):
+def test_a_recording_made_before_the_retirement_replays(tmp_path, record_episode):
     old_defaults = dict(ScanMatchingConfig.RETIRED)
-    path, goals = _old_recording(tmp_path, old_defaults, {"choice": "greedy", "candidates": 5, "n_rays": 250})
+    path, goals = _old_recording(tmp_path, record_episode, old_defaults,
+                                 {"choice": "greedy", "candidates": 5, "n_rays": 250})
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
     assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals
@@ -206,9 +197,9 @@ def test_a_recording_made_before_the_retirement_replays(tmp_path):
     ({"match_sigma_cells": 0.3}, {}, "ScanMatchingConfig: the option 'match_sigma_cells' was retired"),
     ({}, {"choice": "rollout"}, "SuperexConfig: the option 'choice' was retired"),
 ])
-def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, scan_matching, options,
-                                                                     named):
-    path, _ = _old_recording(tmp_path, scan_matching, options)
+def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, record_episode, scan_matching,
+                                                                     options, named):
+    path, _ = _old_recording(tmp_path, record_episode, scan_matching, options)
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 2
     err = capsys.readouterr().err
     assert named in err and "cannot be rebuilt" in err
