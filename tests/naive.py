@@ -751,3 +751,41 @@ def reference_superex_gains(planner, ctx, prediction, frontiers):
     visibility = VisibilityConfig(n_rays=cfg.n_rays, range_m=cfg.range_m, hit_threshold=cfg.wall_threshold)
     return reference_union_visible_unknown(prediction.mean, ctx.observed, viewpoints, visibility,
                                            ctx.resolution_m).astype(float)
+
+
+def naive_pool_mean(values, k):
+    """onboard.prediction.scale._block_means with numpy: the map padded to whole blocks, each block's sum over the
+    cells it has divided by their count."""
+    values = np.asarray(values, np.float64)
+    rows, cols = -(-values.shape[0] // k) * k, -(-values.shape[1] // k) * k
+    padded, ones = np.zeros((rows, cols)), np.zeros((rows, cols))
+    padded[:values.shape[0], :values.shape[1]] = values
+    ones[:values.shape[0], :values.shape[1]] = 1.0
+    sums = padded.reshape(rows // k, k, cols // k, k).sum(axis=(1, 3))
+    counts = ones.reshape(rows // k, k, cols // k, k).sum(axis=(1, 3))
+    return sums / counts
+
+
+def naive_coarsen(observed, k):
+    """onboard.planning.coarse._coarsen block by block: a wall where any cell is one, free where every cell of a
+    whole block is free, else unknown."""
+    rows, cols = observed.shape
+    out = np.empty((-(-rows // k), -(-cols // k)), np.int8)
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            block = observed[r * k:(r + 1) * k, c * k:(c + 1) * k]
+            if (block == 1).any():
+                out[r, c] = 1
+            elif block.shape == (k, k) and (block == 0).all():
+                out[r, c] = 0
+            else:
+                out[r, c] = -1
+    return out
+
+
+def naive_pool_mixture(mean, variance, k):
+    """onboard.planning.coarse._pool_mixture: per block, the mean of the means and the mixture's variance."""
+    mean, variance = np.asarray(mean, np.float64), np.asarray(variance, np.float64)
+    out_mean = naive_pool_mean(mean, k)
+    second = naive_pool_mean(variance + mean * mean, k)
+    return out_mean, np.maximum(second - out_mean ** 2, 0.0)

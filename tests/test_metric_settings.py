@@ -35,8 +35,12 @@ def test_the_defaults_give_the_cells_of_0_1_m_and_the_same_metres_on_finer_grids
     assert MotionConfig().cells_per_step(resolution) == step
     assert World(OccupancyGrid(np.zeros((40, 40), bool), np.ones((40, 40), bool), resolution, "open"),
                  (20, 20)).step_cells == step
+    assert ExplorerConfig().frontier_min_cells(resolution) == frontier
+    fine = ExplorerConfig(motion=MotionConfig(planning_cell_m=resolution))
+    assert Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=fine).frontier_min_cells == frontier
+    # By default the planning runs on blocks of about 0.1 m: its frontier tier is 10 of them on every grid.
     explorer = Explorer(frame, make_planner("nearest"), ObservedAsPrediction())
-    assert explorer.frontier_min_cells == ExplorerConfig().frontier_min_cells(resolution) == frontier
+    assert explorer.planning_grid.factor == round(0.1 / resolution) and explorer.frontier_min_cells == 10
     reusing = ReusingPredictor(ObservedAsPrediction(), PredictionReuse(min_changed_m2=2.0), resolution)
     assert reusing.min_changed_cells == changed
     assert in_cells(UpenConfig().expand_m, resolution) == 5 * 0.1 / resolution
@@ -78,7 +82,8 @@ def test_the_first_frontier_tier_holds_the_same_metres_on_every_grid(resolution)
     observed[:5 * s] = FREE
     observed[5 * s] = OCCUPIED
     observed[5 * s, 5 * s:10 * s] = observed[5 * s, 20 * s:35 * s] = UNKNOWN
-    explorer = Explorer(MapFrame(observed.shape, resolution), make_planner("nearest"), ObservedAsPrediction())
+    explorer = Explorer(MapFrame(observed.shape, resolution), make_planner("nearest"), ObservedAsPrediction(),
+                        cfg=ExplorerConfig(motion=MotionConfig(planning_cell_m=resolution)))
     assert sorted(len(f.cells) for f in find_frontiers(observed, 1)) == [5 * s, 15 * s]
     first_tier = find_frontiers(observed, explorer.frontier_min_cells)
     assert [len(f.cells) * resolution for f in first_tier] == [pytest.approx(1.5)]

@@ -1,6 +1,8 @@
 """The NLOS processing's lengths are metres on every grid: the same parameters in cells of a 0.1 m grid as they
 always were, twice as many cells at 0.05 m; the learned filter runs at its model's scale on a finer grid."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -74,3 +76,26 @@ def test_the_learned_filter_runs_at_its_models_scale_on_a_finer_grid():
     assert evidence.shape == (140, 120) and np.allclose(evidence, 0.5)
     with pytest.raises(ValueError, match="cannot be served"):
         processing.check_resolution(0.07)
+
+
+@pytest.mark.parametrize("k", [2, 4])
+def test_on_a_finer_copy_of_a_floor_the_evidence_is_the_0_1_m_evidence_interpolated(k):
+    """The back-projection is drawn on the model's 0.1 m cells: the same scan of the same floor at 0.1 / k m gives
+    the 0.1 m run's filtered evidence, interpolated onto the finer cells (and its carving at the finer grid)."""
+    from superex_deploy.onboard.prediction.inference import Pix2PixFilter
+    from superex_deploy.onboard.prediction.scale import upsample_linear
+
+    p2p = Pix2PixFilter.from_manifest()
+    cfg, sensor = NlosConfig(window_m=4.0), SpadConfig(n_rays=360, n_secondary=32)
+    coarse_scan = simulate_scan(_fine_l_corner(1), (50, 10), sensor)
+    known = np.zeros(coarse_scan.grid_shape, bool)
+    known[45:56, 1:20] = True  # the robot's end of the corridor seen already
+    _, coarse = SpadProcessing(nlos_cfg=cfg, bp_filter=p2p.filter_map).process_scan(coarse_scan, known)
+    # The same measurement, placed on the finer grid (the sensor where it was: the corner of four fine cells).
+    origin = (coarse_scan.origin_yx[0] * k, coarse_scan.origin_yx[1] * k)
+    fine_scan = dataclasses.replace(coarse_scan, origin_yx=origin, pose_rc=(int(origin[0]), int(origin[1])),
+                                    resolution_m=0.1 / k, grid_shape=(70 * k, 60 * k), truth=None)
+    fine_known = np.kron(known, np.ones((k, k), bool))
+    _, fine = SpadProcessing(nlos_cfg=cfg, bp_filter=p2p.filter_map).process_scan(fine_scan, fine_known)
+    assert coarse.max() > 0.1
+    np.testing.assert_allclose(fine, upsample_linear(coarse, k, fine.shape), atol=1e-6)

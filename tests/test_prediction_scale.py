@@ -14,7 +14,7 @@ from superex_deploy.onboard.nlos.processing import SpadProcessing
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.inference import LamaEnsemble, ModelKind, Pix2PixFilter, read_manifest
 from superex_deploy.onboard.prediction.reuse import PredictionReuse
-from superex_deploy.onboard.prediction.scale import (NativeScaleFilter, NativeScalePredictor, at_resolution,
+from superex_deploy.onboard.prediction.scale import (NativeScaleFilter, NativeScalePredictor, at_resolution, filter_area,
                                                      pool_mean, pool_observed, pool_prediction, repeat_cells,
                                                      scale_factors, upsample_linear)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Prediction
@@ -243,3 +243,44 @@ def test_an_episode_on_a_0_05_m_copy_runs_the_models_at_their_scale():
                          sensing=make_sensing("lama_bp", True, 0))
     assert shapes and set(shapes) == {grid.occupied.shape}  # the 0.1 m map, every time
     assert result.collisions == 0 and result.true_walls_carved == 0 and result.explorer_map_iou > 0.1
+
+
+@pytest.mark.parametrize("resolution_m", [0.1, 0.05, 0.1 / 3, 0.2])
+def test_the_filter_run_on_its_area_alone_gives_its_whole_grid_answer(resolution_m):
+    """filter_area: the Pix2Pix filter handed only the rectangle around the robot (and the back-projection's patch)
+    writes there what it writes on the whole grid, and nothing elsewhere; robots near every edge."""
+    p2p = Pix2PixFilter.from_manifest()
+    scaled = at_resolution(p2p.filter_map, resolution_m)
+    rng = np.random.default_rng(int(resolution_m * 1000))
+    side = int(round(30 / resolution_m))  # a 30 m square grid, larger than the window at every scale
+    for trial in range(5):
+        shape = (side + int(rng.integers(0, 7)), side + int(rng.integers(0, 7)))
+        pose = (int(rng.integers(0, shape[0])), int(rng.integers(0, shape[1])))
+        if trial == 0:
+            pose = (1, shape[1] - 2)
+        half = int(rng.integers(5, side // 3))
+        patch = (slice(max(pose[0] - half, 0), min(pose[0] + half, shape[0])),
+                 slice(max(pose[1] - 2 * half, 0), min(pose[1] + half // 2, shape[1])))
+        bp = np.zeros(shape, np.float32)
+        bp[patch] = rng.random((patch[0].stop - patch[0].start, patch[1].stop - patch[1].start)) ** 4
+        whole = scaled(bp, pose)
+        rows, cols = filter_area(p2p.filter_map, resolution_m, pose, shape, patch)
+        assert rows.start <= patch[0].start and rows.stop >= patch[0].stop
+        alone = scaled(np.ascontiguousarray(bp[rows, cols]), (pose[0] - rows.start, pose[1] - cols.start))
+        # Bit for bit where the model cell is a power-of-two number of cells; at 1/3 the interpolation weights,
+        # computed from the rectangle's own first cell, may differ in the last bit.
+        np.testing.assert_allclose(alone, whole[rows, cols], rtol=0, atol=0 if resolution_m != 0.1 / 3 else 1e-6)
+        outside = whole.copy()
+        outside[rows, cols] = 0.0
+        assert not outside.any()
+        assert (rows.stop - rows.start) * (cols.stop - cols.start) < 0.8 * bp.size or min(shape) < 2 * half + 10
+
+
+def test_a_filter_without_a_window_gets_the_whole_grid():
+    def plain(bp, pose_rc):
+        return bp
+
+    plain.resolution_m = 0.1
+    assert filter_area(plain, 0.05, (3, 4), (20, 30)) == (slice(0, 20), slice(0, 30))
+    with pytest.raises(ValueError, match="cannot be served"):
+        filter_area(Pix2PixFilter.from_manifest().filter_map, 0.07, (3, 4), (20, 30))

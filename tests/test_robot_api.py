@@ -13,6 +13,7 @@ from superex_deploy.messages import (LaserScan, MapFrame, Observation, Occupancy
                                      SpadFrame)
 from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionSchedule, SpadProcessing
 from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
@@ -199,8 +200,11 @@ def test_close_racing_step_raises_only_the_closed_error():
 
 
 def test_a_frame_too_fine_for_the_motion_settings_is_refused_at_construction():
+    fine = ExplorerConfig(motion=MotionConfig(planning_cell_m=0.001))
     with pytest.raises(ValueError, match="MAX_WALL_REACH_CELLS"):
-        _new(MapFrame((50, 50), 0.001))
+        _new(MapFrame((50, 50), 0.001), cfg=fine)
+    # Planned on blocks of 0.1 m (the default), the same grid is not too fine.
+    assert _new(MapFrame((50, 50), 0.001)).planning_grid.factor == 100
 
 
 # 11. explorers dropped without close()

@@ -45,6 +45,8 @@ from superex_deploy.onboard.config import ExplorerConfig
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.mapping.growth import Regrid, grown_frame, reach_of
 from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.mapping.blocks import coarsen_observed
+from superex_deploy.onboard.planning.coarse import CoarsePrediction, PlanningGrid
 from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, path_is_clear, planning_map
 from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_visited_goal
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
@@ -121,7 +123,9 @@ class Explorer:
             raise ValueError(f"spad_processing must be a SpadProcessing or None, got {type(spad_processing).__name__}")
         if not isinstance(cfg, ExplorerConfig):
             raise ValueError(f"cfg must be an ExplorerConfig, got {type(cfg).__name__}")
-        check_wall_reach(cfg.motion, frame.resolution_m)  # a grid too fine for the motion settings: refused now
+        self.planning_grid = PlanningGrid.for_map(frame.shape, frame.resolution_m, cfg.motion.planning_cell_m)
+        block_m = self.planning_grid.block_m
+        check_wall_reach(cfg.motion, block_m)  # a planning grid too fine for the motion settings: refused now
         self.frame, self.planner, self.predictor, self.cfg = frame, planner, predictor, cfg
         self.spad_processing = spad_processing
         # A learned model runs at the resolution it was trained at (the map pooled or repeated to it, its answer
@@ -138,7 +142,8 @@ class Explorer:
         self.pose_estimate = None
         self.scan_match: Optional[ScanMatch] = None
         self.observed = self.mapper.observed()
-        self._planning = self.observed  # the map the latest step planned on (see the module docstring)
+        # The map the latest step planned on (see the module docstring), on the planning grid.
+        self._planning = coarsen_observed(self.observed, self.planning_grid.factor)
         self.frontiers: tuple[Frontier, ...] = ()
         self.goal: Optional[tuple[int, int]] = None
         self.path: list[tuple[int, int]] = []
@@ -147,9 +152,9 @@ class Explorer:
         self._no_goal_since: Optional[float] = None  # stamp of the first step of the current run without a goal
         self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
-        self.frontier_min_cells = cfg.frontier_min_cells(frame.resolution_m)
-        self._reach_cells = cfg.motion.goal_reached_m / frame.resolution_m
-        self._radius_cells = cfg.motion.robot_radius_m / frame.resolution_m
+        self.frontier_min_cells = cfg.frontier_min_cells(block_m)
+        self._reach_cells = cfg.motion.goal_reached_m / block_m
+        self._radius_cells = cfg.motion.robot_radius_m / block_m
         self._goal_tolerance = self._reach_cells
         self._goal_step = -1
         self._visited: set[tuple[int, int]] = set()
@@ -191,6 +196,7 @@ class Explorer:
         pose = (int(pose_rc[0]), int(pose_rc[1]))
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
+        pose = self.planning_grid.block(pose)
         not_free = self._planning != FREE
         return tuple(f for f in find_frontiers(self._planning, 1) if not near_visited_goal(f.cell_rc, self._visited)
                      and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
@@ -354,12 +360,18 @@ class Explorer:
                                                  pose_covariance=obs.pose_covariance)
             self.mapper.merge_carved(carved)
         observed = self.mapper.observed()
-        # The map the planning reads: carved-only cells are free in it only when they may be driven on.
+        # The map the planning reads, on the planning grid: carved-only cells are free in it only when they may be
+        # driven on.
         drive_carved = self._pose_exact if self.cfg.motion.drive_carved is None else self.cfg.motion.drive_carved
-        planning = observed if drive_carved else self.mapper.observed(include_carved=False)
+        grid = self.planning_grid
+        if grid.factor > 1:
+            planning = self.mapper.blocks(grid.factor, include_carved=drive_carved)
+        else:
+            planning = observed if drive_carved else self.mapper.observed(include_carved=False)
         timings["map_update"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
+        pose_cell, pose = pose, grid.block(pose)
         frontiers = find_frontiers(planning, self.frontier_min_cells)
         timings["frontiers"] = time.perf_counter() - clock
 
@@ -375,18 +387,21 @@ class Explorer:
         self._planning = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
-            new_goal = self._plan(planning, frontiers, pose, prediction, t, timings)
+            new_goal = self._plan(planning, frontiers, pose,
+                                  prediction if grid.factor == 1 else CoarsePrediction(prediction, grid.factor), t,
+                                  timings)
             self._settle_finished(obs.stamp_s)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
             new_goal, self.finished, self._no_goal_since = False, False, None
         timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
-        path_rc = np.asarray(self.path, np.int64).reshape(-1, 2)
+        path_rc = np.asarray(grid.fine_path(pose_cell, self.path), np.int64).reshape(-1, 2)
+        goal_rc = None if self.goal is None else grid.centre(self.goal)
         aged = self._latest is not None
         return Command(stamp_s=obs.stamp_s,
-                       goal_xy=None if self.goal is None else self.frame.centre_xy(self.goal),
-                       goal_rc=self.goal, path_xy=self.frame.centres_xy(path_rc), path_rc=path_rc,
+                       goal_xy=None if goal_rc is None else self.frame.centre_xy(goal_rc),
+                       goal_rc=goal_rc, path_xy=self.frame.centres_xy(path_rc), path_rc=path_rc,
                        finished=self.finished, new_goal=new_goal, prediction=self._latest,
                        prediction_step=self._latest_step, step=t, timings_s=timings,
                        prediction_age_steps=t - self._latest_step if aged else None,
@@ -410,10 +425,21 @@ class Explorer:
                                       variance=regrid.embed(self._latest.variance, 0.0))
         self._no_evidence = None
         self.observed = regrid.embed(self.observed, UNKNOWN)
-        self._planning = regrid.embed(self._planning, UNKNOWN)
-        self.goal = None if self.goal is None else regrid.cell(self.goal)
-        self.path = [regrid.cell(cell) for cell in self.path]
-        self._visited = {regrid.cell(cell) for cell in self._visited}
+        k = self.planning_grid.factor
+        self.planning_grid = PlanningGrid.for_map(regrid.frame.shape, regrid.frame.resolution_m,
+                                                  self.cfg.motion.planning_cell_m)
+        self._planning = coarsen_observed(self.observed, k)
+        if regrid.top % k or regrid.left % k:  # the blocks moved: the goal is chosen again
+            self.goal, self.path = None, []
+            self._visited = {self.planning_grid.block(regrid.cell((r * k + k // 2, c * k + k // 2)))
+                             for r, c in self._visited}
+        else:
+            def moved(cell):
+                return cell[0] + regrid.top // k, cell[1] + regrid.left // k
+
+            self.goal = None if self.goal is None else moved(self.goal)
+            self.path = [moved(cell) for cell in self.path]
+            self._visited = {moved(cell) for cell in self._visited}
         self.frontiers = ()
         self.frame = regrid.frame
 
@@ -430,7 +456,7 @@ class Explorer:
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
               prediction: LazyPrediction, t: int, timings: dict) -> bool:
         """Keep or choose the goal and its path; returns whether a new goal was chosen."""
-        res, motion = self.frame.resolution_m, self.cfg.motion
+        res, motion = self.planning_grid.block_m, self.cfg.motion
         clock = time.perf_counter()
         plan: Optional[PlanningMap] = None
         not_free = observed != FREE

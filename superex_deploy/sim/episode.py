@@ -357,7 +357,8 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
             last_prediction = explorer.step_prediction
         if on_step is not None:
             on_step(EpisodeState(step=t, pose=world.pose_rc, mapper=explorer.mapper, observed=explorer.observed,
-                                 frontiers=explorer.frontiers, goal=explorer.goal, path=explorer.path,
+                                 frontiers=tuple(explorer.planning_grid.fine_frontier(f) for f in explorer.frontiers),
+                                 goal=command.goal_rc, path=[tuple(cell) for cell in command.path_rc.tolist()],
                                  prediction=explorer.step_prediction, coverage=float(coverage[t])))
         if finished:
             logged = t + 1

@@ -54,6 +54,7 @@ import numpy as np
 
 from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, check_measured_rays, dda_start, dda_step
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, grid_angles
+from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
 __all__ = ["OccupancyConfig", "Mapper", "integrate_log_odds"]
@@ -217,10 +218,9 @@ class Mapper:
 
     Attributes:
         cfg: as given.
-        log_odds: float32 ``[H, W]`` line-of-sight log-odds (0: nothing measured).
-        carve_log_odds: float32 ``[H, W]`` carving log-odds, in ``[cfg.carve_lowest, 0]``.
 
-    The masks below are derived from the two layers at each read (bool ``[H, W]``, fresh arrays).
+    The masks below are derived from the two layers (:attr:`log_odds`, :attr:`carve_log_odds`) and are fresh
+    arrays at each read; the map keeps its classes and derives them again only where a write changed them since.
     """
 
     def __init__(self, shape: tuple[int, int], cfg: OccupancyConfig = OccupancyConfig()):
@@ -230,36 +230,103 @@ class Mapper:
         if not isinstance(cfg, OccupancyConfig):
             raise ValueError(f"cfg must be an OccupancyConfig, got {type(cfg).__name__}")
         self.cfg = cfg
-        self.log_odds = np.zeros(shape, np.float32)
-        self.carve_log_odds = np.zeros(shape, np.float32)
+        self._log_odds = np.zeros(shape, np.float32)
+        self._carve_log_odds = np.zeros(shape, np.float32)
         self._touched = np.zeros(shape + (2,), np.int32)  # the scan kernel's ray counts, all zero between scans
+        # The classes derived from the two layers, int8 [H, W] with and without carving, kept up to date over the
+        # rectangle each write changed (a scan changes the cells within its range, not the whole map).
+        self._classes = {True: np.full(shape, UNKNOWN, np.int8), False: np.full(shape, UNKNOWN, np.int8)}
+        self._blocks: dict = {}  # (k, include_carved) -> the classes on blocks of k x k cells (blocks())
+        self._stale: Optional[list] = None  # [r0, r1, c0, c1] changed since the classes were derived
+
+    @property
+    def log_odds(self) -> np.ndarray:
+        """float32 ``[H, W]`` line-of-sight log-odds (0: nothing measured). The array itself: it may be written in
+        place, right after it is read here (reading it marks the whole map changed, so the masks below are derived
+        afresh at their next read; a reference kept across such a read is not watched)."""
+        self._changed()
+        return self._log_odds
+
+    @property
+    def carve_log_odds(self) -> np.ndarray:
+        """float32 ``[H, W]`` carving log-odds, in ``[cfg.carve_lowest, 0]`` (written in place as :attr:`log_odds`)."""
+        self._changed()
+        return self._carve_log_odds
+
+    def _changed(self, r0: int = 0, r1: Optional[int] = None, c0: int = 0, c1: Optional[int] = None) -> None:
+        """Mark the rectangle ``[r0:r1, c0:c1]`` (clipped to the map; default: all of it) as changed."""
+        rows, cols = self._log_odds.shape
+        box = [max(r0, 0), rows if r1 is None else min(r1, rows), max(c0, 0), cols if c1 is None else min(c1, cols)]
+        if box[0] >= box[1] or box[2] >= box[3]:
+            return
+        if self._stale is None:
+            self._stale = box
+        else:
+            stale = self._stale
+            self._stale = [min(stale[0], box[0]), max(stale[1], box[1]), min(stale[2], box[2]),
+                           max(stale[3], box[3])]
+
+    def _derived(self, include_carved: bool) -> np.ndarray:
+        """The int8 classes (see :meth:`observed`), derived again over the changed rectangle; not a copy."""
+        if self._stale is not None:
+            r0, r1, c0, c1 = self._stale
+            cfg = self.cfg
+            log_odds, carve = self._log_odds[r0:r1, c0:c1], self._carve_log_odds[r0:r1, c0:c1]
+            wall = log_odds >= cfg.occupied_threshold
+            free = log_odds <= cfg.free_threshold
+            carved_free = (carve < 0.0) & ~wall & (log_odds + carve <= cfg.free_threshold)
+            for carving, classes in self._classes.items():
+                area = classes[r0:r1, c0:c1]
+                area[...] = UNKNOWN
+                area[(free | carved_free) if carving else free] = FREE
+                area[wall] = OCCUPIED
+            for (k, carving), blocks in self._blocks.items():  # the blocks that hold a changed cell
+                b0, b1, d0, d1 = r0 // k, -(-r1 // k), c0 // k, -(-c1 // k)
+                blocks[b0:b1, d0:d1] = coarsen_observed(self._classes[carving][b0 * k:b1 * k, d0 * k:d1 * k], k)
+            self._stale = None
+        return self._classes[bool(include_carved)]
+
+    def blocks(self, k: int, include_carved: bool = True) -> np.ndarray:
+        """int8 ``[ceil(H/k), ceil(W/k)]``: :meth:`observed` on blocks of ``k x k`` cells
+        (:func:`~superex_deploy.onboard.planning.coarse.coarsen_observed`: a wall where any cell is, free where all
+        are), kept up to date where the map changed (the planning grid of a fine map); a fresh array.
+
+        Raises:
+            ValueError: ``k`` not an integer >= 1.
+        """
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ValueError(f"the block size must be an integer >= 1, got {k!r}")
+        key = (int(k), bool(include_carved))
+        classes = self._derived(include_carved)
+        if key not in self._blocks:
+            self._blocks[key] = coarsen_observed(classes, key[0]).copy()
+        return self._blocks[key].copy()
 
     @property
     def shape(self) -> tuple[int, int]:
         """``(rows, cols)``."""
-        return self.log_odds.shape  # type: ignore[return-value]
+        return self._log_odds.shape  # type: ignore[return-value]
 
     @property
     def seen_wall(self) -> np.ndarray:
         """Cells the line of sight holds occupied (``log_odds >= occupied_threshold``)."""
-        return self.log_odds >= self.cfg.occupied_threshold
+        return self._derived(False) == OCCUPIED
 
     @property
     def seen_free(self) -> np.ndarray:
         """Cells the line of sight holds free with confidence (``log_odds <= free_threshold``)."""
-        return self.log_odds <= self.cfg.free_threshold
+        return self._derived(False) == FREE
 
     @property
     def carved(self) -> np.ndarray:
         """Cells NLOS carving pushed towards free (may overlap the two above)."""
-        return self.carve_log_odds < 0.0
+        return self._carve_log_odds < 0.0
 
     @property
     def carved_free(self) -> np.ndarray:
         """Cells free by carving: carved, not held occupied, and line-of-sight plus carving log-odds at or below
         the free threshold."""
-        carved = self.carve_log_odds < 0.0
-        return carved & ~self.seen_wall & (self.log_odds + self.carve_log_odds <= self.cfg.free_threshold)
+        return (self._carve_log_odds < 0.0) & (self._derived(True) == FREE)
 
     def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan,
                        footprint_radius_cells: Optional[float] = None) -> int:
@@ -283,7 +350,7 @@ class Mapper:
         confirmed = None
         if footprint_radius_cells is not None:
             area, _ = self._footprint(origin, footprint_radius_cells)
-            confirmed = self.log_odds[area] >= np.float32(self.cfg.highest)
+            confirmed = self._log_odds[area] >= np.float32(self.cfg.highest)
         resolution = frame.resolution_m
         ranges = scan.ranges.astype(np.float64)
         valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
@@ -308,8 +375,12 @@ class Mapper:
             hit_shift_cells: how much farther each return's hit is placed (cells; :meth:`integrate_scan` passes
                 ``range_hit_sigmas * range_sigma_m`` over the resolution).
         """
-        integrate_log_odds(self.log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
+        integrate_log_odds(self._log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
                            hit_shift_cells)
+        # Every cell a ray touched lies within its range (the last return a shifted hit and a cell further).
+        reach = int(np.ceil(float(max_range_cells) + float(hit_shift_cells))) + 2
+        row, col = int(np.floor(float(origin_yx[0]))), int(np.floor(float(origin_yx[1])))
+        self._changed(row - reach, row + reach + 1, col - reach, col + reach + 1)
 
     def _footprint(self, origin_yx, radius_cells: float) -> tuple[tuple[slice, slice], np.ndarray]:
         """The window around a footprint and the bool disc in it: cells whose centre lies within
@@ -351,7 +422,8 @@ class Mapper:
             How many occupied cells became free (known free cells are pushed to ``lowest`` without changing class).
         """
         area, disc = self._footprint(origin_yx, radius_cells)
-        window = self.log_odds[area]
+        window = self._log_odds[area]
+        self._changed(area[0].start, area[0].stop, area[1].start, area[1].stop)
         cfg = self.cfg
         if everything:
             clear = disc
@@ -369,9 +441,13 @@ class Mapper:
     def regrid(self, regrid) -> None:
         """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): both layers keep their
         values at the new indices, new cells are unknown (log-odds 0)."""
-        self.log_odds = regrid.embed(self.log_odds, 0.0)
-        self.carve_log_odds = regrid.embed(self.carve_log_odds, 0.0)
-        self._touched = np.zeros(self.log_odds.shape + (2,), np.int32)
+        self._log_odds = regrid.embed(self._log_odds, 0.0)
+        self._carve_log_odds = regrid.embed(self._carve_log_odds, 0.0)
+        self._touched = np.zeros(self._log_odds.shape + (2,), np.int32)
+        self._classes = {key: np.full(self._log_odds.shape, UNKNOWN, np.int8) for key in self._classes}
+        self._blocks = {}
+        self._stale = None
+        self._changed()
 
     def set_line_of_sight(self, occupancy_percent: np.ndarray) -> None:
         """Replace the line-of-sight layer by a SLAM map on this grid (the carving layer is kept).
@@ -386,9 +462,10 @@ class Mapper:
         if grid.dtype != np.int8 or grid.shape != self.shape:
             raise ValueError(f"occupancy_percent must be int8 of shape {self.shape}, got {grid.dtype} {grid.shape}")
         cfg = self.cfg
-        self.log_odds[...] = 0.0
-        self.log_odds[(grid >= 0) & (grid <= cfg.slam_free_percent)] = cfg.lowest
-        self.log_odds[grid >= cfg.slam_occupied_percent] = cfg.highest
+        log_odds = self.log_odds  # marks the whole map changed
+        log_odds[...] = 0.0
+        log_odds[(grid >= 0) & (grid <= cfg.slam_free_percent)] = cfg.lowest
+        log_odds[grid >= cfg.slam_occupied_percent] = cfg.highest
 
     def merge_carved(self, carved: np.ndarray) -> None:
         """Add the cells one NLOS carving proved free: their carving log-odds move by ``carve_step``, clamped at
@@ -402,24 +479,23 @@ class Mapper:
             raise ValueError(f"carved must be a bool array of shape {self.shape}, got {carved.dtype} "
                              f"{carved.shape}")
         if carved.any():
-            values = self.carve_log_odds[carved].astype(np.float64) + self.cfg.carve_step
-            self.carve_log_odds[carved] = np.maximum(values, self.cfg.carve_lowest)
+            rows, cols = np.flatnonzero(carved.any(axis=1)), np.flatnonzero(carved.any(axis=0))
+            area = slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+            inside, layer = carved[area], self._carve_log_odds[area]
+            values = layer[inside].astype(np.float64) + self.cfg.carve_step
+            layer[inside] = np.maximum(values, self.cfg.carve_lowest)
+            self._changed(area[0].start, area[0].stop, area[1].start, area[1].stop)
 
     def known(self, include_carved: bool = True) -> np.ndarray:
         """bool ``[H, W]``: cells held free or occupied (plus cells free by carving if ``include_carved``)."""
-        known = self.seen_free | self.seen_wall
-        return known | self.carved_free if include_carved else known
+        return self._derived(include_carved) != UNKNOWN
 
     def drivable(self, include_carved: bool = False) -> np.ndarray:
         """bool ``[H, W]``: cells a path may cross: held free with confidence by the line of sight (plus cells free
         by carving if ``include_carved``)."""
-        return self.seen_free | self.carved_free if include_carved else self.seen_free
+        return self._derived(include_carved) == FREE
 
     def observed(self, include_carved: bool = True) -> np.ndarray:
         """int8 ``[H, W]``: OCCUPIED where the line of sight holds a wall, FREE where it holds free (or, with
         ``include_carved``, where carving makes it free), else UNKNOWN."""
-        free = self.drivable(include_carved)
-        observed = np.full(self.shape, UNKNOWN, np.int8)
-        observed[free] = FREE
-        observed[self.seen_wall] = OCCUPIED
-        return observed
+        return self._derived(include_carved).copy()

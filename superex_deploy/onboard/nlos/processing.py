@@ -8,6 +8,7 @@ the robot's calibration of its sensor, not the simulator's truth.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -17,7 +18,8 @@ from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame,
 from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
 from superex_deploy.onboard.nlos.back_projection import back_project_patch, rays_reaching_unknown
 from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
-from superex_deploy.onboard.prediction.scale import at_resolution
+from superex_deploy.onboard.prediction.scale import (at_resolution, filter_area, model_resolution, scale_factors,
+                                                     upsample_linear)
 from superex_deploy.spad_types import SpadConfig, SpadScan, SparseHistograms
 
 __all__ = ["NlosSkips", "SpadProcessing", "scan_from_frame", "check_frame_matches"]
@@ -119,8 +121,11 @@ class SpadProcessing:
         bp_filter: turns the raw back-projection (float32 ``[H, W]`` in [0, 1]) and the robot cell into the
             filtered evidence (float32 ``[H, W]`` in [0, 1]), e.g.
             :meth:`superex_deploy.onboard.prediction.inference.Pix2PixFilter.filter_map`; None: the Laplacian baseline.
-            A filter that gives its training resolution (a learned model's) runs at that scale on every scan's grid
-            (:func:`~superex_deploy.onboard.prediction.scale.at_resolution`; unchanged at its own resolution).
+            A filter that gives its training resolution (a learned model's) runs at that scale on every scan's grid:
+            on a grid finer by an integer factor the raw back-projection is drawn on the model's cells (a block known
+            where all its cells are) and the filter's answer interpolated back onto the grid; on a coarser grid
+            :func:`~superex_deploy.onboard.prediction.scale.at_resolution` repeats the cells; unchanged at its own
+            resolution.
         skips: work left out (:class:`NlosSkips`).
         counts: since :meth:`reset`: ``frames`` seen; frames skipped whole (``no_unknown``, ``still``); frames
             whose evidence was skipped (``evidence_skipped``: ``evidence_every``); filter runs skipped
@@ -233,20 +238,65 @@ class SpadProcessing:
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
             return result.carved, self._evidence
         los = estimate_los(scan, self.nlos_cfg)
-        bp = self._back_projection(scan, los, known)
         if self.bp_filter is None:
+            bp = self._back_projection(scan, los, known)
             filtered = laplacian_filter_patch(bp, self.nlos_cfg.in_cells(scan.resolution_m).laplacian_sigma)
             area = filtered.slices
             np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
-        elif self.skips.filter_without_votes and not bp.values.any():
+            return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+        # The learned filter replaces the Laplacian one (that is not computed), at its model's scale: on a finer
+        # grid the back-projection itself is drawn on the model's cells (model_scan), as the filter would pool it.
+        model, k = self._model_scan(scan, los, known)
+        bp = self._back_projection(*model)
+        if self.skips.filter_without_votes and not bp.values.any():
             self.counts["no_votes"] += 1
-        elif self.skips.filter_same_input and self._same_filter_input(bp, scan.pose_rc):
+        elif self.skips.filter_same_input and self._same_filter_input(bp, model[0].pose_rc):
             self.counts["same_input"] += 1
         else:
-            # The learned filter replaces the Laplacian one: that is not computed.
-            bp_filter = self._filter_at(scan.resolution_m)
-            np.maximum(self._evidence, bp_filter(bp.to_grid(), scan.pose_rc), out=self._evidence)
+            self._filter_into_evidence(model[0], bp, k)
         return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+
+    def _model_scan(self, scan: SpadScan, los, known: np.ndarray) -> tuple[tuple, int]:
+        """``((scan, los, known), k)``: the scan, its line-of-sight estimate and the known cells on the grid the
+        filter's model was trained at, when this grid is ``k`` times finer (a block known only where all its cells
+        are, within the back-projection window); this grid's own, ``k = 1``, otherwise."""
+        model_m = model_resolution(self.bp_filter)
+        k = 1 if model_m is None else scale_factors(scan.resolution_m, model_m)[0]
+        if k == 1:
+            return (scan, los, known), 1
+        rows, cols = -(-scan.grid_shape[0] // k), -(-scan.grid_shape[1] // k)
+        coarse = dataclasses.replace(scan, origin_yx=(scan.origin_yx[0] / k, scan.origin_yx[1] / k),
+                                     pose_rc=(int(scan.pose_rc[0]) // k, int(scan.pose_rc[1]) // k),
+                                     resolution_m=scan.resolution_m * k, grid_shape=(rows, cols))
+        half = int(np.ceil(self.nlos_cfg.window_m / coarse.resolution_m)) + 1
+        r0, c0 = max(coarse.pose_rc[0] - half, 0), max(coarse.pose_rc[1] - half, 0)
+        r1, c1 = min(coarse.pose_rc[0] + half + 1, rows), min(coarse.pose_rc[1] + half + 1, cols)
+        block_known = np.zeros((rows, cols), bool)
+        fine = np.zeros(((r1 - r0) * k, (c1 - c0) * k), bool)  # cells past the map's edge: not known
+        inside = known[r0 * k:r1 * k, c0 * k:c1 * k]
+        fine[:inside.shape[0], :inside.shape[1]] = inside
+        block_known[r0:r1, c0:c1] = fine.reshape(r1 - r0, k, c1 - c0, k).all(axis=(1, 3))
+        return (coarse, estimate_los(coarse, self.nlos_cfg), block_known), k
+
+    def _filter_into_evidence(self, scan: SpadScan, bp, k: int) -> None:
+        """Run the learned filter on the rectangle of ``scan``'s grid it reads and writes (the same answer as on
+        the whole grid: :func:`~superex_deploy.onboard.prediction.scale.filter_area`) and raise the evidence there
+        to it; on a model grid ``k`` times coarser than the evidence's, its answer interpolated onto the cells."""
+        bp_filter = self._filter_at(scan.resolution_m)
+        rows, cols = filter_area(self.bp_filter, scan.resolution_m, scan.pose_rc, scan.grid_shape, bp.slices)
+        sub = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.float32)
+        inside = bp.slices
+        sub[inside[0].start - rows.start:inside[0].stop - rows.start,
+            inside[1].start - cols.start:inside[1].stop - cols.start] = bp.values
+        filtered = bp_filter(sub, (int(scan.pose_rc[0]) - rows.start, int(scan.pose_rc[1]) - cols.start))
+        if k > 1:
+            height, width = self._evidence.shape
+            rows = slice(rows.start * k, min(rows.stop * k, height))
+            cols = slice(cols.start * k, min(cols.stop * k, width))
+            filtered = upsample_linear(np.asarray(filtered, np.float32), k,
+                                       (rows.stop - rows.start, cols.stop - cols.start))
+        area = self._evidence[rows, cols]
+        np.maximum(area, filtered, out=area)
 
     def _back_projection(self, scan: SpadScan, los, known: np.ndarray):
         """The raw back-projection patch, the rays that cannot vote on an unknown cell left out if asked."""

@@ -72,12 +72,16 @@ class MotionConfig:
             default): only while the pose is exact, i.e. the observation carries no pose covariance (the
             noise-free protocol, where carving is proven sound; the benchmark rows were made so); with a
             covariance (a robot), never.
+        planning_cell_m: the planning (frontiers, Dijkstra, the planners' gains, paths) runs on blocks of the map's
+            cells at most this wide (metres; :mod:`~superex_deploy.onboard.planning.coarse`): on a map finer than
+            this, blocks of ``k x k`` cells, so a 0.05 m SLAM map is planned as the 0.1 m grid the planners were
+            tuned on, at a quarter of the cells. At or below the map's resolution, its own cells.
 
     Raises:
         ValueError: ``MotionConfig: FIELD must ...``, for a field of another type, not finite or out of its range:
             ``robot_radius_m`` in ``[0, MAX_WALL_REACH_M]``, ``wall_cost_range_m`` in ``(0, MAX_WALL_REACH_M]``
             (:data:`MAX_WALL_REACH_M`), ``wall_cost_weight`` and ``goal_reached_m`` finite and >= 0,
-            ``step_m`` positive and finite; the old name ``step_cells`` (a count of cells, whose distance
+            ``step_m`` and ``planning_cell_m`` positive and finite; the old name ``step_cells`` (a count of cells, whose distance
             changed with the grid) is refused, naming ``step_m``.
     """
 
@@ -87,6 +91,7 @@ class MotionConfig:
     step_m: float = 0.3
     goal_reached_m: float = 1.0
     drive_carved: Optional[bool] = None
+    planning_cell_m: float = 0.1
 
     def __post_init__(self) -> None:
         if self.drive_carved is not None and not isinstance(self.drive_carved, bool):
@@ -97,7 +102,8 @@ class MotionConfig:
                        "wall_cost_range_m": check_real("wall_cost_range_m", self.wall_cost_range_m, 0.0,
                                                        MAX_WALL_REACH_M, low_open=True),
                        "step_m": check_real("step_m", self.step_m, 0.0, low_open=True),
-                       "goal_reached_m": check_real("goal_reached_m", self.goal_reached_m, 0.0)}
+                       "goal_reached_m": check_real("goal_reached_m", self.goal_reached_m, 0.0),
+                       "planning_cell_m": check_real("planning_cell_m", self.planning_cell_m, 0.0, low_open=True)}
         except ValueError as error:
             raise ValueError(f"MotionConfig: {error}") from None
         for name, value in checked.items():

@@ -27,13 +27,14 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
+import numba
 import numpy as np
 
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, MapPredictor, Prediction, check_observed
 
 __all__ = ["MAX_POOL", "MAX_UPSAMPLE", "scale_factors", "model_resolution", "pool_observed", "pool_mean",
            "repeat_cells", "upsample_linear", "pool_prediction", "NativeScalePredictor", "NativeScaleFilter",
-           "at_resolution"]
+           "at_resolution", "model_window_cells", "filter_area"]
 
 MAX_POOL = 4
 """Finest grid served: the model's resolution divided by this (0.025 m for a 0.1 m model). Finer, a model cell
@@ -80,6 +81,49 @@ def model_resolution(model) -> Optional[float]:
     return None if value is None else float(value)
 
 
+def model_window_cells(model) -> Optional[int]:
+    """The side (model cells) of the window a windowed model (the Pix2Pix filter) reads around the robot, of the
+    model or of a bound method of one: its ``window_cells`` attribute; None where it gives none (a filter that may
+    read and write the whole map)."""
+    value = getattr(model, "window_cells", None)
+    if value is None:
+        value = getattr(getattr(model, "__self__", None), "window_cells", None)
+    return None if value is None else int(value)
+
+
+def filter_area(bp_filter, resolution_m: float, pose_rc, shape: tuple[int, int],
+                include: Optional[tuple[slice, slice]] = None) -> tuple[slice, slice]:
+    """The rectangle of a ``shape`` grid of ``resolution_m`` metres per cell that a windowed back-projection filter,
+    run at its model's scale (:func:`at_resolution`), can write around robot cell ``pose_rc``, grown to hold
+    ``include`` (the back-projection's own patch, whose maximum normalises it) and cut at the model's block
+    boundaries, with one model cell of margin.
+
+    Running the filter on this rectangle alone (the back-projection zero elsewhere, the robot cell moved into it)
+    gives exactly its answer on the whole grid there, and zero is its answer everywhere else: the model reads and
+    writes only its window; the blocks pooled are the whole grid's blocks; the interpolation back onto the grid
+    meets the same zeros past the window. The whole grid where the filter gives no window size
+    (:func:`model_window_cells`).
+
+    Raises:
+        ValueError: a ratio :func:`scale_factors` refuses.
+    """
+    rows, cols = int(shape[0]), int(shape[1])
+    window, model_m = model_window_cells(bp_filter), model_resolution(bp_filter)
+    if window is None or model_m is None:
+        return slice(0, rows), slice(0, cols)
+    pool, _ = scale_factors(resolution_m, model_m)
+    half = int(np.ceil(window * model_m / resolution_m / 2.0)) + 2 * pool + 1
+    bounds = []
+    for axis, (centre, size) in enumerate(zip((int(pose_rc[0]), int(pose_rc[1])), (rows, cols))):
+        low, high = centre - half, centre + half + 1
+        if include is not None:
+            low, high = min(low, include[axis].start), max(high, include[axis].stop)
+        low = max(low // pool * pool, 0)
+        high = min(-(-high // pool) * pool, size)
+        bounds.append(slice(low, high))
+    return bounds[0], bounds[1]
+
+
 def _blocks(values: np.ndarray, k: int, fill) -> np.ndarray:
     """``values`` ``[H, W]`` padded with ``fill`` to multiples of ``k`` and viewed as ``[H/k, k, W/k, k]``."""
     rows, cols = -(-values.shape[0] // k) * k, -(-values.shape[1] // k) * k
@@ -111,9 +155,23 @@ def pool_mean(values: np.ndarray, k: int) -> np.ndarray:
     evidence, a back-projection); a block cut by the map's edge averages the cells it has."""
     values = _check_map(values, "values")
     k = _check_factor(k)
-    sums = _blocks(values.astype(np.float64), k, 0.0).sum(axis=(1, 3))
-    counts = _blocks(np.ones(values.shape), k, 0.0).sum(axis=(1, 3))
-    return (sums / counts).astype(np.float32)
+    out = np.empty((-(-values.shape[0] // k), -(-values.shape[1] // k)), np.float32)
+    _block_means(np.ascontiguousarray(values), k, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _block_means(values, k, out):
+    """``out[R, C]``: the mean (summed in float64) of the cells of block ``(R, C)`` that lie inside ``values``."""
+    rows, cols = values.shape
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            total = 0.0
+            r1, c1 = min(r * k + k, rows), min(c * k + k, cols)
+            for i in range(r * k, r1):
+                for j in range(c * k, c1):
+                    total += values[i, j]
+            out[r, c] = total / ((r1 - r * k) * (c1 - c * k))
 
 
 def repeat_cells(values: np.ndarray, u: int) -> np.ndarray:

@@ -1,0 +1,49 @@
+"""The map on blocks of ``k x k`` cells, as the planning reads a map finer than its planning cell
+(:mod:`superex_deploy.onboard.planning.coarse`): a block is a wall where any of its cells is, free where all of them
+are, unknown otherwise."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, check_observed
+
+__all__ = ["coarsen_observed"]
+
+
+@numba.njit(cache=True)
+def _coarsen(observed, k, out):
+    rows, cols = observed.shape
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            r0, c0 = r * k, c * k
+            wall, free = False, r0 + k <= rows and c0 + k <= cols  # a block cut by the edge is never free
+            for i in range(r0, min(r0 + k, rows)):
+                for j in range(c0, min(c0 + k, cols)):
+                    value = observed[i, j]
+                    if value == 1:  # OCCUPIED
+                        wall = True
+                    elif value != 0:  # not FREE
+                        free = False
+            out[r, c] = 1 if wall else (0 if free else -1)
+
+
+def coarsen_observed(observed: np.ndarray, k: int) -> np.ndarray:
+    """int8 ``[ceil(H/k), ceil(W/k)]``: OCCUPIED where any cell of the block is, FREE where all of them are (a block
+    cut by the map's edge is never free), UNKNOWN otherwise; ``observed`` itself at ``k = 1``.
+
+    Raises:
+        ValueError: not an int8 ``[H, W]`` map, ``k`` not an integer >= 1.
+    """
+    observed = check_observed(observed)
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"the block size must be an integer >= 1, got {k!r}")
+    if k == 1:
+        return observed
+    assert (FREE, OCCUPIED, UNKNOWN) == (0, 1, -1)  # the kernel's codes
+    out = np.empty((-(-observed.shape[0] // k), -(-observed.shape[1] // k)), np.int8)
+    _coarsen(np.ascontiguousarray(observed), int(k), out)
+    return out
+
+
