@@ -134,9 +134,13 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.inference import available_cores
+    from superex_deploy.sim.generated_floors import named_floor
 
     map_name, start_index, start, name, steps, mode = task
-    grid = load_map(map_name)
+    if start is None:  # a timing floor by name (--timing-floors): its grid and start
+        grid, start = named_floor(map_name)
+    else:
+        grid = load_map(map_name)
     setting, free = _setting(name)
     if setting == MAPEX:
         planner, predictor_name, spad, profile = "mapex", "observed", False, PROFILES["full"]
@@ -231,9 +235,11 @@ def _busy_core():
 
 
 def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, steps: int = TIMING_STEPS,
-               wall_steps: int = 1000, loaded: list[str] = ()) -> None:
+               wall_steps: int = 1000, loaded: list[str] = (), floors: list[str] = ()) -> None:
     """Paced episodes of ``names``, the same of ``loaded`` while a busy-loop process holds one core, then unpaced
-    episodes of ``full``, ``walls`` and MapEx; one at a time, alternated."""
+    episodes of ``full``, ``walls`` and MapEx; then paced episodes of the default profile on each of ``floors``
+    (:func:`~superex_deploy.sim.generated_floors.named_floor`: the timing map at a SLAM resolution, a generated
+    floor at 0.1 and 0.05 m), alternated with the timing map at 0.1 m; one at a time."""
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
@@ -245,12 +251,17 @@ def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, step
     order += [(n, r, "loaded", steps) for r in range(repeats) for n in (loaded if r % 2 == 0 else loaded[::-1])]
     walls = list(dict.fromkeys(["full", *walls, MAPEX]))
     order += [(n, r, "wall", wall_steps) for r in range(repeats) for n in (walls if r % 2 == 0 else walls[::-1])]
+    floors = [TIMING_MAP, *floors] if floors else []
+    order += [(f"{DEFAULT_PROFILE}@{f}", r, "paced", steps) for r in range(repeats)
+              for f in (floors if r % 2 == 0 else floors[::-1])]
     for name, repeat, mode, n_steps in order:  # one at a time: the two cores belong to the measured episode
         key = f"{name}/{mode}/{repeat}"
         busy = _busy_core() if mode == "loaded" else None
+        setting, _, floor = name.partition("@")
+        task = (floor, TIMING_START, None, setting, n_steps, mode) if floor else \
+            (TIMING_MAP, TIMING_START, start, name, n_steps, mode)
         try:
-            run_tasks(_episode, [(TIMING_MAP, TIMING_START, start, name, n_steps, mode)], [key], 1,
-                      folder / "episodes.jsonl")
+            run_tasks(_episode, [task], [key], 1, folder / "episodes.jsonl")
         finally:
             if busy is not None:
                 busy.kill()
@@ -452,6 +463,8 @@ def main() -> int:
     parser.add_argument("--wall-steps", type=int, default=1000, help="unpaced episode length (episode wall time)")
     parser.add_argument("--loaded-settings", default=None, help="settings also timed paced while a busy-loop "
                         "process holds one core (default: full and the default profile; '' for none)")
+    parser.add_argument("--timing-floors", default="", help="with --timing: floors the default profile is also timed "
+                        f"on, paced, beside {TIMING_MAP} at 0.1 m (e.g. '{TIMING_MAP}@x2,generated,generated@0.05')")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "realtime")
     args = parser.parse_args()
@@ -469,7 +482,7 @@ def main() -> int:
             if unknown:
                 raise ValueError(f"--loaded-settings: unknown setting(s) {unknown}")
         run_timing(_names(args.timing_settings) if args.timing_settings else names, walls, args.repeats, args.out,
-                   args.timing_steps, args.wall_steps, loaded)
+                   args.timing_steps, args.wall_steps, loaded, floors=[f for f in args.timing_floors.split(",") if f])
     report(args.out)
     return 0
 

@@ -24,19 +24,13 @@ import numpy as np
 
 from superex_deploy.evaluation import (bootstrap_interval, eval_scenarios, first_half_auc, iou_at_coverage,
                                        markdown_table, run_benchmark_episode, write_json, write_text)
-from superex_deploy.maps import OccupancyGrid, load_map
+from superex_deploy.maps import load_map
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
+from superex_deploy.sim.generated_floors import upsampled
 
 PACE_HZ = 10.0
 TIMING_MAP, TIMING_START = "50015847", 0
 LEVELS = (0.1, 0.2, 0.3)
-
-
-def upsampled(grid: OccupancyGrid, factor: int) -> OccupancyGrid:
-    """``grid`` with every cell a ``factor`` x ``factor`` block at ``resolution / factor``."""
-    block = np.ones((factor, factor), bool)
-    return OccupancyGrid(np.kron(grid.occupied, block), np.kron(grid.valid, block), grid.resolution_m / factor,
-                         f"{grid.name}@x{factor}")
 
 
 def _episode(map_name: str, start, factor: int, steps: int, mode: str) -> dict:
