@@ -15,7 +15,7 @@ import pytest
 from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import MapFrame
 from superex_deploy.recording.channels import (CHANNELS, MESSAGE_ENCODING, RECORDED_CHANNELS, SCHEMA_ENCODING,
-                                               channel, grid_message, map_message, plain_values)
+                                               StepData, channel, map_message, plain_values)
 from superex_deploy.recording.live import (MISSING_EXTRA, LiveServer, busy_port_message, encode, live_view,
                                            parse_address)
 from superex_deploy.recording.schemas import SCHEMAS
@@ -67,18 +67,46 @@ def test_the_recorded_channels_are_the_recordings_schemas_and_each_topic_is_one_
         channel("/nope")
 
 
-def test_a_grid_is_encoded_to_the_bytes_of_the_mcap_writers_encoder():
+def _encoder(spec):
     from mcap_ros2._dynamic import serialize_dynamic
 
-    spec = channel("/map")
-    encoder = serialize_dynamic(spec.type_name, spec.schema)[spec.type_name]
+    return serialize_dynamic(spec.type_name, spec.schema)[spec.type_name]
+
+
+def _step(path_xy, ranges, stamp_s=12.345):
+    from superex_deploy.messages import Command, LaserScan, Observation, OccupancyGridMessage, Pose2D, PoseCovariance
+
+    scan = None if ranges is None else LaserScan(-1.0, 2.0 / max(len(ranges) - 1, 1), 0.1, 5.0, ranges)
+    slam = None if scan is not None else OccupancyGridMessage(0.1, 5, 7, (0.0, 0.0), np.arange(35, dtype=np.int8))
+    path = np.asarray(path_xy, np.float64).reshape(-1, 2)
+    goal = (tuple(path[-1]), (1, 2)) if len(path) else (None, None)
+    command = Command(stamp_s, goal[0], goal[1], path, np.zeros((len(path), 2), np.int64), False, False)
+    observation = Observation(stamp_s, Pose2D(1.0, 2.0, 0.5), scan, occupancy_grid=slam,
+                              pose_covariance=PoseCovariance(np.diag([0.1, 0.2, 0.3])))
+    return StepData(observation, command, MapFrame((7, 5), 0.1), observed=np.zeros((7, 5), np.int8),
+                    prediction=np.full((7, 5), 0.25, np.float32), evidence=np.eye(7, 5, dtype=np.float32))
+
+
+@pytest.mark.parametrize("stamp_s", [0.0, 12.345, 2.0 ** 31 - 1])
+def test_the_live_bytes_of_every_channel_are_the_mcap_writers_encoders(stamp_s):
     observed = np.random.default_rng(0).integers(-1, 2, (7, 5)).astype(np.int8)
-    for frame in (MapFrame((7, 5), 0.1, (0.5, -1.25)), MapFrame((7, 5), 0.05)):
-        message = map_message(observed, frame, 12.345)
-        assert encode(spec, message, encoder) == encoder(plain_values(message))
-    one = grid_message(np.array([[100]], np.int8), MapFrame((1, 1), 0.1), 0.0)
-    assert encode(spec, one, encoder) == encoder(plain_values(one))
-    assert encode(channel("/map"), {"x": 1}, lambda message: b"plain") == b"plain"
+    grid_spec = channel("/map")
+    for frame in (MapFrame((7, 5), 0.1, (0.5, -1.25)), MapFrame((7, 5), 0.05), MapFrame((1, 1), 0.1)):
+        message = map_message(observed[:frame.shape[0], :frame.shape[1]], frame, stamp_s)
+        assert encode(grid_spec, message, _encoder(grid_spec)) == _encoder(grid_spec)(plain_values(message))
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 2, 3, 17):
+        for ranges in (None, rng.uniform(0.1, 5.0, max(n, 1)).astype(np.float32), np.array([np.inf, np.nan, 1e-3])):
+            step = _step(rng.uniform(-50, 50, (n, 2)), ranges, stamp_s)
+            for spec in CHANNELS:
+                message = spec.build(step)
+                if message is not None:
+                    assert encode(spec, message, _encoder(spec)) == _encoder(spec)(plain_values(message)), spec.topic
+    odd = {"header": {"stamp": {"sec": 1, "nanosec": 2}, "frame_id": "odd"},  # poses of their own headers
+           "poses": [{"header": {"stamp": {"sec": 1, "nanosec": k}, "frame_id": "map" * k},
+                      "pose": {"position": {"x": 1.0, "y": 2.0, "z": 3.0},
+                               "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}} for k in range(3)]}
+    assert encode(channel("/plan"), odd, _encoder(channel("/plan"))) == _encoder(channel("/plan"))(odd)
 
 
 @pytest.mark.parametrize("text, address", [("127.0.0.1:8765", ("127.0.0.1", 8765)), ("0.0.0.0:0", ("0.0.0.0", 0)),
@@ -145,16 +173,26 @@ def test_the_server_is_stopped_and_its_port_free_however_the_block_ends():
         assert nothing is None
 
 
-def test_explore_live_runs_the_episode_and_frees_the_port(tmp_path, capsys):
+def test_explore_and_replay_live_run_as_without_it_and_free_the_port(tmp_path, capsys):
     pytest.importorskip("foxglove")
     from superex_deploy.cli import main
 
     port = _free_port()
     threads = _threads()
-    assert main(["explore", "--map", MAP, "--steps", "3", "--gif-every", "0", "--live", f"127.0.0.1:{port}",
-                 "--live-every", "0", "--out", str(tmp_path / "out")]) == 0
+    common = ["explore", "--map", MAP, "--steps", "4", "--gif-every", "0", "--profile", "full"]  # deterministic
+    assert main(common + ["--out", str(tmp_path / "plain"), "--record", str(tmp_path / "plain.mcap")]) == 0
+    assert main(common + ["--live", f"127.0.0.1:{port}", "--live-every", "0", "--out", str(tmp_path / "live"),
+                          "--record", str(tmp_path / "live.mcap")]) == 0
     assert f"superex explore: live view on ws://127.0.0.1:{port}" in capsys.readouterr().err
-    assert (tmp_path / "out" / "metrics.json").is_file()
+    assert _port_is_free(port) and _threads() == threads
+    # The live view changes nothing of the run: the same recording, byte for byte, and the same episode.
+    assert (tmp_path / "live.mcap").read_bytes() == (tmp_path / "plain.mcap").read_bytes()
+    plain, live = (json.loads((tmp_path / name / "metrics.json").read_text()) for name in ("plain", "live"))
+    episode = ("coverage", "poses", "goals")
+    assert [live[key] for key in episode] == [plain[key] for key in episode]
+    assert main(["replay", str(tmp_path / "live.mcap"), "--live", f"127.0.0.1:{port}", "--out",
+                 str(tmp_path / "replay")]) == 0
+    assert f"superex replay: live view on ws://127.0.0.1:{port}" in capsys.readouterr().err
     assert _port_is_free(port) and _threads() == threads
 
 

@@ -186,10 +186,11 @@ def _goal(step: StepData) -> Optional[dict]:
 
 
 def _plan(step: StepData) -> dict:
-    stamp = step.observation.stamp_s
-    return {"header": header_message(stamp, "map"),
-            "poses": [{"header": header_message(stamp, "map"), "pose": pose_message(float(x), float(y), 0.0)}
-                      for x, y in step.command.path_xy]}
+    header = header_message(step.observation.stamp_s, "map")
+    orientation = pose_message(0.0, 0.0, 0.0)["orientation"]  # one dict for every pose: read, never changed
+    return {"header": header,
+            "poses": [{"header": header, "pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": orientation}}
+                      for x, y in np.asarray(step.command.path_xy, np.float64).reshape(-1, 2).tolist()]}
 
 
 def map_message(observed: np.ndarray, frame: MapFrame, stamp_s: float) -> dict:

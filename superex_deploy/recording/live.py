@@ -11,8 +11,8 @@ Publishing costs the episode little:
 * a topic no client subscribes to is not even built;
 * the large messages (the maps, the prediction, the evidence, the SPAD frame: ``grid`` channels) go out at most
   once per ``every_s`` seconds of the observations' clock (simulated time), and at the last step;
-* the grids' CDR bytes are written with numpy, not element by element (:func:`encode`: the same bytes the MCAP
-  writer's encoder makes);
+* the large arrays' CDR bytes (a grid's cells, a scan's ranges, a path's poses) are laid out with numpy, not value
+  by value (:func:`encode`: the same bytes the MCAP writer's encoder makes);
 * sending runs on the server's own threads: a slow client loses its oldest queued messages (``backlog`` per client),
   the episode never waits for it.
 
@@ -102,15 +102,60 @@ def _foxglove():
     return foxglove
 
 
-def encode(spec: ChannelSpec, message: dict, encoder) -> bytes:
-    """The CDR bytes of ``message`` on ``spec``'s channel: ``encoder`` (``mcap_ros2``'s, of ``spec``'s schema) on
-    ``message``, except that a ``nav_msgs/msg/OccupancyGrid``'s int8 ``data`` (its last field: a uint32 count, then
-    one byte per cell, no padding) is appended as raw bytes, which ``encoder`` would write one cell at a time."""
+def _grid_bytes(message: dict, encoder) -> Optional[bytes]:
+    """An OccupancyGrid: its last field, int8 ``data``, is a uint32 count then one byte per cell (no padding)."""
     data = message.get("data")
-    if spec.type_name != "nav_msgs/msg/OccupancyGrid" or not isinstance(data, np.ndarray):
-        return encoder(plain_values(message))
-    head = encoder(plain_values({**message, "data": []}))  # ends with the count 0 (little-endian CDR)
+    if not isinstance(data, np.ndarray):
+        return None
+    head = encoder(plain_values({**message, "data": []}))  # ends with the count 0
     return head[:-4] + struct.pack("<I", data.size) + np.ascontiguousarray(data, np.int8).tobytes()
+
+
+def _scan_bytes(message: dict, encoder) -> Optional[bytes]:
+    """A LaserScan without intensities: float32 ``ranges`` (a count, 4-byte values) then the count 0."""
+    ranges = message.get("ranges")
+    if not isinstance(ranges, np.ndarray) or len(message.get("intensities", ())) != 0:
+        return None
+    head = encoder(plain_values({**message, "ranges": []}))  # ends with the counts 0 of ranges and intensities
+    return (head[:-8] + struct.pack("<I", ranges.size) + np.asarray(ranges).astype("<f4").ravel().tobytes()
+            + struct.pack("<I", 0))
+
+
+def _path_bytes(message: dict, encoder) -> Optional[bytes]:
+    """A Path whose poses share one header: each pose is that header (stamp, frame id), padding to 8 bytes and 7
+    float64 (position, orientation); every pose after the first starts 8-byte aligned, so they share one layout."""
+    poses = message.get("poses") or []
+    head = encoder(plain_values({**message, "poses": []}))  # ends with the count 0
+    if not poses:
+        return head
+    header = poses[0]["header"]
+    if any(pose["header"] != header for pose in poses):
+        return None
+    frame = header["frame_id"].encode() + b"\0"
+    element = struct.pack("<iII", header["stamp"]["sec"], header["stamp"]["nanosec"], len(frame)) + frame
+    values = np.array([(p["position"]["x"], p["position"]["y"], p["position"]["z"], p["orientation"]["x"],
+                        p["orientation"]["y"], p["orientation"]["z"], p["orientation"]["w"])
+                       for p in (pose["pose"] for pose in poses)], "<f8")
+    first_pad = -(len(head) - 4 + len(element)) % 8  # alignment counts from after the 4-byte encapsulation header
+    pad = -len(element) % 8
+    rest = np.zeros((len(poses) - 1, len(element) + pad + 56), np.uint8)
+    rest[:, :len(element)] = np.frombuffer(element, np.uint8)
+    rest[:, len(element) + pad:] = values[1:].view(np.uint8).reshape(-1, 56)
+    return (head[:-4] + struct.pack("<I", len(poses)) + element + bytes(first_pad) + values[0].tobytes()
+            + rest.tobytes())
+
+
+_FAST = {"nav_msgs/msg/OccupancyGrid": _grid_bytes, "sensor_msgs/msg/LaserScan": _scan_bytes,
+         "nav_msgs/msg/Path": _path_bytes}
+
+
+def encode(spec: ChannelSpec, message: dict, encoder) -> bytes:
+    """The CDR bytes of ``message`` on ``spec``'s channel: those ``encoder`` (``mcap_ros2``'s, of ``spec``'s
+    schema: the MCAP writer's) makes of it. Its large parts are laid out with numpy where the encoder would write
+    them one value at a time: a grid's cells, a scan's ranges, a path's poses (the same bytes; tested)."""
+    fast = _FAST.get(spec.type_name)
+    data = None if fast is None else fast(message, encoder)
+    return encoder(plain_values(message)) if data is None else data
 
 
 class LiveServer:
