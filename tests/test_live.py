@@ -121,6 +121,27 @@ def test_a_bad_address_is_refused(text):
         parse_address(text)
 
 
+@pytest.mark.parametrize("argv, option", [(["--live", "8765"], "--live"), (["--live", "host:port"], "--live"),
+                                          (["--live", "--live-every", "-1"], "--live-every"),
+                                          (["--live-every", "nan"], "--live-every")])
+def test_a_bad_live_option_is_refused_naming_it_before_anything_is_created(tmp_path, capsys, argv, option):
+    from superex_deploy.cli import main
+
+    out = tmp_path / "out"
+    assert main(["explore", "--map", MAP] + argv + ["--out", str(out)]) == 2
+    assert f"argument {option}:" in capsys.readouterr().err and not out.exists()
+
+
+def test_live_takes_its_default_address_without_one():
+    from superex_deploy.cli import build_parser
+
+    args = build_parser().parse_args(["explore", "--map", MAP, "--live", "--out", "x"])
+    assert (args.live, args.live_every) == (("127.0.0.1", 8765), 0.5)
+    args = build_parser().parse_args(["replay", "r.mcap", "--live", "0.0.0.0:0", "--live-every", "2", "--out", "x"])
+    assert (args.live, args.live_every) == (("0.0.0.0", 0), 2.0)
+    assert build_parser().parse_args(["explore", "--map", MAP, "--out", "x"]).live is None
+
+
 def test_live_without_the_extra_is_one_clear_error(monkeypatch, tmp_path, capsys):
     from superex_deploy.cli import main
 
