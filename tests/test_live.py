@@ -107,6 +107,13 @@ def test_the_live_bytes_of_every_channel_are_the_mcap_writers_encoders(stamp_s):
                       "pose": {"position": {"x": 1.0, "y": 2.0, "z": 3.0},
                                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}} for k in range(3)]}
     assert encode(channel("/plan"), odd, _encoder(channel("/plan"))) == _encoder(channel("/plan"))(odd)
+    for top, shared in [(top, shared) for top in ("", "ab", "map", "odom0") for shared in ("", "a", "abcd", "abcde")]:
+        header = {"stamp": {"sec": 7, "nanosec": 9}, "frame_id": shared}  # every alignment of the poses' layout
+        path = {"header": {"stamp": {"sec": 7, "nanosec": 9}, "frame_id": top},
+                "poses": [{"header": header, "pose": {"position": {"x": x, "y": -x, "z": 0.5},
+                                                      "orientation": {"x": 0.0, "y": 0.1, "z": 0.2, "w": 0.9}}}
+                          for x in (1.0, 2.5, -3.25)]}
+        assert encode(channel("/plan"), path, _encoder(channel("/plan"))) == _encoder(channel("/plan"))(path)
 
 
 @pytest.mark.parametrize("text, address", [("127.0.0.1:8765", ("127.0.0.1", 8765)), ("0.0.0.0:0", ("0.0.0.0", 0)),
