@@ -3,6 +3,8 @@ channel table; a busy port and a missing extra each one clear error; the server 
 run ends."""
 
 import json
+import os
+import signal
 import socket
 import struct
 import sys
@@ -345,3 +347,31 @@ def test_grids_are_published_at_most_once_per_every_s_of_simulated_time():
     # 12 steps of 0.1 s: the maps of 0.0, 0.5 and 1.0 s, every pose, nothing else.
     assert server.published["/pose"] == 12 and server.published["/map"] == 3
     assert sum(server.published.values()) == 15
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
+def test_a_live_run_stopped_by_a_signal_stops_its_server(tmp_path, capsys, monkeypatch, signum, code):
+    pytest.importorskip("foxglove")
+    from superex_deploy.cli import main
+    from superex_deploy.onboard import Explorer
+
+    step, at = Explorer.step, {"step": 3}
+
+    def step_then_signal(self, observation):
+        command = step(self, observation)
+        if command.step == at["step"]:
+            os.kill(os.getpid(), signum)
+        return command
+
+    monkeypatch.setattr(Explorer, "step", step_then_signal)
+    port = _free_port()
+    threads = _threads()
+    record = tmp_path / "ep.mcap"
+    assert main(["explore", "--map", MAP, "--steps", "50", "--gif-every", "0", "--live", f"127.0.0.1:{port}",
+                 "--out", str(tmp_path / "run"), "--record", str(record)]) == code
+    err = capsys.readouterr().err
+    assert f"superex explore: stopped by {signal.Signals(signum).name}" in err and "holds the 3 whole steps" in err
+    assert _port_is_free(port) and _threads() == threads
+    at["step"] = 1  # the recording holds 3
+    assert main(["replay", str(record), "--live", f"127.0.0.1:{port}", "--out", str(tmp_path / "replay")]) == code
+    assert _port_is_free(port) and _threads() == threads
