@@ -1,4 +1,6 @@
-"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif.
+"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif; with ``--live``
+also served while it runs on a Foxglove WebSocket (:mod:`superex_deploy.recording.live`), stopped when the run ends
+however it ends.
 
 Stopped by SIGINT or SIGTERM, it keeps what the steps done so far hold: ``metrics.json`` with their series, marked
 ``"interrupted": "SIGINT"`` (or ``"SIGTERM"``), and with ``--record`` a valid recording of every whole step, which
@@ -12,11 +14,13 @@ import json
 import sys
 from pathlib import Path
 
-from superex_deploy.commands.options import (add_noise_options, add_planner_option, add_profile_option,
-                                             check_output_file, check_output_folder, folders_made, noise_options,
-                                             noise_settings, non_negative_int, planner_options, resolve_start)
+from superex_deploy.commands.options import (add_live_options, add_noise_options, add_planner_option,
+                                             add_profile_option, check_output_file, check_output_folder, folders_made,
+                                             noise_options, noise_settings, non_negative_int, planner_options,
+                                             resolve_start)
 from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
                                      resolve_profile)
+from superex_deploy.recording.live import live_view
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "`superex replay FILE` reruns the explorer on it); its folder must exist or be --out")
     add_profile_option(parser)
     add_noise_options(parser)
+    add_live_options(parser)
     parser.add_argument("--out", required=True, type=Path)
 
 
@@ -65,9 +70,6 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import load_map
-    from superex_deploy.messages import MapFrame
-    from superex_deploy.recording import EpisodeRecorder
-    from superex_deploy.render import GifRecorder
     from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
 
     # Every check first: nothing is created before the last of them.
@@ -89,6 +91,16 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
+    with live_view(args.live, args.live_every, "superex explore") as live:  # the last check: a port in use
+        return _explore(args, grid, start, options, planner, sensing, cfg, noise, live)
+
+
+def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> int:
+    """The episode and its outputs, after every check."""
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.recording import EpisodeRecorder
+    from superex_deploy.render import GifRecorder
+
     # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
     # replay follows it); the sessions get the worker's share of this machine's cores.
     from superex_deploy.onboard.prediction.inference import available_cores
@@ -110,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
             metadata = recording_metadata(grid, args, options, sensing, cfg.explorer)
             metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
             record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
-        result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record)
+        result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live)
         if record is not None:
             record.write_map(result.final_observed)
             record.close()
@@ -134,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
 
 
-def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record):
+def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live):
     from tqdm import tqdm
 
     from superex_deploy.sim.episode import run_episode
@@ -153,6 +165,8 @@ def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record):
                 done.goals["cells"].append(list(command.goal_rc))
             if record is not None:
                 record.write(observation, command, explorer.observed, explorer.frame)
+            if live is not None:
+                live.publish(observation, command, explorer)
 
         return run_episode(grid, start, explorer=explorer, steps=args.steps, seed=args.seed, cfg=cfg,
                            on_step=on_step, sensing=sensing, on_observation=on_observation)

@@ -18,7 +18,8 @@ from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
 __all__ = ["add_planner_option", "planner_options", "add_profile_option", "add_parallel_options", "check_jobs",
            "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps", "check_output_folder",
            "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M", "settings_differences",
-           "add_noise_options", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings"]
+           "add_noise_options", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings",
+           "add_live_options"]
 
 
 def _integer(text: str, low: int) -> int:
@@ -365,3 +366,40 @@ def noise_settings(noise: dict) -> dict:
     if noise.get("spad_noise", "off") != "off":
         settings["spad_noise"] = noise["spad_noise"]
     return settings
+
+
+def _live_address(text: str) -> tuple[str, int]:
+    from superex_deploy.recording.live import parse_address
+
+    try:
+        return parse_address(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (value >= 0.0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds >= 0, got {text!r}")
+    return value
+
+
+def add_live_options(parser: argparse.ArgumentParser) -> None:
+    """``--live [HOST:PORT]`` (a Foxglove WebSocket of the episode's topics while it runs; default address
+    127.0.0.1:8765) and ``--live-every SECONDS`` (the maps' rate on it, in the observations' seconds)."""
+    from superex_deploy.recording.live import DEFAULT_ADDRESS
+
+    parser.add_argument("--live", nargs="?", const=DEFAULT_ADDRESS, default=None, type=_live_address,
+                        metavar="HOST:PORT",
+                        help="serve the map, scan, pose, path, goal, prediction and SPAD evidence live on a Foxglove "
+                             "WebSocket while the episode runs (ROS 2 messages, the topics of --record; open "
+                             f"ws://{DEFAULT_ADDRESS[0]}:{DEFAULT_ADDRESS[1]} in Foxglove); default address "
+                             f"{DEFAULT_ADDRESS[0]}:{DEFAULT_ADDRESS[1]}, port 0: any free port; needs the live "
+                             "extra: pip install 'superex[live]'")
+    parser.add_argument("--live-every", type=_seconds, default=0.5, metavar="SECONDS",
+                        help="with --live: publish the maps, the prediction, the evidence and the SPAD frame at most "
+                             "once per this many seconds of simulated time (and at the last step; 0: every step); "
+                             "the small topics go out every step (default 0.5)")

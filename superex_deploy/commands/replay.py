@@ -5,7 +5,8 @@ explorer configuration) and given no map: it sees exactly the recorded observati
 recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything
 that stopped the reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its
 frame: ``shape``, ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's
-first). A recording without a single whole step is refused: there is nothing to compare.
+first). A recording without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed
+steps are served on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from superex_deploy.commands.options import add_live_options
 from superex_deploy.files import write_atomically
+from superex_deploy.recording.live import live_view
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,6 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models (default: the recording's, else the repository's exported/)")
+    add_live_options(parser)
 
 
 def build_explorer(metadata: dict, frame, models=None):
@@ -139,15 +143,16 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.recording} holds no step to replay ({why})")
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
-    with build_explorer(recording.metadata, recording.frame, args.models) as explorer:
+    explorer = build_explorer(recording.metadata, recording.frame, args.models)
+    with explorer, live_view(args.live, args.live_every, "superex replay") as live:
         if explorer.scheduled is not None:
             # The predictions land where they landed in the recorded run (a never-waiting run: when its CPU had
             # finished them), computed inline, so that the replay is exact on any machine.
             explorer.follow_recorded_predictions([recorded.prediction_step for recorded in recording.steps])
-        return _replay(args, recording, explorer)
+        return _replay(args, recording, explorer, live)
 
 
-def _replay(args, recording, explorer) -> int:
+def _replay(args, recording, explorer, live) -> int:
     from tqdm import tqdm
 
     from superex_deploy.onboard import STAGES
@@ -157,6 +162,8 @@ def _replay(args, recording, explorer) -> int:
     finished = False
     for recorded in tqdm(recording.steps, desc=f"replay {args.recording.name}", unit="step"):
         command = explorer.step(recorded.observation)
+        if live is not None:
+            live.publish(recorded.observation, command, explorer)
         for stage in STAGES:
             timings[stage].append(command.timings_s[stage])
         if command.new_goal:

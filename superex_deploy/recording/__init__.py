@@ -19,6 +19,11 @@ A robot's observation may carry two more inputs, recorded (and replayed) only wh
 (``nav_msgs/msg/OccupancyGrid``, the SLAM map the explorer read; ``/scan`` is absent on a step without a scan) and
 ``/pose_covariance`` (``geometry_msgs/msg/PoseWithCovarianceStamped``: x, y, yaw entries of the 6 x 6, the rest 0).
 
+The topics, their schemas and how each message is built from a step are one table,
+:data:`~superex_deploy.recording.channels.CHANNELS`, which the live view (:mod:`superex_deploy.recording.live`:
+``superex explore --live``) serves too, with four topics of its own (``/tf``, ``/goal``, ``/prediction``,
+``/evidence``).
+
 A metadata record ``superex.episode`` holds what a replay needs to rebuild the explorer (map frame, planner and its
 options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string whose type is
 fixed (:data:`METADATA_TYPES`; checked when writing and when reading). The SPAD

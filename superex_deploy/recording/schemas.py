@@ -6,8 +6,9 @@ from __future__ import annotations
 import math
 
 __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata", "SPAD_FRAME_MSG",
-           "EXPLORER_COMMAND_MSG", "SCHEMAS", "REPLAYED_TOPICS", "COVARIANCE_INDEX", "stamp_message", "stamp_seconds",
-           "header_message", "pose_message"]
+           "EXPLORER_COMMAND_MSG", "POSE_STAMPED_MSG", "LASER_SCAN_MSG", "PATH_MSG", "OCCUPANCY_GRID_MSG",
+           "POSE_WITH_COVARIANCE_STAMPED_MSG", "TF_MESSAGE_MSG", "SCHEMAS", "REPLAYED_TOPICS", "COVARIANCE_INDEX",
+           "stamp_message", "stamp_seconds", "header_message", "pose_message"]
 
 FORMAT_VERSION = "1"
 METADATA_NAME = "superex.episode"
@@ -116,6 +117,15 @@ int32 prediction_step    # step whose map the newest prediction was made from, -
 float64 robot_yaw        # the observation's yaw (rad), exactly: the /pose quaternion rounds it
 float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older files)
 """ + _SEPARATOR + _HEADER
+
+TF_MESSAGE_MSG = ("geometry_msgs/TransformStamped[] transforms\n" + _SEPARATOR
+                  + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
+                  "geometry_msgs/Transform transform\n" + _SEPARATOR + _HEADER + _SEPARATOR
+                  + "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\n"
+                  "geometry_msgs/Quaternion rotation\n" + _SEPARATOR
+                  + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n" + _SEPARATOR
+                  + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n")
+"""``tf2_msgs/msg/TFMessage``: the live view's transform from ``map`` to the scan's frame (not recorded)."""
 
 SCHEMAS = {"/pose": ("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSG),
            "/scan": ("sensor_msgs/msg/LaserScan", LASER_SCAN_MSG),

@@ -4,7 +4,6 @@ by a signal, or absent)."""
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Optional, Union
@@ -13,8 +12,8 @@ import numpy as np
 
 from superex_deploy.messages import Command, MapFrame, Observation, check_stamp
 from superex_deploy.parallel import signals_deferred
-from superex_deploy.recording.schemas import (COVARIANCE_INDEX, FORMAT_VERSION, METADATA_NAME, SCHEMAS, check_metadata,
-                                             header_message, pose_message, stamp_message)
+from superex_deploy.recording.channels import RECORDED_CHANNELS, StepData, map_message, plain_values
+from superex_deploy.recording.schemas import FORMAT_VERSION, METADATA_NAME, SCHEMAS, check_metadata
 
 __all__ = ["EpisodeRecorder"]
 
@@ -77,7 +76,7 @@ class EpisodeRecorder:
 
     def _write(self, topic: str, message: dict, stamp_s: float, step: int) -> None:
         nanoseconds = int(round(stamp_s * 1e9))
-        self._writer.write_message(topic, self._schemas[topic], message, log_time=nanoseconds,
+        self._writer.write_message(topic, self._schemas[topic], plain_values(message), log_time=nanoseconds,
                                    publish_time=nanoseconds, sequence=step)
 
     def write(self, observation: Observation, command: Command, observed: Optional[np.ndarray] = None,
@@ -106,60 +105,15 @@ class EpisodeRecorder:
                     frame: MapFrame) -> None:
         stamp, step = observation.stamp_s, command.step
         self._last = (stamp, step)
-        pose = observation.pose
-        self._write("/pose", {"header": header_message(stamp, "map"), "pose": pose_message(pose.x, pose.y, pose.yaw)},
-                    stamp, step)
-        scan = observation.scan
-        if scan is not None:
-            self._write("/scan", {"header": header_message(stamp, "base_scan"), "angle_min": scan.angle_min,
-                                  "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
-                                  "time_increment": 0.0, "scan_time": 0.0, "range_min": scan.range_min,
-                                  "range_max": scan.range_max, "ranges": scan.ranges.tolist(), "intensities": []},
-                        stamp, step)
-        self._write_robot_inputs(observation, stamp, step)
-        spad = observation.spad
-        if spad is not None:
-            self._write("/spad", {"header": header_message(stamp, "base_scan"), "bin_width_s": spad.bin_width_s,
-                                  "n_rays": spad.n_rays, "n_bins": spad.n_bins, "nnz": int(spad.bins.size),
-                                  "angles_f64le": spad.angles.astype("<f8").tobytes(),
-                                  "row_start_i64le": spad.row_start.astype("<i8").tobytes(),
-                                  "bins_i32le": spad.bins.astype("<i4").tobytes(),
-                                  "counts_f32le": spad.counts.astype("<f4").tobytes()}, stamp, step)
-        goal = command.goal_rc
-        self._write("/command", {"header": header_message(stamp, "map"), "step": step, "has_goal": goal is not None,
-                                 "goal_row": -1 if goal is None else goal[0],
-                                 "goal_col": -1 if goal is None else goal[1],
-                                 "goal_x": math.nan if goal is None else command.goal_xy[0],
-                                 "goal_y": math.nan if goal is None else command.goal_xy[1],
-                                 "new_goal": bool(command.new_goal), "finished": bool(command.finished),
-                                 "prediction_step": int(command.prediction_step), "robot_yaw": pose.yaw,
-                                 "prediction_age_s": (math.nan if command.prediction_age_s is None
-                                                      else float(command.prediction_age_s))},
-                    stamp, step)
-        self._write("/plan", {"header": header_message(stamp, "map"),
-                              "poses": [{"header": header_message(stamp, "map"),
-                                         "pose": pose_message(float(x), float(y), 0.0)}
-                                        for x, y in command.path_xy]}, stamp, step)
-        if observed is not None and (step % self.map_every == 0 or command.finished):
-            self._write_map(observed, stamp, step, frame)
-
-    def _write_robot_inputs(self, observation: Observation, stamp: float, step: int) -> None:
-        """The SLAM map and the pose covariance of an observation that carries them."""
-        grid = observation.occupancy_grid
-        if grid is not None:
-            self._write("/slam_map", {"header": header_message(stamp, "map"),
-                                      "info": {"map_load_time": stamp_message(0.0), "resolution": grid.resolution_m,
-                                               "width": grid.width, "height": grid.height,
-                                               "origin": pose_message(grid.origin_xy[0], grid.origin_xy[1], 0.0)},
-                                      "data": grid.data.tolist()}, stamp, step)
-        covariance = observation.pose_covariance
-        if covariance is not None:
-            full = np.zeros((6, 6))
-            full[np.ix_(COVARIANCE_INDEX, COVARIANCE_INDEX)] = covariance.matrix
-            pose = observation.pose
-            self._write("/pose_covariance", {"header": header_message(stamp, "map"),
-                                             "pose": {"pose": pose_message(pose.x, pose.y, pose.yaw),
-                                                      "covariance": full.ravel().tolist()}}, stamp, step)
+        data = StepData(observation, command, frame)
+        for spec in RECORDED_CHANNELS:
+            if spec.topic == "/map":  # every map_every steps, and at the last one (write_map's rule)
+                if observed is not None and (step % self.map_every == 0 or command.finished):
+                    self._write_map(observed, stamp, step, frame)
+                continue
+            message = spec.build(data)
+            if message is not None:
+                self._write(spec.topic, message, stamp, step)
 
     def write_map(self, observed: np.ndarray, stamp_s: Optional[float] = None, step: Optional[int] = None,
                   frame: Optional[MapFrame] = None) -> None:
@@ -181,14 +135,7 @@ class EpisodeRecorder:
         stamp_s = check_stamp("stamp_s", stamp_s)
         if step == self._last_map_step:
             return
-        observed = np.asarray(observed)
-        data = np.where(observed > 0, 100, observed).astype(np.int8)[::-1]
-        height, width = frame.shape
-        self._write("/map", {"header": header_message(stamp_s, "map"),
-                             "info": {"map_load_time": stamp_message(0.0), "resolution": frame.resolution_m,
-                                      "width": width, "height": height,
-                                      "origin": pose_message(frame.origin_xy[0], frame.origin_xy[1], 0.0)},
-                             "data": data.ravel().tolist()}, stamp_s, step)
+        self._write("/map", map_message(observed, frame, stamp_s), stamp_s, step)
         self._last_map_step = step
 
     def close(self) -> None:
