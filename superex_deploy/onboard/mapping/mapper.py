@@ -257,14 +257,9 @@ class Mapper:
         """Mark the rectangle ``[r0:r1, c0:c1]`` (clipped to the map; default: all of it) as changed."""
         rows, cols = self._log_odds.shape
         box = [max(r0, 0), rows if r1 is None else min(r1, rows), max(c0, 0), cols if c1 is None else min(c1, cols)]
-        if box[0] >= box[1] or box[2] >= box[3]:
-            return
-        if self._stale is None:
-            self._stale = box
-        else:
-            stale = self._stale
-            self._stale = [min(stale[0], box[0]), max(stale[1], box[1]), min(stale[2], box[2]),
-                           max(stale[3], box[3])]
+        if box[0] < box[1] and box[2] < box[3]:
+            old = self._stale or box
+            self._stale = [min(old[0], box[0]), max(old[1], box[1]), min(old[2], box[2]), max(old[3], box[3])]
 
     def _derived(self, include_carved: bool) -> np.ndarray:
         """The int8 classes (see :meth:`observed`), derived again over the changed rectangle; not a copy."""

@@ -99,7 +99,9 @@ def filter_area(bp_filter, resolution_m: float, pose_rc, shape: tuple[int, int],
     boundaries, with one model cell of margin.
 
     Running the filter on this rectangle alone (the back-projection zero elsewhere, the robot cell moved into it)
-    gives exactly its answer on the whole grid there, and zero is its answer everywhere else: the model reads and
+    gives its answer on the whole grid there (bit for bit where a model cell is a power-of-two number of cells; else
+    the interpolation weights, computed from the rectangle's first cell, may differ in the last bit), and zero is its
+    answer everywhere else: the model reads and
     writes only its window; the blocks pooled are the whole grid's blocks; the interpolation back onto the grid
     meets the same zeros past the window. The whole grid where the filter gives no window size
     (:func:`model_window_cells`).
