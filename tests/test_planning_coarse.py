@@ -173,3 +173,35 @@ def test_an_explorer_on_a_fine_floor_plans_on_blocks_and_drives_the_cells_the_ma
         world.apply(command)  # refuses a path that is not 8-connected from the robot's cell
     assert command.finished and goals >= 2
     assert world.coverage(explorer.mapper.known(include_carved=False)) > 0.9  # both rooms, through the door
+
+
+def test_a_growing_fine_map_keeps_its_blocks_and_its_goal_through_each_growth():
+    """On a map that grows, rows above and columns to the left come in whole blocks: the planning's blocks keep
+    their cells, and the goal and its path survive the growth (in blocks shifted by the growth)."""
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.onboard.mapping.growth import MapGrowth
+
+    from superex_deploy.maps import largest_region_start
+    from superex_deploy.sim.generated_floors import FloorLayout, generate_floor
+
+    grid = generate_floor(FloorLayout(width_m=40.0, height_m=24.0), 0.05, 1)
+    world = World(grid, largest_region_start(grid, np.random.default_rng(0), 0.5))
+    pose = world.observe().pose
+    frame = MapFrame.around(pose.x, pose.y, resolution_m=0.05, size_m=4.0)
+    explorer = Explorer(frame, make_planner("nearest"), ObservedAsPrediction(),
+                        cfg=ExplorerConfig(growth=MapGrowth(margin_m=1.0, chunk_m=1.05)))
+    grown = kept = 0
+    for _ in range(150):
+        before = explorer.frame
+        goal_xy = None if explorer.goal is None else explorer.frame.centre_xy(explorer.planning_grid.centre(explorer.goal))
+        command = explorer.step(world.observe())
+        if explorer.frame != before:
+            grown += 1
+            shift = (explorer.frame.shape[0] - before.shape[0], before.origin_xy[0] - explorer.frame.origin_xy[0])
+            assert round(shift[1] / 0.05) % 2 == 0  # whole blocks added to the left
+            kept += goal_xy is not None and command.goal_xy is not None and not command.new_goal and \
+                np.allclose(goal_xy, command.goal_xy)
+        if command.finished:
+            break
+        world.apply(command)
+    assert grown >= 2 and kept >= 1

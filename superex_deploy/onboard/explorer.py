@@ -412,7 +412,7 @@ class Explorer:
         spad_reach_m = 0.0
         if self.spad_processing is not None and obs.spad is not None:
             spad_reach_m = self.spad_processing.reach_cells(self.frame.resolution_m) * self.frame.resolution_m
-        return grown_frame(self.frame, reach_of(obs, spad_reach_m), self.cfg.growth)
+        return grown_frame(self.frame, reach_of(obs, spad_reach_m), self.cfg.growth, self.planning_grid.factor)
 
     def _regrid(self, regrid: Regrid) -> None:
         """Move every per-cell state to the larger grid ``regrid``: the map's layers, the SPAD evidence, the

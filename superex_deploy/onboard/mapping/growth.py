@@ -111,9 +111,11 @@ def reach_of(obs: Observation, spad_reach_m: float = 0.0) -> tuple[float, float,
     return min(xs), min(ys), max(xs), max(ys)
 
 
-def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth) -> Optional[Regrid]:
+def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth, align: int = 1) -> Optional[Regrid]:
     """The grid ``frame`` must grow to so that ``reach_xy`` plus ``growth.margin_m`` lies inside it, or None when it
-    does already. A side that grows gains ``growth.chunk_m`` more; the new origin stays on ``frame``'s lattice.
+    does already. A side that grows gains ``growth.chunk_m`` more; the new origin stays on ``frame``'s lattice, and
+    the rows added above and the columns added to the left are multiples of ``align`` (the planning's blocks keep
+    their cells: :mod:`~superex_deploy.onboard.planning.coarse`).
 
     Raises:
         ValueError: the grown grid would exceed the map size limit
@@ -135,10 +137,10 @@ def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth) -> Optional[Regrid
         raise ValueError(f"the explorer's growing map would have to reach x {x0:.3g}..{x1:.3g} m, y {y0:.3g}..{y1:.3g} "
                          f"m (margin {margin:.3g} m, chunk {chunk:.3g} m): beyond the map size limit of "
                          f"{max_map_cells():,} cells") from None
-    left = -need_left + extra if need_left < 0 else 0
+    left = -(-(-need_left + extra) // align) * align if need_left < 0 else 0
     right = need_right - cols + extra if need_right > cols else 0
     bottom = -need_bottom + extra if need_bottom < 0 else 0
-    top = need_top - rows + extra if need_top > rows else 0
+    top = -(-(need_top - rows + extra) // align) * align if need_top > rows else 0
     if not (left or right or bottom or top):
         return None
     shape = (rows + top + bottom, cols + left + right)
