@@ -90,10 +90,14 @@ class Explorer:
         frame, planner, predictor, spad_processing, cfg: as given.
         mapper: the explorer's map (:class:`~superex_deploy.onboard.mapping.mapper.Mapper`; read it, do not modify it).
         observed: int8 ``[H, W]`` the map after the latest step (UNKNOWN / FREE / OCCUPIED; carved cells FREE).
+        planning_grid: the blocks the planning runs on
+            (:class:`~superex_deploy.onboard.planning.coarse.PlanningGrid`: the map's own cells unless the map is
+            finer than ``cfg.motion.planning_cell_m``); ``frontiers``, ``goal`` and ``path`` are in its blocks.
         frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
             when those may not be driven on, see the module docstring).
-        goal: the locked goal cell, or None (:meth:`drop_goal` lets it go).
-        path: cells from the robot to the goal.
+        goal: the locked goal block, or None (:meth:`drop_goal` lets it go); the command's ``goal_rc`` is its
+            centre cell.
+        path: blocks from the robot to the goal (the command's ``path_rc``: cells through them).
         pose_estimate: the pose the latest step integrated and planned from (the observation's, or the scan
             matcher's correction of it; None before the first step).
         scan_match: the latest step's :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatch`, or None (no
