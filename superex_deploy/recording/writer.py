@@ -134,7 +134,8 @@ class EpisodeRecorder:
                                  "new_goal": bool(command.new_goal), "finished": bool(command.finished),
                                  "prediction_step": int(command.prediction_step), "robot_yaw": pose.yaw,
                                  "prediction_age_s": (math.nan if command.prediction_age_s is None
-                                                      else float(command.prediction_age_s))},
+                                                      else float(command.prediction_age_s)),
+                                 "status": str(command.status), "reason": str(command.reason)},
                     stamp, step)
         self._write("/plan", {"header": header_message(stamp, "map"),
                               "poses": [{"header": header_message(stamp, "map"),
