@@ -404,6 +404,8 @@ class Explorer:
         mission, new_goal = self.mission, False
         if mission.phase == EXPLORING:
             new_goal = self._plan(planning, frontiers, pose, prediction, t, timings, stamp_s)
+            if new_goal:  # its progress is timed from now
+                mission.tracker.chosen(self.frame.centre_xy(self.goal), stamp_s)
             self.finished = mission.settle(self.goal is not None, stamp_s)
             mission.reason = "" if self.goal is not None else mission.why_no_goal(planning, self.frame, stamp_s)
             if self.finished and self.cfg.return_to_start:

@@ -105,7 +105,10 @@ class GoalTracker:
         no progress for ``no_progress_s`` seconds (then the caller blacklists it)."""
         if self._goal != tuple(goal_xy):
             self.chosen(goal_xy, stamp_s)
-        if distance_m <= self._best_m - self.policy.progress_m or not np.isfinite(self._best_m):
+        if not np.isfinite(self._best_m):  # the first length of this goal: its clock started when it was chosen
+            self._best_m = distance_m
+            return False
+        if distance_m <= self._best_m - self.policy.progress_m:
             self._best_m, self._since_s = distance_m, float(stamp_s)
             return False
         return self.policy.no_progress_s is not None and stamp_s - self._since_s >= self.policy.no_progress_s
