@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 from superex_deploy.commands.options import (add_noise_options, add_planner_option, add_profile_option,
-                                             bounds_polygon, check_output_file, check_output_folder, folders_made, noise_options,
-                                             noise_settings, non_negative_int, planner_options, resolve_start)
+                                             bounds_polygon, check_output_file, check_output_folder, folders_made,
+                                             noise_options, noise_settings, non_negative_int, planner_options,
+                                             resolve_start)
 from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
                                      resolve_profile)
 

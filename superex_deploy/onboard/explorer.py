@@ -25,10 +25,10 @@ docs/benchmarks/realtime.md): inline, in a worker thread no step waits for, or o
 worker's from the cores it is given (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`) and
 restores the caller's when a step returns.
 
-The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell.
-Exploration is **finished** when the map holds known cells and no goal has been found in any tier for
-``finish_after_s`` seconds; while the map is still empty a step answers no goal and not finished. The explorer is
-deterministic for a seed (the seed feeds only the planner's generator).
+The :class:`~superex_deploy.messages.Command` holds the goal, the path and a status (:mod:`.status`: bounds,
+blacklist, return to the start). Exploration is **finished** when the map holds known cells and no goal has been
+found in any tier for ``finish_after_s`` seconds (with ``return_to_start``, once back at the start); while the map
+is empty a step answers no goal and not finished. A seed makes it deterministic (it feeds the planner's generator).
 """
 
 from __future__ import annotations
