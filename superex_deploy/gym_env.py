@@ -75,6 +75,8 @@ class ExplorationEnv(gym.Env):
         action: ``Discrete(max_frontiers)``; ``info["action_mask"]`` (int8 ``[max_frontiers]``) marks the frontier
             regions the robot can reach, nearest first, that it has not reached before; a masked-out action drives
             to the nearest frontier (``info["masked_action"]``).
+        info: also ``steps``, ``coverage``, ``known_m2`` and the explorer's last ``status`` and ``reason``
+            (:attr:`~superex_deploy.messages.Command.status`).
 
     Episodes follow Gymnasium's contract: :meth:`step` raises ``RuntimeError`` before the first :meth:`reset`,
     after an episode ended (``terminated`` or ``truncated``) until the next :meth:`reset`, and after
@@ -143,7 +145,8 @@ class ExplorationEnv(gym.Env):
 
     def _info(self) -> dict:
         return {"action_mask": self._action_mask(), "steps": self._world.steps,
-                "coverage": self._world.coverage(self._explorer.mapper.known()), "known_m2": self._known_m2()}
+                "coverage": self._world.coverage(self._explorer.mapper.known()), "known_m2": self._known_m2(),
+                "status": self._command.status, "reason": self._command.reason}
 
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)

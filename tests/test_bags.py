@@ -13,7 +13,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from superex_deploy.cli import main  # noqa: E402
 from superex_deploy.maps import OccupancyGrid  # noqa: E402
-from superex_deploy.messages import OccupancyGridMessage  # noqa: E402
+from superex_deploy.messages import STATUSES, OccupancyGridMessage  # noqa: E402
 from superex_deploy.recording.bags import BagTopics, read_bag  # noqa: E402
 from superex_deploy.sim.world import World, WorldConfig  # noqa: E402
 
@@ -163,6 +163,8 @@ def test_superex_offline_maps_the_floor_and_writes_its_outputs(tmp_path):
     assert len(rows) > 100 and near_wall[truth_rows, truth_cols].mean() > 0.98
     lines = (tmp_path / "out" / "commands.csv").read_text().splitlines()
     assert lines[0].startswith("stamp_s,step,goal_x_m,goal_y_m,finished") and len(lines) == len(drive) + 1
+    assert lines[0].endswith(",step_ms,status,reason") and lines[1].endswith(",exploring,")
+    assert summary["status"] in STATUSES and isinstance(summary["reason"], str)
     assert (tmp_path / "out" / "map.png").stat().st_size > 0
 
 

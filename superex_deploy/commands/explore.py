@@ -15,7 +15,8 @@ import sys
 from pathlib import Path
 
 from superex_deploy.commands.options import (add_live_options, add_noise_options, add_planner_option,
-                                             add_profile_option, check_output_file, check_output_folder, folders_made,
+                                             add_profile_option, bounds_polygon, check_output_file,
+                                             check_output_folder, folders_made,
                                              noise_options, noise_settings, non_negative_int, planner_options,
                                              resolve_start)
 from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
@@ -47,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write every observation and command to this MCAP file (ROS 2 messages; "
                              "`superex replay FILE` reruns the explorer on it); its folder must exist or be --out")
+    parser.add_argument("--bounds", type=bounds_polygon, default=None, metavar='"X,Y X,Y X,Y ..."',
+                        help="explore only inside this polygon (map-frame metres, at least 3 corners, quoted): "
+                             "frontiers outside it are ignored, coverage is also reported inside it, and the episode "
+                             "ends when no reachable frontier is left inside; it must contain the start")
+    parser.add_argument("--return-to-start", action="store_true",
+                        help="once exploration is finished, drive back to the start before ending the episode")
     add_profile_option(parser)
     add_noise_options(parser)
     add_live_options(parser)
@@ -67,10 +74,32 @@ def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict
             "profile_settings": PROFILES[args.profile].to_json()}
 
 
+def with_operations(cfg, bounds, return_to_start: bool):
+    """The episode config ``cfg`` with the explorer's exploration ``bounds`` (an
+    :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds` or None) and ``return_to_start`` (``cfg``
+    itself where neither is set: a run without them is configured as before)."""
+    if bounds is None and not return_to_start:
+        return cfg
+    from dataclasses import replace
+
+    return replace(cfg, explorer=replace(cfg.explorer, bounds=bounds, return_to_start=bool(return_to_start)))
+
+
+def summary_line(result) -> str:
+    """The one line ``superex explore`` ends with: the last command's status and reason, the steps, the coverage
+    (and the coverage inside the bounds, where set)."""
+    coverage = result.coverage[-1] if len(result.coverage) else 0.0
+    inside = "" if result.coverage_in_bounds is None or not len(result.coverage_in_bounds) else \
+        f", coverage inside the bounds {result.coverage_in_bounds[-1]:.1%}"
+    reason = f" ({result.reason})" if result.reason else ""
+    return f"status {result.status}{reason}: {result.steps} steps, coverage {coverage:.1%}{inside}"
+
+
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import load_map
     from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
+    from superex_deploy.messages import MapFrame
 
     # Every check first: nothing is created before the last of them.
     if args.steps < 1:
@@ -88,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
     sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
                               noise["spad_noise"])
     cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)
+    cfg = with_operations(cfg, args.bounds, args.return_to_start)
+    if args.bounds is not None:  # the start inside the polygon, before anything is created
+        args.bounds.check_contains(*MapFrame(grid.shape, grid.resolution_m).centre_xy(start))
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
@@ -226,4 +258,5 @@ def _write_outputs(args, grid, start, result, gif, record, noise: dict) -> int:
         print(f"with noise {noise}: {result.collisions} collisions, {result.true_walls_held_free} true wall cells held "
               f"free, {result.true_walls_carved} carved, explorer-map wall IoU {result.explorer_map_iou:.3f}")
     print(f"wrote {', '.join(str(path) for path in written)}")
+    print(summary_line(result))
     return 0

@@ -5,11 +5,12 @@ Reads a ROS 1 bag, a ROS 2 bag or an MCAP file (:mod:`superex_deploy.recording.b
 would, and writes what it answered:
 
 * ``DIR/commands.csv``: per scan, the stamp (seconds since the first scan), the step, the goal (map-frame metres,
-  empty without one), ``finished``, ``new_goal`` and the step's time per stage (milliseconds);
+  empty without one), ``finished``, ``new_goal``, the step's time per stage (milliseconds), and the command's
+  ``status`` and ``reason``;
 * ``DIR/map.npz``: the explorer's final map (``observed``, int8: -1 unknown, 0 free, 1 wall, row 0 at the top) and
   its frame (``shape``, ``resolution_m``, ``origin_xy``); ``DIR/map.png``: the map drawn;
 * ``DIR/summary.json``: the topics and frames used, scans read and skipped (and why), ``finished`` (at the end,
-  and the stamp it first held), step-time percentiles, and ``interrupted`` when a signal stopped the run (the
+  and the stamp it first held), the last command's ``status`` and ``reason``, step-time percentiles, and ``interrupted`` when a signal stopped the run (the
   files then hold the steps done).
 
 The explorer's grid covers everything the bag shows (every sensor position and laser return, and the SLAM maps) plus
@@ -154,7 +155,8 @@ def _row(command, total_ms: float) -> list:
     goal = command.goal_xy
     return [f"{command.stamp_s:.6f}", command.step, "" if goal is None else f"{goal[0]:.3f}",
             "" if goal is None else f"{goal[1]:.3f}", int(command.finished), int(command.new_goal),
-            *(f"{1e3 * command.timings_s.get(stage, 0.0):.3f}" for stage in STAGES_MS), f"{total_ms:.3f}"]
+            *(f"{1e3 * command.timings_s.get(stage, 0.0):.3f}" for stage in STAGES_MS), f"{total_ms:.3f}",
+            command.status, command.reason]
 
 
 def _write(out: Path, args, reading, frame, explorer, rows, step_ms, command, finished_at, interrupted) -> None:
@@ -163,7 +165,7 @@ def _write(out: Path, args, reading, frame, explorer, rows, step_ms, command, fi
     table = io.StringIO()
     writer = csv.writer(table)
     writer.writerow(["stamp_s", "step", "goal_x_m", "goal_y_m", "finished", "new_goal",
-                     *(f"{stage}_ms" for stage in STAGES_MS), "step_ms"])
+                     *(f"{stage}_ms" for stage in STAGES_MS), "step_ms", "status", "reason"])
     writer.writerows(rows)
     write_atomically(out / "commands.csv", table.getvalue())
     observed = explorer.observed
@@ -183,6 +185,7 @@ def _write(out: Path, args, reading, frame, explorer, rows, step_ms, command, fi
         "steps": len(rows), "scans_skipped": reading.skipped,
         "first_stamp_s": reading.first_stamp_s,
         "finished": bool(command is not None and command.finished), "first_finished_stamp_s": finished_at,
+        "status": None if command is None else command.status, "reason": None if command is None else command.reason,
         "step_ms": {"mean": float(times.mean()), "p50": float(np.percentile(times, 50)),
                     "p99": float(np.percentile(times, 99)), "max": float(times.max())},
         "interrupted": interrupted,

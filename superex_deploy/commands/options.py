@@ -42,6 +42,17 @@ def non_negative_int(text: str) -> int:
     return _integer(text, 0)
 
 
+def bounds_polygon(text: str):
+    """argparse type: the exploration bounds ``"x1,y1 x2,y2 x3,y3 ..."`` (map-frame metres; at least 3 points, a
+    polygon that does not cross itself), as an :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds`."""
+    from superex_deploy.onboard.planning.bounds import parse_bounds
+
+    try:
+        return parse_bounds(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def name_list(text: str) -> list[str]:
     """argparse type: comma-separated names, at least one, none twice (empty items are skipped: ``a,b,``)."""
     names = [name.strip() for name in text.split(",") if name.strip()]

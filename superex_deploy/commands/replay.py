@@ -159,7 +159,7 @@ def _replay(args, recording, explorer, live) -> int:
 
     goals, goal_steps, mismatches = [], [], []
     timings = {stage: [] for stage in STAGES}
-    finished = False
+    finished, status_reason = False, ("", "")
     for recorded in tqdm(recording.steps, desc=f"replay {args.recording.name}", unit="step"):
         command = explorer.step(recorded.observation)
         if live is not None:
@@ -169,15 +169,20 @@ def _replay(args, recording, explorer, live) -> int:
         if command.new_goal:
             goals.append(list(command.goal_rc))
             goal_steps.append(command.step)
-        if (command.goal_rc, command.new_goal, command.finished) != (recorded.goal_rc, recorded.new_goal,
-                                                                      recorded.finished):
-            mismatches.append({"step": recorded.step, "recorded": recorded.goal_rc, "replayed": command.goal_rc})
-        finished = command.finished
+        # A recording made before commands carried a status compares the goals and flags alone.
+        status = (command.status, command.reason) if recorded.status is not None else (None, None)
+        if (command.goal_rc, command.new_goal, command.finished, *status) != (
+                recorded.goal_rc, recorded.new_goal, recorded.finished, recorded.status, recorded.reason):
+            mismatches.append({"step": recorded.step, "recorded": recorded.goal_rc, "replayed": command.goal_rc,
+                               **({"recorded_status": recorded.status, "replayed_status": command.status}
+                                  if status != (recorded.status, recorded.reason) else {})})
+        finished, status_reason = command.finished, (command.status, command.reason)
     per_stage = {stage: {"mean": float(np.mean(v)) if v else 0.0, "p50": float(np.median(v)) if v else 0.0,
                          "p99": float(np.percentile(v, 99)) if v else 0.0} for stage, v in timings.items()}
     step_total = np.sum([timings[stage] for stage in STAGES], axis=0) if recording.steps else np.zeros(0)
     metrics = {"recording": str(args.recording), "metadata": recording.metadata, "steps": len(recording.steps),
-               "finished": finished, "goals": {"steps": goal_steps, "cells": goals},
+               "finished": finished, "status": status_reason[0], "reason": status_reason[1],
+               "goals": {"steps": goal_steps, "cells": goals},
                "goals_match": not mismatches, "mismatches": mismatches[:20], "read_error": recording.error,
                "known_cells": int(explorer.mapper.known().sum()),
                "frame": {"shape": list(explorer.frame.shape), "resolution_m": explorer.frame.resolution_m,

@@ -39,11 +39,13 @@ from __future__ import annotations
 from superex_deploy.messages.frame import MapFrame, Pose2D, grid_angles
 from superex_deploy.messages.limits import (MAX_ABS_YAW, MAX_MAP_CELLS, MAX_MAP_CELLS_ENV, MAX_STAMP_S, MIN_RESOLUTION_M,
                                            check_map_size, check_stamp, max_map_cells)
-from superex_deploy.messages.observation import Command, Observation
+from superex_deploy.messages.observation import (DONE, EXPLORING, NO_REACHABLE_FRONTIER, RETURNING, STATUSES,
+                                                 WAITING_FOR_SCAN, Command, Observation)
 from superex_deploy.messages.occupancy import OCCUPANCY_UNKNOWN, OccupancyGridMessage, PoseCovariance, same_resolution
 from superex_deploy.messages.sensors import LaserScan, SpadFrame
 
 __all__ = ["MapFrame", "Pose2D", "LaserScan", "SpadFrame", "Observation", "Command", "grid_angles",
            "MAX_MAP_CELLS", "MAX_MAP_CELLS_ENV", "MIN_RESOLUTION_M", "MAX_STAMP_S", "MAX_ABS_YAW", "max_map_cells",
            "check_map_size", "check_stamp", "OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN",
-           "same_resolution"]
+           "same_resolution", "STATUSES", "WAITING_FOR_SCAN", "EXPLORING", "NO_REACHABLE_FRONTIER", "RETURNING",
+           "DONE"]

@@ -12,7 +12,21 @@ from superex_deploy.messages.limits import check_stamp
 from superex_deploy.messages.occupancy import OccupancyGridMessage, PoseCovariance
 from superex_deploy.messages.sensors import LaserScan, SpadFrame
 
-__all__ = ["Observation", "Command"]
+__all__ = ["Observation", "Command", "STATUSES", "WAITING_FOR_SCAN", "EXPLORING", "NO_REACHABLE_FRONTIER",
+           "RETURNING", "DONE"]
+
+WAITING_FOR_SCAN = "waiting_for_scan"
+"""No observation so far held a valid measurement: the map is empty, no goal, not finished."""
+EXPLORING = "exploring"
+"""A frontier goal is set."""
+NO_REACHABLE_FRONTIER = "no_reachable_frontier"
+"""No frontier goal, but ``finish_after_s`` has not elapsed yet: the map may still reopen."""
+RETURNING = "returning"
+"""Exploration is over and the robot drives back to its start (``return_to_start``)."""
+DONE = "done"
+"""Finished: nothing is left to explore (and, with ``return_to_start``, the robot is back or cannot get back)."""
+STATUSES = (WAITING_FOR_SCAN, EXPLORING, NO_REACHABLE_FRONTIER, RETURNING, DONE)
+"""Every value of :attr:`Command.status`."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,7 +84,9 @@ class Command:
         finished: True when the explorer's map holds known cells and no reachable frontier has been left for
             the explorer's ``finish_after_s`` seconds of the observations' clock (0 by default: at once): the
             exploration is over. False while a goal is set, and also without a goal while the map is still empty
-            (no observation so far had a valid reading): the next observation may see something.
+            (no observation so far had a valid reading): the next observation may see something. With
+            ``return_to_start``, True only once the robot is back at its start (or the start cannot be reached):
+            ``status`` is then ``"done"``.
         new_goal: True when the goal was chosen at this step.
         prediction: the newest predicted map (see :class:`superex_deploy.onboard.types.Prediction`), or None when
             the planner has not needed one yet.
@@ -82,6 +98,12 @@ class Command:
         prediction_age_s: seconds since that map, between the observations' time stamps (``stamp_s`` minus the
             stamp of step ``prediction_step``), or None without a prediction. With a never-waiting schedule this is
             how stale the map the planner read is, on the robot's clock.
+        status: what the robot should do, one of :data:`STATUSES`: ``"waiting_for_scan"`` (nothing valid measured
+            yet), ``"exploring"`` (drive to the goal), ``"no_reachable_frontier"`` (no goal yet: wait, the map may
+            reopen), ``"returning"`` (drive to the goal: the start pose), ``"done"`` (stop; ``finished`` is True).
+        reason: why no goal was given (``"no valid measurement yet"``, ``"no frontier left"``, ``"no frontier inside
+            the bounds"``, ``"every frontier blacklisted"``, ``"no frontier reachable"``, ``"back at the start"``,
+            ``"start unreachable"``); empty while a goal is given.
     """
 
     stamp_s: float
@@ -97,3 +119,5 @@ class Command:
     timings_s: dict = field(default_factory=dict)
     prediction_age_steps: Optional[int] = None
     prediction_age_s: Optional[float] = None
+    status: str = EXPLORING
+    reason: str = ""

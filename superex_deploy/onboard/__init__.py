@@ -6,6 +6,8 @@
 from superex_deploy.onboard.explorer import STAGES, Explorer, ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.prediction.reuse import PredictionReuse
 from superex_deploy.onboard.nlos.processing import SpadProcessing, scan_from_frame
+from superex_deploy.onboard.planning.bounds import ExplorationBounds
+from superex_deploy.onboard.planning.goal_policy import GoalPolicy
 
 __all__ = ["STAGES", "Explorer", "ExplorerConfig", "PredictionSchedule", "PredictionReuse", "SpadProcessing",
-           "scan_from_frame"]
+           "scan_from_frame", "ExplorationBounds", "GoalPolicy"]

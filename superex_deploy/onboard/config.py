@@ -12,11 +12,13 @@ from superex_deploy.onboard.checks import cells_at_least, check_real, renames
 from superex_deploy.onboard.mapping.growth import MapGrowth
 from superex_deploy.onboard.mapping.mapper import OccupancyConfig
 from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
+from superex_deploy.onboard.planning.bounds import ExplorationBounds
+from superex_deploy.onboard.planning.goal_policy import GoalPolicy
 from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.prediction.reuse import PredictionReuse
 from superex_deploy.onboard.prediction.schedule import PredictionSchedule
 
-__all__ = ["ExplorerConfig"]
+__all__ = ["ExplorerConfig", "check_parts"]
 
 
 @renames(frontier_min_cells=("frontier_min_m", 1))
@@ -54,6 +56,15 @@ class ExplorerConfig:
             (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
             observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
             start from the corrected pose when the match passes its acceptance rule).
+        bounds: None (the default): explore everything reachable; an
+            :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds` (a polygon in map-frame metres; a
+            sequence of ``(x, y)`` points or a dict of its fields is accepted): frontiers outside it are ignored and
+            exploration is finished when no reachable frontier is left inside it. The first observation's position
+            must lie inside (else the step raises ``ValueError``).
+        return_to_start: once exploration is finished, drive back to the first observation's position before
+            saying ``finished`` (:mod:`~superex_deploy.onboard.status`; commands say ``status="returning"``).
+        goal_policy: when a goal is blacklisted and when a better goal replaces it
+            (:class:`~superex_deploy.onboard.planning.goal_policy.GoalPolicy`; a dict of its fields is accepted).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -64,8 +75,21 @@ class ExplorerConfig:
     scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
     finish_after_s: float = 0.0
     growth: Optional[MapGrowth] = None
+    bounds: Optional[ExplorationBounds] = None
+    return_to_start: bool = False
+    goal_policy: GoalPolicy = field(default_factory=GoalPolicy)
 
     def __post_init__(self) -> None:
+        if isinstance(self.bounds, dict):
+            object.__setattr__(self, "bounds", ExplorationBounds(**self.bounds))
+        elif self.bounds is not None and not isinstance(self.bounds, ExplorationBounds):
+            object.__setattr__(self, "bounds", ExplorationBounds(self.bounds))
+        if isinstance(self.goal_policy, dict):
+            object.__setattr__(self, "goal_policy", GoalPolicy(**self.goal_policy))
+        if not isinstance(self.goal_policy, GoalPolicy):
+            raise ValueError(f"goal_policy must be a GoalPolicy, got {type(self.goal_policy).__name__}")
+        if not isinstance(self.return_to_start, bool):
+            raise ValueError(f"return_to_start must be true or false, got {self.return_to_start!r}")
         if isinstance(self.growth, dict):
             object.__setattr__(self, "growth", MapGrowth(**self.growth))
         if self.growth is not None and not isinstance(self.growth, MapGrowth):
@@ -95,3 +119,41 @@ class ExplorerConfig:
         cell: those that reach ``frontier_min_m`` (10 at 0.1 m, 20 at 0.05 m, 40 at 0.025 m), at least one."""
         return max(1, cells_at_least(self.frontier_min_m, check_real("resolution_m", resolution_m, 0.0,
                                                                      low_open=True)))
+
+    def footprint_cells(self, pose_covariance, resolution_m: float) -> Optional[float]:
+        """The radius (cells of ``resolution_m`` metres) of the footprint cleared at the robot, the robot's body
+        being free space (:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.clear_footprint`; None: clearing
+        off): the robot radius less ``footprint_margin_sigmas`` position sigmas of ``pose_covariance`` (a
+        :class:`~superex_deploy.messages.PoseCovariance`, or None: an exact pose)."""
+        if not self.occupancy.footprint_clearing:
+            return None
+        radius_m = self.motion.robot_radius_m
+        if pose_covariance is not None:
+            radius_m -= self.occupancy.footprint_margin_sigmas * pose_covariance.sigma_xy_m
+        return max(radius_m, 0.0) / resolution_m
+
+
+def check_parts(frame, planner, predictor, spad_processing, cfg) -> None:
+    """Refuse the parts of an :class:`~superex_deploy.onboard.explorer.Explorer` of the wrong kind, naming the first.
+
+    Raises:
+        ValueError: ``frame`` not a :class:`~superex_deploy.messages.MapFrame`, ``planner`` not a
+            :class:`~superex_deploy.onboard.types.Planner`, ``predictor`` without ``predict``, ``spad_processing``
+            neither None nor a :class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`, ``cfg`` not an
+            :class:`ExplorerConfig`.
+    """
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.onboard.nlos.processing import SpadProcessing
+    from superex_deploy.onboard.types import Planner
+
+    if not isinstance(frame, MapFrame):
+        raise ValueError(f"frame must be a MapFrame, got {type(frame).__name__}")
+    if not isinstance(planner, Planner):
+        raise ValueError(f"planner must be a Planner instance (see planners.make_planner), got "
+                         f"{type(planner).__name__}")
+    if not callable(getattr(predictor, "predict", None)):
+        raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
+    if spad_processing is not None and not isinstance(spad_processing, SpadProcessing):
+        raise ValueError(f"spad_processing must be a SpadProcessing or None, got {type(spad_processing).__name__}")
+    if not isinstance(cfg, ExplorerConfig):
+        raise ValueError(f"cfg must be an ExplorerConfig, got {type(cfg).__name__}")

@@ -18,17 +18,16 @@
    coverage and the prediction, and for planning only as ``MotionConfig.drive_carved`` allows (by default while the
    pose is exact).
 
-How the predictor runs is configured so that a step fits the sensor's frame on a small CPU (measured in
-docs/benchmarks/realtime.md): inline, in a worker thread no step waits for, or on a simulated clock
-(:class:`PredictionSchedule`), on the whole map or a crop around what changed
-(:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`). The explorer sets its numba threads and its
-worker's from the cores it is given (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`) and
-restores the caller's when a step returns.
+The predictor runs inline, in a worker thread or on a simulated clock (:class:`PredictionSchedule`), on the map or a
+crop (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`), so that a step fits the sensor's frame
+on a small CPU; the numba threads follow the cores given
+(:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`). Steps 3-4 run on the planning grid's blocks
+(:mod:`~superex_deploy.onboard.planning.coarse`) on a map finer than ``MotionConfig.planning_cell_m``.
 
-The returned :class:`~superex_deploy.messages.Command` holds the goal and the path from the robot's cell.
-Exploration is **finished** when the map holds known cells and no goal has been found in any tier for
-``finish_after_s`` seconds; while the map is still empty a step answers no goal and not finished. The explorer is
-deterministic for a seed (the seed feeds only the planner's generator).
+The :class:`~superex_deploy.messages.Command` holds the goal, the path and a status (:mod:`.status`: bounds,
+blacklist, return to the start). Exploration is **finished** when the map holds known cells and no goal has been
+found in any tier for ``finish_after_s`` seconds (with ``return_to_start``, once back at the start); while the map
+is empty a step answers no goal and not finished. A seed makes it deterministic (it feeds the planner's generator).
 """
 
 from __future__ import annotations
@@ -41,9 +40,9 @@ from typing import Optional
 
 import numpy as np
 
-from superex_deploy.onboard.config import ExplorerConfig
+from superex_deploy.onboard.config import ExplorerConfig, check_parts
 from superex_deploy.onboard.planning.frontiers import find_frontiers
-from superex_deploy.onboard.mapping.growth import Regrid, grown_frame, reach_of
+from superex_deploy.onboard.mapping.growth import Regrid, regrid_for
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.planning.coarse import CoarsePrediction, PlanningGrid
@@ -53,11 +52,12 @@ from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPred
 from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
 from superex_deploy.onboard.prediction.schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
-                                                        StalePrediction, set_numba_threads)
+                                                        StalePrediction, set_numba_threads, weak_prediction_runner)
 from superex_deploy.onboard.mapping.scan_matching import ScanMatch, ScanMatcher
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
-from superex_deploy.messages import Command, MapFrame, Observation
+from superex_deploy.onboard.status import NO_MEASUREMENT, Mission
+from superex_deploy.messages import DONE, EXPLORING, RETURNING, WAITING_FOR_SCAN, Command, MapFrame, Observation
 from superex_deploy.onboard.nlos.processing import SpadProcessing
 
 __all__ = ["STAGES", "ExplorerConfig", "Explorer", "PredictionSchedule", "PredictionReuse", "merge_with_map"]
@@ -103,9 +103,13 @@ class Explorer:
         scan_match: the latest step's :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatch`, or None (no
             covariance, or a SLAM map).
         steps: observations processed so far.
-        finished: whether the latest step found the exploration finished (see above).
+        finished: whether the latest step found the exploration finished (see above; with ``cfg.return_to_start``
+            only once back at the start).
+        status: the latest command's status (:data:`~superex_deploy.messages.STATUSES`).
+        mission: the :class:`~superex_deploy.onboard.status.Mission`: bounds, blacklist, return to the start.
         reusing: the :class:`~superex_deploy.onboard.prediction.reuse.ReusingPredictor` that wraps the predictor
             when ``cfg.reuse`` keeps anything (its counters say how often the network ran), else None.
+        step_predictor: what the steps call: ``reusing``, else the predictor at the map's scale.
         budget: the :class:`~superex_deploy.onboard.prediction.inference.ThreadBudget` of ``cores``.
         frontier_min_cells: the first tier's smallest frontier region on this grid (cells; ``cfg.frontier_min_m``).
         scheduled: the :class:`~superex_deploy.onboard.prediction.schedule.ScheduledPredictions` that runs the
@@ -116,18 +120,9 @@ class Explorer:
     def __init__(self, frame: MapFrame, planner: Planner, predictor: MapPredictor,
                  spad_processing: Optional[SpadProcessing] = None, cfg: ExplorerConfig = ExplorerConfig(),
                  seed: int = 0, cores: Optional[int] = None):
-        if not isinstance(frame, MapFrame):
-            raise ValueError(f"frame must be a MapFrame, got {type(frame).__name__}")
-        if not isinstance(planner, Planner):
-            raise ValueError(f"planner must be a Planner instance (see planners.make_planner), got "
-                             f"{type(planner).__name__}")
-        if not callable(getattr(predictor, "predict", None)):
-            raise ValueError(f"predictor must have a predict(observed, extra) method, got {type(predictor).__name__}")
-        if spad_processing is not None and not isinstance(spad_processing, SpadProcessing):
-            raise ValueError(f"spad_processing must be a SpadProcessing or None, got {type(spad_processing).__name__}")
-        if not isinstance(cfg, ExplorerConfig):
-            raise ValueError(f"cfg must be an ExplorerConfig, got {type(cfg).__name__}")
+        check_parts(frame, planner, predictor, spad_processing, cfg)
         self.planning_grid = PlanningGrid.for_map(frame.shape, frame.resolution_m, cfg.motion.planning_cell_m)
+        self._blocks_frame = self.planning_grid.frame_of(frame)  # the blocks as a map frame (the mission's)
         block_m = self.planning_grid.block_m
         check_wall_reach(cfg.motion, block_m)  # a planning grid too fine for the motion settings: refused now
         self.frame, self.planner, self.predictor, self.cfg = frame, planner, predictor, cfg
@@ -140,7 +135,7 @@ class Explorer:
         # What the steps call: the predictor (at its scale), or the wrapper that keeps its last prediction.
         self.reusing: Optional[ReusingPredictor] = (ReusingPredictor(native, cfg.reuse, frame.resolution_m)
                                                     if cfg.reuse.reuses else None)
-        self._predictor: MapPredictor = self.reusing if self.reusing is not None else native
+        self.step_predictor: MapPredictor = self.reusing if self.reusing is not None else native
         self.mapper = Mapper(frame.shape, cfg.occupancy)
         self.scan_matcher = ScanMatcher(cfg.scan_matching)
         self.pose_estimate = None
@@ -153,7 +148,8 @@ class Explorer:
         self.path: list[tuple[int, int]] = []
         self.steps = 0
         self.finished = False
-        self._no_goal_since: Optional[float] = None  # stamp of the first step of the current run without a goal
+        self.mission = Mission(cfg)
+        self.status = WAITING_FOR_SCAN
         self._stepping = threading.Lock()  # held by the running step(): one caller at a time
         self._rng = np.random.default_rng(seed)
         self.frontier_min_cells = cfg.frontier_min_cells(block_m)
@@ -176,7 +172,7 @@ class Explorer:
             # The worker holds the explorer weakly, so that an explorer dropped without close() is collected at
             # once and its worker thread stopped (a bound method would make a cycle only the garbage collector
             # breaks, keeping the thread alive until it runs).
-            self.scheduled = ScheduledPredictions(cfg.prediction, _weak_prediction_runner(self),
+            self.scheduled = ScheduledPredictions(cfg.prediction, weak_prediction_runner(self),
                                                   self.budget.worker_threads)
             self._stop_worker = weakref.finalize(self, self.scheduled.close)
         planner.reset()
@@ -202,7 +198,9 @@ class Explorer:
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
         pose = self.planning_grid.block(pose)
         not_free = self._planning != FREE
-        return tuple(f for f in find_frontiers(self._planning, 1) if not near_visited_goal(f.cell_rc, self._visited)
+        regions = self.mission.admit(find_frontiers(self._planning, 1), self._blocks_frame,
+                                     self._stamps[-1] if self._stamps else 0.0)
+        return tuple(f for f in regions if not near_visited_goal(f.cell_rc, self._visited)
                      and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
 
     def drop_goal(self) -> None:
@@ -270,18 +268,6 @@ class Explorer:
         """The latest step's prediction if anything has computed it, else None (never computes)."""
         return None if self._prediction is None else self._prediction.value
 
-    def _footprint_cells(self, obs: Observation) -> Optional[float]:
-        """The radius (cells) of the footprint cleared at the robot, the robot's body being free space
-        (:meth:`~.mapping.mapper.Mapper.clear_footprint`; None: clearing off): the robot radius less
-        ``footprint_margin_sigmas`` position sigmas of the pose covariance."""
-        occupancy = self.cfg.occupancy
-        if not occupancy.footprint_clearing:
-            return None
-        radius_m = self.cfg.motion.robot_radius_m
-        if obs.pose_covariance is not None:
-            radius_m -= occupancy.footprint_margin_sigmas * obs.pose_covariance.sigma_xy_m
-        return max(radius_m, 0.0) / self.frame.resolution_m
-
     def _pose_cell(self, obs: Observation) -> tuple[int, int]:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
 
@@ -319,7 +305,8 @@ class Explorer:
         # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
         if obs.occupancy_grid is not None:  # its resolution and lattice, before the grid grows for it
             obs.occupancy_grid.lattice_offset(self.frame)
-        regrid = self._regrid_for(obs) if self.cfg.growth is not None else None
+        regrid = regrid_for(self.frame, obs, self.spad_processing, self.cfg.growth, self.planning_grid.factor) \
+            if self.cfg.growth is not None else None
         if regrid is None:
             pose = self._pose_cell(obs)
         if self._stamps and obs.stamp_s < self._stamps[-1]:
@@ -328,6 +315,7 @@ class Explorer:
                              f"Explorer)")
         if self.spad_processing is not None and obs.spad is not None:
             self.spad_processing.check_frame(obs.spad)
+        self.mission.begin(obs.pose.x, obs.pose.y)  # bounds that do not hold the start are refused here
         regrid_wait = 0.0
         if regrid is not None:
             self._regrid(regrid)
@@ -339,7 +327,7 @@ class Explorer:
 
         clock = time.perf_counter()
         self.scan_match = None
-        footprint = self._footprint_cells(obs)
+        footprint = self.cfg.footprint_cells(obs.pose_covariance, self.frame.resolution_m)
         if obs.occupancy_grid is not None:
             self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
             if footprint is not None:  # the robot stands on free space, whatever a stale map says there
@@ -376,7 +364,8 @@ class Explorer:
 
         clock = time.perf_counter()
         pose_cell, pose = pose, grid.block(pose)
-        frontiers = find_frontiers(planning, self.frontier_min_cells)
+        frontiers = self.mission.admit(find_frontiers(planning, self.frontier_min_cells), self._blocks_frame,
+                                       obs.stamp_s)
         timings["frontiers"] = time.perf_counter() - clock
 
         waited = 0.0
@@ -386,17 +375,17 @@ class Explorer:
             self._latest, self._latest_step = self.scheduled.latest, self.scheduled.latest_step
             prediction = StalePrediction(self._latest, observed)
         else:
-            prediction = LazyPrediction(self._predictor, observed, self.evidence)
+            prediction = LazyPrediction(self.step_predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
         self._planning = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
-            new_goal = self._plan(planning, frontiers, pose,
-                                  prediction if grid.factor == 1 else CoarsePrediction(prediction, grid.factor), t,
-                                  timings)
-            self._settle_finished(obs.stamp_s)
+            new_goal = self._decide(planning, frontiers, pose,
+                                    prediction if grid.factor == 1 else CoarsePrediction(prediction, grid.factor), t,
+                                    timings, obs.stamp_s)
         else:  # nothing measured yet (every reading invalid): no goal, and not finished
-            new_goal, self.finished, self._no_goal_since = False, False, None
+            new_goal, self.finished, self.mission.no_goal_since = False, False, None
+            self.status, self.mission.reason = WAITING_FOR_SCAN, NO_MEASUREMENT
         timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
@@ -409,14 +398,8 @@ class Explorer:
                        finished=self.finished, new_goal=new_goal, prediction=self._latest,
                        prediction_step=self._latest_step, step=t, timings_s=timings,
                        prediction_age_steps=t - self._latest_step if aged else None,
-                       prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None)
-
-    def _regrid_for(self, obs: Observation) -> Optional[Regrid]:
-        """The larger grid this observation needs (see :mod:`~superex_deploy.onboard.mapping.growth`), or None."""
-        spad_reach_m = 0.0
-        if self.spad_processing is not None and obs.spad is not None:
-            spad_reach_m = self.spad_processing.reach_cells(self.frame.resolution_m) * self.frame.resolution_m
-        return grown_frame(self.frame, reach_of(obs, spad_reach_m), self.cfg.growth, self.planning_grid.factor)
+                       prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None,
+                       status=self.status, reason=self.mission.reason)
 
     def _regrid(self, regrid: Regrid) -> None:
         """Move every per-cell state to the larger grid ``regrid``: the map's layers, the SPAD evidence, the
@@ -429,37 +412,44 @@ class Explorer:
                                       variance=regrid.embed(self._latest.variance, 0.0))
         self._no_evidence = None
         self.observed = regrid.embed(self.observed, UNKNOWN)
-        k = self.planning_grid.factor
+        move = self.planning_grid.mover(regrid)  # the same blocks, shifted by whole blocks
         self.planning_grid = PlanningGrid.for_map(regrid.frame.shape, regrid.frame.resolution_m,
                                                   self.cfg.motion.planning_cell_m)
-        self._planning = coarsen_observed(self.observed, k)
-        if regrid.top % k or regrid.left % k:  # the blocks moved: the goal is chosen again
-            self.goal, self.path = None, []
-            self._visited = {self.planning_grid.block(regrid.cell((r * k + k // 2, c * k + k // 2)))
-                             for r, c in self._visited}
-        else:
-            def moved(cell):
-                return cell[0] + regrid.top // k, cell[1] + regrid.left // k
-
-            self.goal = None if self.goal is None else moved(self.goal)
-            self.path = [moved(cell) for cell in self.path]
-            self._visited = {moved(cell) for cell in self._visited}
+        self._blocks_frame = self.planning_grid.frame_of(regrid.frame)
+        self._planning = coarsen_observed(self.observed, self.planning_grid.factor)
+        self.goal = None if self.goal is None else move(self.goal)
+        self.path, self._visited = [move(cell) for cell in self.path], {move(cell) for cell in self._visited}
         self.frontiers = ()
         self.frame = regrid.frame
 
-    def _settle_finished(self, stamp_s: float) -> None:
-        """``finished`` once no goal has been found for ``cfg.finish_after_s`` seconds of the observations' clock
-        (``self.finished`` holds, on entry, whether this step found none)."""
-        if not self.finished:
-            self._no_goal_since = None
-            return
-        if self._no_goal_since is None:
-            self._no_goal_since = stamp_s
-        self.finished = stamp_s - self._no_goal_since >= self.cfg.finish_after_s
+    def _decide(self, planning: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
+                prediction: LazyPrediction, t: int, timings: dict, stamp_s: float) -> bool:
+        """A step with a map: its goal, path, ``finished`` and status (:mod:`~.status`); whether the goal is new."""
+        mission, new_goal = self.mission, False
+        if mission.phase == EXPLORING:
+            new_goal = self._plan(planning, frontiers, pose, prediction, t, timings, stamp_s)
+            if new_goal:  # its progress is timed from now
+                mission.tracker.chosen(self._blocks_frame.centre_xy(self.goal), stamp_s)
+            self.finished = mission.settle(self.goal is not None, stamp_s)
+            mission.reason = "" if self.goal is not None else mission.why_no_goal(planning, self._blocks_frame,
+                                                                                  stamp_s)
+            if self.finished and self.cfg.return_to_start:
+                self.goal, self.path, self.finished = None, [], False
+                mission.phase = RETURNING
+        if mission.phase == RETURNING:
+            goal, self.path = mission.home(planning, pose, self._blocks_frame, self.path, self._reach_cells,
+                                           self._radius_cells)
+            new_goal, self.goal = goal is not None and goal != self.goal, goal
+            self.finished = mission.phase == DONE
+        elif mission.phase == DONE:
+            self.goal, self.path, self.finished = None, [], True
+        self.status = mission.status(self.goal is not None, self.finished)
+        return new_goal
 
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
-              prediction: LazyPrediction, t: int, timings: dict) -> bool:
-        """Keep or choose the goal and its path; returns whether a new goal was chosen."""
+              prediction: LazyPrediction, t: int, timings: dict, stamp_s: float) -> bool:
+        """Keep or choose the goal and its path (and let a better one replace it:
+        :class:`~.planning.goal_policy.GoalPolicy`); returns whether a new goal was chosen."""
         res, motion = self.planning_grid.block_m, self.cfg.motion
         clock = time.perf_counter()
         plan: Optional[PlanningMap] = None
@@ -475,30 +465,37 @@ class Explorer:
             # Blocked by a newly seen wall, or the robot did not stop on its path: plan again to the same goal.
             plan = planning_map(observed, pose, res, motion)
             path = plan.path_to(goal)
-            if not path:
-                goal = None
+        if goal is not None and self.mission.gives_up(self._blocks_frame.centre_xy(goal), path, res, stamp_s):
+            goal, path = None, []  # no progress for too long, or (blacklisting unreachable goals) no path
         timings["path"] = time.perf_counter() - clock
         self.goal, self.path = goal, path
-        if goal is not None:
+        margin = self.cfg.goal_policy.commit_margin
+        if goal is not None and margin is None:
             return False
 
         clock = time.perf_counter()
         plan = plan or planning_map(observed, pose, res, motion)
         timings["path"] += time.perf_counter() - clock
 
-        def offer(regions: tuple[Frontier, ...]) -> Optional[tuple[int, int]]:
-            return self.planner.choose_goal(PlanningContext(
-                observed=observed, pose_rc=pose, frontiers=regions, travel_cost=plan.travel_cost,
-                traversable=plan.traversable, resolution_m=res, predict=prediction, rng=self._rng))
+        def context(regions: tuple[Frontier, ...]) -> PlanningContext:
+            return PlanningContext(observed=observed, pose_rc=pose, frontiers=regions, travel_cost=plan.travel_cost,
+                                   traversable=plan.traversable, resolution_m=res, predict=prediction, rng=self._rng)
 
         clock = time.perf_counter()
-        chosen, self._goal_tolerance = choose_goal(offer, observed, frontiers, self.frontier_min_cells, not_free,
-                                               pose, self._reach_cells, self._visited)
+        chosen, tolerance = choose_goal(lambda regions: self.planner.choose_goal(context(regions)), observed,
+                                        frontiers, self.frontier_min_cells, not_free, pose, self._reach_cells,
+                                        self._visited, lambda regions: self.mission.admit(regions, self._blocks_frame,
+                                                                                          stamp_s))
+        if goal is not None:  # a commit margin: the planner's choice replaces the goal only when clearly better
+            scores = None if chosen is None or tuple(chosen) == goal else \
+                self.planner.goal_scores(context(()), [goal, chosen])
+            if scores is None or not scores[1] > (1.0 + margin) * scores[0]:
+                chosen = None
         timings["scoring"] = time.perf_counter() - clock - prediction.seconds
         timings["prediction"] = prediction.seconds
-        self.finished = chosen is None
         if chosen is None:
             return False
+        self._goal_tolerance = tolerance
         clock = time.perf_counter()
         goal = (int(chosen[0]), int(chosen[1]))
         path = plan.path_to(goal)
@@ -509,19 +506,3 @@ class Explorer:
         self.goal, self.path, self._goal_step = goal, path, t
         return True
 
-
-def _weak_prediction_runner(explorer: Explorer):
-    """``explorer``'s prediction function, holding the explorer weakly (see :meth:`Explorer.__init__`)."""
-    ref = weakref.ref(explorer)
-
-    def run(observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
-        target = ref()
-        if target is None:
-            raise RuntimeError("the explorer this prediction was for no longer exists")
-        # Not the explorer itself while the prediction runs: dropped meanwhile, it is freed (and its worker
-        # stopped) by the thread that dropped it, never by this worker thread (which cannot join itself).
-        predictor = target._predictor
-        del target
-        return predictor.predict(observed, evidence)
-
-    return run

@@ -142,3 +142,24 @@ class Planner(ABC):
         """
         return True
 
+    def goal_scores(self, ctx: PlanningContext, cells_rc) -> Optional[np.ndarray]:
+        """float64 ``[N]``: the planner's score of each goal cell of int ``[N, 2]`` ``cells_rc`` on this step's
+        context (higher is better, 0 for an unreachable cell), or None when the planner has no scores to compare
+        (then a locked goal is never replaced by a better one: see
+        :class:`~superex_deploy.onboard.planning.goal_policy.GoalPolicy` ``commit_margin``). The default has none."""
+        return None
+
+
+def frontiers_at(cells_rc) -> tuple[Frontier, ...]:
+    """One single-cell :class:`Frontier` per cell of int ``[N, 2]`` ``cells_rc``: goal cells scored as frontiers
+    (:meth:`Planner.goal_scores`)."""
+    cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
+    return tuple(Frontier(cell_rc=(int(r), int(c)), cells=np.array([[r, c]], np.int32)) for r, c in cells)
+
+
+def scores_by_cell(frontiers, scores, cells_rc) -> np.ndarray:
+    """float64 ``[N]``: the score of each cell of ``cells_rc`` among the scored ``frontiers`` (0 where it is not
+    among them: unreachable)."""
+    by_cell = {f.cell_rc: float(s) for f, s in zip(frontiers, scores)}
+    cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
+    return np.array([by_cell.get((int(r), int(c)), 0.0) for r, c in cells], np.float64)

@@ -174,7 +174,8 @@ def _command(step: StepData) -> dict:
             "goal_y": math.nan if goal is None else command.goal_xy[1],
             "new_goal": bool(command.new_goal), "finished": bool(command.finished),
             "prediction_step": int(command.prediction_step), "robot_yaw": step.observation.pose.yaw,
-            "prediction_age_s": math.nan if command.prediction_age_s is None else float(command.prediction_age_s)}
+            "prediction_age_s": math.nan if command.prediction_age_s is None else float(command.prediction_age_s),
+            "status": str(command.status), "reason": str(command.reason)}
 
 
 def _goal(step: StepData) -> Optional[dict]:

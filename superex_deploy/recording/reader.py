@@ -32,6 +32,8 @@ class RecordedStep:
         prediction_step: the step whose map the command's prediction was made from, -1 for none.
         prediction_age_s: the command's ``prediction_age_s``, or None (no prediction, or a file written before
             the field existed).
+        status, reason: the command's ``status`` and ``reason``, or None (a file written before the fields
+            existed).
     """
 
     step: int
@@ -41,6 +43,8 @@ class RecordedStep:
     finished: bool
     prediction_step: int = -1
     prediction_age_s: Optional[float] = None
+    status: Optional[str] = None
+    reason: Optional[str] = None
 
 
 @dataclass
@@ -188,7 +192,9 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
                                                             goal_rc=goal, new_goal=bool(decoded.new_goal),
                                                             finished=bool(decoded.finished),
                                                             prediction_step=int(decoded.prediction_step),
-                                                            prediction_age_s=_age(decoded)))
+                                                            prediction_age_s=_age(decoded),
+                                                            status=getattr(decoded, "status", None),
+                                                            reason=getattr(decoded, "reason", None)))
                 done += 1
                 topic, sequence = "?", -1
         except Exception as error:  # noqa: BLE001 - any decoding failure ends the readable part

@@ -116,6 +116,8 @@ bool finished            # no reachable frontier is left
 int32 prediction_step    # step whose map the newest prediction was made from, -1 for none
 float64 robot_yaw        # the observation's yaw (rad), exactly: the /pose quaternion rounds it
 float64 prediction_age_s # seconds from that step's stamp to this one's; NaN for none (absent in older files)
+string status            # waiting_for_scan, exploring, no_reachable_frontier, returning, done (absent in older files)
+string reason            # why no goal was given; empty with a goal (absent in older files)
 """ + _SEPARATOR + _HEADER
 
 TF_MESSAGE_MSG = ("geometry_msgs/TransformStamped[] transforms\n" + _SEPARATOR

@@ -24,6 +24,7 @@ import numpy as np
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.sim.noise.lidar import LidarNoise
 from superex_deploy.sim.noise.pose import PoseNoise
+from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.sim.metrics import evaluation_area, explorer_map_errors, map_iou
 from superex_deploy.onboard.types import Frontier, MapPredictor, Planner, Prediction
 from superex_deploy.maps import OccupancyGrid
@@ -140,6 +141,10 @@ class EpisodeResult:
         explorer_map_iou_within_cell: the same IoU forgiving a wall held one cell off (diagonals included).
         true_poses, believed_poses: float64 ``[T, 3]`` ``(x, y, yaw)`` (metres, radians) of the robot's true pose
             and of the pose its observation carried, at each step's scan.
+        status, reason: the last command's :attr:`~superex_deploy.messages.Command.status` and ``reason``.
+        coverage_in_bounds: float64 ``[T]`` known fraction of the valid area inside the explorer's exploration
+            bounds (``ExplorerConfig.bounds``; cells whose centre lies inside) after each scan, line of sight only;
+            None without bounds.
     """
 
     map_name: str
@@ -173,6 +178,9 @@ class EpisodeResult:
     explorer_map_iou_within_cell: float = float("nan")
     true_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     believed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    status: str = ""
+    reason: str = ""
+    coverage_in_bounds: Optional[np.ndarray] = None
 
     @property
     def steps(self) -> int:
@@ -183,7 +191,8 @@ class EpisodeResult:
         """JSON-ready dict: the per-step series, IoU log, goals, mean stage times, the config, and the errors of
         the explorer's map against the truth (``collisions``, ``true_walls_held_free``, ``true_walls_carved``,
         ``map_iou``: :attr:`explorer_map_iou`, ``true_walls_seen``, ``true_walls_missing``,
-        ``map_iou_within_cell``)."""
+        ``map_iou_within_cell``), the last command's ``status`` and ``reason``, and with bounds
+        ``coverage_in_bounds`` and ``final_coverage_in_bounds``."""
         timings = {stage: np.round(values, 6).tolist() for stage, values in self.timings_s.items()}
         return {
             "map": self.map_name, "planner": self.planner, "predictor": self.predictor, "seed": self.seed,
@@ -206,6 +215,10 @@ class EpisodeResult:
             "true_walls_carved": int(self.true_walls_carved), "map_iou": float(self.explorer_map_iou),
             "true_walls_seen": int(self.true_walls_seen), "true_walls_missing": int(self.true_walls_missing),
             "map_iou_within_cell": float(self.explorer_map_iou_within_cell),
+            "status": self.status, "reason": self.reason,
+            **({} if self.coverage_in_bounds is None else {
+                "coverage_in_bounds": np.round(self.coverage_in_bounds, 6).tolist(),
+                "final_coverage_in_bounds": float(self.coverage_in_bounds[-1]) if self.steps else 0.0}),
         }
 
 
@@ -231,7 +244,8 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Optional[Pla
 
     Raises:
         ValueError: both or neither of ``explorer`` and (``planner``, ``predictor``); an explorer on another frame,
-            with another configuration than ``cfg.explorer``, or whose SPAD processing is not ``sensing``'s.
+            with another configuration than ``cfg.explorer``, or whose SPAD processing is not ``sensing``'s;
+            exploration bounds (``cfg.explorer.bounds``) that do not contain the start.
     """
     given = (planner is not None, predictor is not None)
     if given != ((True, True) if explorer is None else (False, False)):
@@ -240,6 +254,8 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Optional[Pla
                                               step_m=cfg.explorer.motion.step_m,
                                               seed=0 if sensing is None else sensing.seed,
                                               pose_noise=cfg.pose_noise, lidar_noise=cfg.lidar_noise))
+    if cfg.explorer.bounds is not None:  # refused here, before the explorer is built
+        cfg.explorer.bounds.check_contains(world.pose.x, world.pose.y)
     if explorer is None:
         explorer = Explorer(world.frame, planner, predictor,
                             spad_processing=None if sensing is None else sensing.processing(), cfg=cfg.explorer,
@@ -311,6 +327,9 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
     true_poses, believed_poses = np.zeros((steps, 3)), np.zeros((steps, 3))
     walls_carved = np.zeros(grid.shape, bool)
     coverage, coverage_carved, path_length = np.zeros(steps), np.zeros(steps), np.zeros(steps)
+    bounds = cfg.explorer.bounds
+    region = None if bounds is None else grid.valid & bounds.mask(world.frame)
+    coverage_in = np.zeros(steps)
     iou_steps: list[int] = []
     iou_values: list[float] = []
     iou_coverage: list[float] = []
@@ -320,6 +339,7 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
     finished = False
     logged = steps
     start = world.pose_rc
+    command = None
 
     for t in range(steps):
         clock = time.perf_counter()
@@ -337,6 +357,8 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
             on_observation(observation, command, explorer)
         coverage[t] = world.coverage(explorer.mapper.known(include_carved=False))
         coverage_carved[t] = world.coverage(explorer.mapper.known(include_carved=True))
+        if region is not None:
+            coverage_in[t] = coverage_of(explorer.mapper.known(include_carved=False), region)
         if command.new_goal:
             goal_steps.append(t)
             goals.append(command.goal_rc)
@@ -385,4 +407,5 @@ def _loop(grid, planner, predictor, seed, cfg, world, explorer, steps, iou_area,
         true_walls_carved=int(np.count_nonzero(walls_carved)), true_walls_held_free=errors.held_free,
         explorer_map_iou=errors.map_iou, true_walls_seen=errors.seen, true_walls_missing=errors.missing,
         explorer_map_iou_within_cell=errors.map_iou_within_cell, true_poses=true_poses[:logged],
-        believed_poses=believed_poses[:logged])
+        believed_poses=believed_poses[:logged], status=command.status, reason=command.reason,
+        coverage_in_bounds=None if region is None else coverage_in[:logged])

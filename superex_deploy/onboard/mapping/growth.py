@@ -21,7 +21,7 @@ import numpy as np
 
 from superex_deploy.messages import MapFrame, Observation, check_map_size, max_map_cells
 
-__all__ = ["MapGrowth", "Regrid", "reach_of", "grown_frame", "embed"]
+__all__ = ["MapGrowth", "Regrid", "reach_of", "grown_frame", "regrid_for", "embed"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +147,14 @@ def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth, align: int = 1) ->
     check_map_size(shape, res, "the explorer's growing map")
     grown = MapFrame(shape, res, (ox - left * res, oy - bottom * res))
     return Regrid(frame=grown, top=top, left=left)
+
+
+def regrid_for(frame: MapFrame, obs: Observation, spad_processing, growth: MapGrowth,
+               align: int = 1) -> Optional[Regrid]:
+    """The larger grid than ``frame`` that observation ``obs`` needs (:func:`grown_frame`, ``align`` as there), or
+    None: its scan's reach, and its SPAD frame's where ``spad_processing`` (a
+    :class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`, or None) processes one."""
+    spad_reach_m = 0.0
+    if spad_processing is not None and obs.spad is not None:
+        spad_reach_m = spad_processing.reach_cells(frame.resolution_m) * frame.resolution_m
+    return grown_frame(frame, reach_of(obs, spad_reach_m), growth, align)

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numba
 import numpy as np
 
 from superex_deploy.onboard.prediction.scale import pool_mean
+from superex_deploy.messages import MapFrame
 from superex_deploy.onboard.types import Frontier, Prediction
 
 __all__ = ["planning_factor", "pool_prediction_blocks", "PlanningGrid", "CoarsePrediction"]
@@ -111,6 +112,30 @@ class PlanningGrid:
         """``(rows, cols)`` of the planning grid."""
         k = self.factor
         return -(-self.shape[0] // k), -(-self.shape[1] // k)
+
+    def frame_of(self, frame: MapFrame) -> MapFrame:
+        """The blocks of ``frame`` (the map this grid was made for) as a map frame of their own: cell ``(R, C)``
+        is block ``(R, C)``, at the same place in metres (the last row of blocks may reach below the map's edge);
+        ``frame`` itself at ``k = 1``."""
+        if self.factor == 1:
+            return frame
+        rows, cols = self.block_shape
+        top_y = frame.origin_xy[1] + frame.shape[0] * frame.resolution_m
+        return MapFrame((rows, cols), self.block_m, (frame.origin_xy[0], top_y - rows * self.block_m))
+
+    def mover(self, regrid) -> Callable[[tuple[int, int]], tuple[int, int]]:
+        """The block that a block of this grid becomes on the grown grid of ``regrid`` (a
+        :class:`~superex_deploy.onboard.mapping.growth.Regrid` that adds whole blocks above and to the left:
+        ``grown_frame(..., align=factor)``).
+
+        Raises:
+            ValueError: a growth by a part of a block (the blocks would not keep their cells).
+        """
+        k = self.factor
+        if regrid.top % k or regrid.left % k:
+            raise ValueError(f"the grid grew by {regrid.top} rows and {regrid.left} columns, not whole blocks of {k}")
+        top, left = regrid.top // k, regrid.left // k
+        return lambda block: (int(block[0]) + top, int(block[1]) + left)
 
     def block(self, cell_rc) -> tuple[int, int]:
         """The block (planning cell) holding map cell ``cell_rc``."""

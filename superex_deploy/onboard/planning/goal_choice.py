@@ -37,7 +37,9 @@ def near_visited_goal(cell: tuple[int, int], visited: set[tuple[int, int]]) -> b
 
 def choose_goal(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]]], observed: np.ndarray,
             frontiers: tuple[Frontier, ...], min_cells: int, not_free: np.ndarray, pose: tuple[int, int],
-            reach_cells: float, visited: set[tuple[int, int]]) -> tuple[Optional[tuple[int, int]], float]:
+            reach_cells: float, visited: set[tuple[int, int]],
+            admit: Optional[Callable[[tuple[Frontier, ...]], tuple[Frontier, ...]]] = None
+            ) -> tuple[Optional[tuple[int, int]], float]:
     """Offer the frontiers to the planner in three tiers; returns the goal (or None: nothing is left) and the
     distance within which it counts as reached.
 
@@ -49,10 +51,14 @@ def choose_goal(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]
     3. Regions that count as reached from where the robot stands but were never visited: their goal cell is in
        sight within the tolerance while the unknown behind them is not (seen through a door at a steep angle).
        The robot then drives onto the goal cell itself (tolerance 0) instead of declaring the map explored.
+
+    ``frontiers`` are the first tier's regions as offered (already cut to the exploration bounds, blacklisted ones
+    dropped); ``admit`` applies the same to the smaller regions found here (None: all of them).
     """
+    admit = admit or (lambda regions: regions)
     small: Optional[tuple[Frontier, ...]] = None
     if not frontiers:
-        small = find_frontiers(observed, 1)
+        small = admit(find_frontiers(observed, 1))
         if not small:
             return None, reach_cells
     unvisited = [f for f in frontiers if not near_visited_goal(f.cell_rc, visited)]
@@ -62,7 +68,8 @@ def choose_goal(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]
     if chosen is not None:
         return chosen, reach_cells
     if small is None:
-        small = tuple(f for f in find_frontiers(observed, 1) if len(f.cells) < min_cells) if min_cells > 1 else ()
+        small = tuple(f for f in admit(find_frontiers(observed, 1)) if len(f.cells) < min_cells) \
+            if min_cells > 1 else ()
     small_unvisited = [f for f in small if not near_visited_goal(f.cell_rc, visited)]
     candidates = tuple(f for f in small_unvisited if not goal_reached(not_free, pose, f.cell_rc, reach_cells))
     chosen = offer(candidates) if small else None

@@ -5,6 +5,7 @@ thread that is never waited for, or on a simulated clock) and the two views a pl
 from __future__ import annotations
 
 import time
+import weakref
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
@@ -15,7 +16,7 @@ from superex_deploy.onboard.prediction.reuse import ReusingPredictor, merge_with
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
 __all__ = ["MODES", "PredictionSchedule", "LazyPrediction", "StalePrediction", "ScheduledPredictions",
-           "set_numba_threads"]
+           "set_numba_threads", "weak_prediction_runner"]
 
 
 MODES = ("inline", "free", "simulated", "thread")
@@ -348,3 +349,24 @@ class ScheduledPredictions:
         clock = time.perf_counter()
         self.latest, self.latest_step = self._predict(observed, evidence), step
         self.last_wait_s += time.perf_counter() - clock
+
+
+def weak_prediction_runner(owner):
+    """The prediction function of a worker thread, holding ``owner`` (an explorer) weakly: it calls
+    ``owner.step_predictor.predict(observed, evidence)``. An explorer dropped without ``close()`` is then collected at
+    once and its worker stopped (a bound method would make a cycle only the garbage collector breaks).
+
+    The function raises ``RuntimeError`` once the owner is gone."""
+    ref = weakref.ref(owner)
+
+    def run(observed: np.ndarray, evidence: Optional[np.ndarray]) -> Prediction:
+        target = ref()
+        if target is None:
+            raise RuntimeError("the explorer this prediction was for no longer exists")
+        # Not the owner itself while the prediction runs: dropped meanwhile, it is freed (and its worker stopped) by
+        # the thread that dropped it, never by this worker thread (which cannot join itself).
+        predictor = target.step_predictor
+        del target
+        return predictor.predict(observed, evidence)
+
+    return run

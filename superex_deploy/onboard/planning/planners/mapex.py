@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
@@ -11,7 +11,7 @@ from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
 from superex_deploy.onboard.checks import check_choice, check_instance, check_real, in_cells, renames
-from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction, frontiers_at, scores_by_cell
 from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
 from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_frontier, reachable_frontiers
 
@@ -127,3 +127,8 @@ class MapexPlanner(Planner):
         if not frontiers:
             return None
         return best_frontier(-scores, costs, frontiers)
+
+    def goal_scores(self, ctx: PlanningContext, cells_rc) -> np.ndarray:
+        """:meth:`score` of each goal cell taken as a frontier (0 where unreachable)."""
+        frontiers, _, scores = self.score(replace(ctx, frontiers=frontiers_at(cells_rc)))
+        return scores_by_cell(frontiers, scores, cells_rc)

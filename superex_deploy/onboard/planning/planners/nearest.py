@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from typing import Optional
 
-from superex_deploy.onboard.types import Planner, PlanningContext
+import numpy as np
+
+from superex_deploy.onboard.types import Planner, PlanningContext, frontiers_at
 from superex_deploy.onboard.planning.visibility import best_frontier, reachable_frontiers
 
 __all__ = ["NearestFrontier"]
@@ -24,3 +26,9 @@ class NearestFrontier(Planner):
         if not frontiers:
             return None
         return best_frontier(costs, costs, frontiers)
+
+    def goal_scores(self, ctx: PlanningContext, cells_rc) -> np.ndarray:
+        """The inverse travel cost of each cell (1 / cells; 0 where unreachable)."""
+        cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
+        costs = np.array([ctx.travel_cost[f.cell_rc] for f in frontiers_at(cells)], np.float64)
+        return np.where(np.isfinite(costs), 1.0 / np.maximum(costs, 1.0), 0.0)

@@ -26,7 +26,7 @@ docs/benchmarks/better-map.md, "Reading predictions as probabilities"):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numba
@@ -39,7 +39,8 @@ from superex_deploy.onboard.checks import check_choice, check_instance, check_in
 from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown_flat, visible_gains
 from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map,
                                                        reachable_frontiers)
-from superex_deploy.onboard.types import UNKNOWN, Planner, PlanningContext, Prediction
+from superex_deploy.onboard.types import (UNKNOWN, Planner, PlanningContext, Prediction, frontiers_at,
+                                          scores_by_cell)
 
 __all__ = ["SuperexConfig", "SuperexPlanner", "descend", "descend_all", "path_viewpoints"]
 
@@ -245,16 +246,28 @@ class SuperexPlanner(Planner):
         return union_visible_unknown_flat(prediction.mean, ctx.observed, cells, offsets, visibility,
                                           ctx.resolution_m).astype(float)
 
-    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+    def ratios(self, ctx: PlanningContext) -> tuple[list, np.ndarray, np.ndarray]:
+        """The reachable frontiers, their travel costs and their scores (gain per unit of travel cost), float64
+        ``[N]`` each."""
         self._resolution_m = float(ctx.resolution_m)
         frontiers, costs = reachable_frontiers(ctx)
         if not frontiers:
-            return None
+            return [], costs, np.zeros(0)
         prediction = ctx.predict()
         if self.cfg.wall_support is not None:
             prediction = supported_prediction(prediction, ctx.observed, context_evidence(ctx), ctx.resolution_m,
                                               self.cfg.wall_support)
         gains = self.gains(ctx, prediction, frontiers)
-        ratio = gains / np.maximum(costs, 1.0)
+        return frontiers, costs, gains / np.maximum(costs, 1.0)
+
+    def goal_scores(self, ctx: PlanningContext, cells_rc) -> np.ndarray:
+        """:meth:`ratios` of each goal cell taken as a frontier (0 where unreachable)."""
+        frontiers, _, ratio = self.ratios(replace(ctx, frontiers=frontiers_at(cells_rc)))
+        return scores_by_cell(frontiers, ratio, cells_rc)
+
+    def choose_goal(self, ctx: PlanningContext) -> Optional[tuple[int, int]]:
+        frontiers, costs, ratio = self.ratios(ctx)
+        if not frontiers:
+            return None
         order = sorted(range(len(frontiers)), key=lambda i: (-ratio[i], costs[i], frontiers[i].cell_rc))
         return frontiers[order[0]].cell_rc
