@@ -767,19 +767,14 @@ def naive_pool_mean(values, k):
 
 
 def naive_coarsen(observed, k):
-    """onboard.planning.coarse._coarsen block by block: a wall where any cell is one, free where every cell of a
-    whole block is free, else unknown."""
+    """onboard.mapping.blocks._coarsen block by block: a wall where any cell is one, else free where any cell is
+    free, else unknown."""
     rows, cols = observed.shape
     out = np.empty((-(-rows // k), -(-cols // k)), np.int8)
     for r in range(out.shape[0]):
         for c in range(out.shape[1]):
             block = observed[r * k:(r + 1) * k, c * k:(c + 1) * k]
-            if (block == 1).any():
-                out[r, c] = 1
-            elif block.shape == (k, k) and (block == 0).all():
-                out[r, c] = 0
-            else:
-                out[r, c] = -1
+            out[r, c] = 1 if (block == 1).any() else (0 if (block == 0).any() else -1)
     return out
 
 

@@ -28,7 +28,9 @@ MESSAGE_DATA = 1  # opcode of a binary server frame of message data
 
 
 def _threads() -> set:
-    """The running threads, but tqdm's monitor (started by the first progress bar, left for the process)."""
+    """The running threads, but tqdm's monitor (started by the first progress bar, left for the process); a run
+    leaves none behind when the threads after it are among those before (a client thread of an earlier test may end
+    meanwhile)."""
     return {thread for thread in threading.enumerate() if not thread.name.startswith("tqdm_monitor")}
 
 
@@ -198,7 +200,7 @@ def test_the_server_is_stopped_and_its_port_free_however_the_block_ends():
     server.close()  # idempotent
     with pytest.raises(RuntimeError, match="closed"):
         server.publish(None, None, None)
-    assert _threads() == threads
+    assert _threads() <= threads
     with live_view(None, 0.5) as nothing:
         assert nothing is None
 
@@ -214,7 +216,7 @@ def test_explore_and_replay_live_run_as_without_it_and_free_the_port(tmp_path, c
     assert main(common + ["--live", f"127.0.0.1:{port}", "--live-every", "0", "--out", str(tmp_path / "live"),
                           "--record", str(tmp_path / "live.mcap")]) == 0
     assert f"superex explore: live view on ws://127.0.0.1:{port}" in capsys.readouterr().err
-    assert _port_is_free(port) and _threads() == threads
+    assert _port_is_free(port) and _threads() <= threads
     # The live view changes nothing of the run: the same recording, byte for byte, and the same episode.
     assert (tmp_path / "live.mcap").read_bytes() == (tmp_path / "plain.mcap").read_bytes()
     plain, live = (json.loads((tmp_path / name / "metrics.json").read_text()) for name in ("plain", "live"))
@@ -223,7 +225,7 @@ def test_explore_and_replay_live_run_as_without_it_and_free_the_port(tmp_path, c
     assert main(["replay", str(tmp_path / "live.mcap"), "--live", f"127.0.0.1:{port}", "--out",
                  str(tmp_path / "replay")]) == 0
     assert f"superex replay: live view on ws://127.0.0.1:{port}" in capsys.readouterr().err
-    assert _port_is_free(port) and _threads() == threads
+    assert _port_is_free(port) and _threads() <= threads
 
 
 def _receive(ws, deadline: float):
@@ -371,7 +373,7 @@ def test_a_live_run_stopped_by_a_signal_stops_its_server(tmp_path, capsys, monke
                  "--out", str(tmp_path / "run"), "--record", str(record)]) == code
     err = capsys.readouterr().err
     assert f"superex explore: stopped by {signal.Signals(signum).name}" in err and "holds the 3 whole steps" in err
-    assert _port_is_free(port) and _threads() == threads
+    assert _port_is_free(port) and _threads() <= threads
     at["step"] = 1  # the recording holds 3
     assert main(["replay", str(record), "--live", f"127.0.0.1:{port}", "--out", str(tmp_path / "replay")]) == code
-    assert _port_is_free(port) and _threads() == threads
+    assert _port_is_free(port) and _threads() <= threads

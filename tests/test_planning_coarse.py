@@ -156,7 +156,7 @@ def _upsampled_rooms(k: int) -> OccupancyGrid:
 
 
 @pytest.mark.parametrize("k", [2, 4])
-def test_an_explorer_on_a_fine_floor_plans_on_blocks_and_drives_the_cells_the_map_holds_free(k):
+def test_an_explorer_on_a_fine_floor_plans_on_blocks_and_never_drives_through_a_wall(k):
     grid = _upsampled_rooms(k)
     world = World(grid, (10 * k, 10 * k))
     explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
@@ -168,7 +168,8 @@ def test_an_explorer_on_a_fine_floor_plans_on_blocks_and_drives_the_cells_the_ma
             break
         path = [tuple(cell) for cell in command.path_rc.tolist()]
         assert path[0] == world.pose_rc
-        assert all(explorer.observed[cell] == FREE for cell in path[1:])  # the blocks crossed are wholly free
+        # Never through a cell the map holds occupied, nor through a wall of the floor.
+        assert all(explorer.observed[cell] != OCCUPIED and not grid.occupied[cell] for cell in path[1:])
         goals += command.new_goal
         world.apply(command)  # refuses a path that is not 8-connected from the robot's cell
     assert command.finished and goals >= 2

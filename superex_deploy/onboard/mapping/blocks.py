@@ -1,6 +1,6 @@
 """The map on blocks of ``k x k`` cells, as the planning reads a map finer than its planning cell
-(:mod:`superex_deploy.onboard.planning.coarse`): a block is a wall where any of its cells is, free where all of them
-are, unknown otherwise."""
+(:mod:`superex_deploy.onboard.planning.coarse`): a block is a wall where any of its cells is, else free where any
+is, unknown where none is known."""
 
 from __future__ import annotations
 
@@ -17,21 +17,25 @@ def _coarsen(observed, k, out):
     rows, cols = observed.shape
     for r in range(out.shape[0]):
         for c in range(out.shape[1]):
-            r0, c0 = r * k, c * k
-            wall, free = False, r0 + k <= rows and c0 + k <= cols  # a block cut by the edge is never free
-            for i in range(r0, min(r0 + k, rows)):
-                for j in range(c0, min(c0 + k, cols)):
+            wall, free = False, False
+            for i in range(r * k, min(r * k + k, rows)):
+                for j in range(c * k, min(c * k + k, cols)):
                     value = observed[i, j]
                     if value == 1:  # OCCUPIED
                         wall = True
-                    elif value != 0:  # not FREE
-                        free = False
+                    elif value == 0:  # FREE
+                        free = True
             out[r, c] = 1 if wall else (0 if free else -1)
 
 
 def coarsen_observed(observed: np.ndarray, k: int) -> np.ndarray:
-    """int8 ``[ceil(H/k), ceil(W/k)]``: OCCUPIED where any cell of the block is, FREE where all of them are (a block
-    cut by the map's edge is never free), UNKNOWN otherwise; ``observed`` itself at ``k = 1``.
+    """int8 ``[ceil(H/k), ceil(W/k)]``: OCCUPIED where any cell of the block is, else FREE where any is, UNKNOWN
+    where none is known (a block cut by the map's edge pools the cells it has); ``observed`` itself at ``k = 1``.
+
+    The rule of a coarser map built from the same rays: a ray that crossed any cell of a block crossed the block,
+    one that ended in it hit the block. A block seen only in part (the cells between two rays at range) is free, as
+    a coarser cell would be; requiring all its cells would fray the seen area at range into unknown blocks and
+    break its frontier into pieces.
 
     Raises:
         ValueError: not an int8 ``[H, W]`` map, ``k`` not an integer >= 1.
@@ -45,5 +49,3 @@ def coarsen_observed(observed: np.ndarray, k: int) -> np.ndarray:
     out = np.empty((-(-observed.shape[0] // k), -(-observed.shape[1] // k)), np.int8)
     _coarsen(np.ascontiguousarray(observed), int(k), out)
     return out
-
-

@@ -11,11 +11,11 @@ gives back what it was given: nothing changes.
 
 The blocks are cut from the map's first row and column (block ``(R, C)`` holds cells ``R k .. R k + k - 1`` by
 ``C k .. C k + k - 1``; the last row and column of blocks may be cut by the map's edge). A block is a wall where
-any of its cells is, free where all of them are, unknown otherwise
+any of its cells is, else free where any is, unknown where none is known
 (:func:`~superex_deploy.onboard.mapping.blocks.coarsen_observed`, which the map keeps up to date:
-:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.blocks`): a path of free
-blocks crosses only cells the map holds free, and the frontier lies at most one block short of the map's. A
-block's cell on the map is its centre cell (:meth:`PlanningGrid.centre`); a path of blocks becomes an 8-connected
+:meth:`~superex_deploy.onboard.mapping.mapper.Mapper.blocks`): the map a coarser grid would have made of the same
+rays. A path of free blocks may cross a cell no ray reached between cells rays crossed (a gap between rays at
+range), never a cell the map holds occupied. A block's cell on the map is its centre cell (:meth:`PlanningGrid.centre`); a path of blocks becomes an 8-connected
 path of cells that never leaves those blocks (:meth:`PlanningGrid.fine_path`).
 """
 
