@@ -22,7 +22,7 @@ MAP = "50045230"  # the smallest bundled map
 FUZZ = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
-def _refused(capsys, argv, *messages) -> str:
+def refused(capsys, argv, *messages) -> str:
     """Run ``superex ARGV``, expect exit 2 and one error line holding every message; returns stderr."""
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -139,10 +139,10 @@ def test_a_recording_without_steps_is_refused(write_recording, tmp_path, capsys)
     empty = write_recording(tmp_path / "empty.mcap", steps=0)
     assert read_recording(empty).steps == [] and read_recording(empty).error is None
     out = tmp_path / "replay"
-    _refused(capsys, ["replay", str(empty), "--out", str(out)], "holds no step to replay")
+    refused(capsys, ["replay", str(empty), "--out", str(out)], "holds no step to replay")
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(write_recording(tmp_path / "three.mcap", steps=3).read_bytes()[:900])  # the metadata, then cut
-    _refused(capsys, ["replay", str(cut), "--out", str(out)], "holds no step to replay", "truncated")
+    refused(capsys, ["replay", str(cut), "--out", str(out)], "holds no step to replay", "truncated")
     assert not out.exists()
 
 
@@ -221,7 +221,7 @@ def test_integer_options_take_integers_from_their_lower_bound(value):
 ])
 def test_a_bad_number_is_refused_naming_its_option_before_anything_is_created(tmp_path, capsys, argv, option):
     out = tmp_path / "out"
-    _refused(capsys, argv + ["--out", str(out)], f"argument {option}: must be an integer >=")
+    refused(capsys, argv + ["--out", str(out)], f"argument {option}: must be an integer >=")
     assert not out.exists()
 
 
@@ -252,7 +252,7 @@ def test_an_output_folder_below_a_file_is_refused_up_front(tmp_path, capsys, arg
     a_file.write_text("x")
     out = a_file / below if below else a_file
     message = "exists and is not a folder" if not below else f"cannot be created: {a_file} is a file, not a folder"
-    _refused(capsys, argv + ["--out", str(out)], f"--out {out}", message)
+    refused(capsys, argv + ["--out", str(out)], f"--out {out}", message)
     assert a_file.read_text() == "x" and sorted(tmp_path.iterdir()) == [a_file]
 
 
@@ -260,9 +260,9 @@ def test_an_output_folder_below_a_file_is_refused_up_front(tmp_path, capsys, arg
 
 def test_a_record_path_in_a_missing_folder_leaves_nothing_behind(tmp_path, capsys):
     out = tmp_path / "run"
-    _refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record",
+    refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record",
                       str(tmp_path / "nodir" / "x.mcap")], "--record", "the folder", "does not exist")
-    _refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record", str(tmp_path)],
+    refused(capsys, ["explore", "--map", MAP, "--steps", "5", "--out", str(out), "--record", str(tmp_path)],
              "is a folder, not a file")
     assert list(tmp_path.iterdir()) == []
     # A folder that --out creates is fine: the recording goes beside the run.
@@ -319,14 +319,14 @@ def test_a_name_list_is_one_or_more_distinct_names(text):
 def test_an_empty_or_repeating_list_is_refused_before_anything_is_written(tmp_path, capsys, option, value):
     out = tmp_path / "bench"
     argv = ["benchmark", *(["--suite", "paper"] if option == "--rows" else []), option, value, "--out", str(out)]
-    _refused(capsys, argv, f"argument {option}:")
+    refused(capsys, argv, f"argument {option}:")
     assert not out.exists()
 
 
 def test_an_unknown_map_in_the_list_is_refused_before_anything_is_written(tmp_path, capsys):
     out = tmp_path / "bench"
-    _refused(capsys, ["benchmark", "--maps", f"{MAP},nope", "--out", str(out)], "--maps: not an eval map: nope")
-    _refused(capsys, ["benchmark", "--suite", "paper", "--maps", "nope", "--out", str(out)], "not an eval map")
+    refused(capsys, ["benchmark", "--maps", f"{MAP},nope", "--out", str(out)], "--maps: not an eval map: nope")
+    refused(capsys, ["benchmark", "--suite", "paper", "--maps", "nope", "--out", str(out)], "not an eval map")
     assert not out.exists()
 
 
@@ -380,7 +380,6 @@ def test_settings_differ_exactly_where_a_field_is_named(recorded, new):
 @pytest.mark.parametrize("seed", [-1, True, 2.5])
 def test_replay_names_a_bad_recorded_seed(seed):
     from superex_deploy.commands.replay import build_explorer
-    from superex_deploy.messages import MapFrame
 
     metadata = {"planner": "nearest", "predictor": "observed", "seed": seed, "explorer": {}}
     with pytest.raises(ValueError, match="the recording's seed must be an integer >= 0"):
@@ -389,7 +388,6 @@ def test_replay_names_a_bad_recorded_seed(seed):
 
 def test_replay_names_a_missing_configuration_field():
     from superex_deploy.commands.replay import build_explorer
-    from superex_deploy.messages import MapFrame
 
     metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
     with pytest.raises(ValueError, match="cannot be rebuilt: it lacks the field 'motion'"):

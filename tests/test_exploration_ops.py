@@ -24,6 +24,7 @@ from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.status import (ALL_BLACKLISTED, BACK_AT_START, NO_FRONTIER, NO_MEASUREMENT,
                                            OUTSIDE_BOUNDS, START_UNREACHABLE, Mission)
 from superex_deploy.onboard.types import Frontier
+from tests.test_cli_arguments import refused
 
 FRAME = MapFrame((80, 80), 0.1, (0.0, 0.0))
 MAP = "50045230"  # the smallest bundled map
@@ -278,16 +279,6 @@ def test_a_bad_goal_policy_is_refused(fields, message):
 # The command line, the Gymnasium environment, recordings
 
 
-def _refused(capsys, argv, *messages) -> str:
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if "error:" in line]
-    assert len(lines) == 1, err
-    for message in messages:
-        assert message in lines[0], err
-    return err
-
-
 @pytest.mark.parametrize("text, message", [
     ("0,0 1,1", "bounds must have at least 3 points (x, y), got 2"),
     ("0,0 1,0 1;1", "--bounds point 2 must be 'x,y' (two numbers in metres, no space), got '1;1'"),
@@ -297,13 +288,13 @@ def _refused(capsys, argv, *messages) -> str:
 ])
 def test_bad_bounds_on_the_command_line_are_refused_before_anything_is_written(tmp_path, capsys, text, message):
     out = tmp_path / "out"
-    _refused(capsys, ["explore", "--map", MAP, "--bounds", text, "--out", str(out)], "--bounds", message)
+    refused(capsys, ["explore", "--map", MAP, "--bounds", text, "--out", str(out)], "--bounds", message)
     assert not out.exists()
 
 
 def test_bounds_away_from_the_start_are_refused_on_the_command_line(tmp_path, capsys):
     out = tmp_path / "out"
-    _refused(capsys, ["explore", "--map", MAP, "--bounds", "1000,1000 1001,1000 1001,1001", "--out", str(out)],
+    refused(capsys, ["explore", "--map", MAP, "--bounds", "1000,1000 1001,1000 1001,1001", "--out", str(out)],
              "must contain the robot's start pose")
     assert not (out / "metrics.json").exists()
 

@@ -10,7 +10,6 @@ from superex_deploy.onboard import Explorer, ExplorerConfig
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.planning.coarse import CoarsePrediction, PlanningGrid, planning_factor, pool_prediction_blocks
-from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.scale import pool_mean
