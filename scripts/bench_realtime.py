@@ -19,10 +19,14 @@ Two measurements, each against the unskipped pipeline (``full``):
   means, and the prediction wait after the first step (p99, max). Then the same paced run of ``full`` and the
   default (``--loaded-settings``) while a busy-loop process pinned to one core holds it (a robot's SLAM), and
   1000-step episodes of ``full``, the default and MapEx on the observed map, unpaced, alternated: the episode's
-  wall time.
+  wall time. ``--timing-floors``: the default profile paced on other floors too (rows ``realtime@FLOOR``, beside
+  ``realtime@50015847`` at 0.1 m: ``MAP@xK`` upsampled K times, ``generated@RES`` a generated 96 m x 64 m floor,
+  :func:`superex_deploy.sim.generated_floors.named_floor`).
 
     NUMBA_NUM_THREADS=1 python scripts/bench_realtime.py --error train --out benchmarks/realtime   # choose
     NUMBA_NUM_THREADS=1 python scripts/bench_realtime.py --error eval --timing --out benchmarks/realtime
+    python scripts/bench_realtime.py --timing --settings full --only-floors --repeats 2 --timing-steps 300 \
+        --timing-floors 50015847@x2,generated,generated@0.05 --out benchmarks/realtime/fine   # SLAM resolutions
 
 A quick check (one scenario, a few steps; minutes):
 
@@ -235,11 +239,13 @@ def _busy_core():
 
 
 def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, steps: int = TIMING_STEPS,
-               wall_steps: int = 1000, loaded: list[str] = (), floors: list[str] = ()) -> None:
+               wall_steps: int = 1000, loaded: list[str] = (), floors: list[str] = (), only_floors: bool = False
+               ) -> None:
     """Paced episodes of ``names``, the same of ``loaded`` while a busy-loop process holds one core, then unpaced
     episodes of ``full``, ``walls`` and MapEx; then paced episodes of the default profile on each of ``floors``
     (:func:`~superex_deploy.sim.generated_floors.named_floor`: the timing map at a SLAM resolution, a generated
-    floor at 0.1 and 0.05 m), alternated with the timing map at 0.1 m; one at a time."""
+    floor at 0.1 and 0.05 m), alternated with the timing map at 0.1 m (``only_floors``: those alone); one at a
+    time."""
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import run_tasks
 
@@ -252,6 +258,8 @@ def run_timing(names: list[str], walls: list[str], repeats: int, out: Path, step
     walls = list(dict.fromkeys(["full", *walls, MAPEX]))
     order += [(n, r, "wall", wall_steps) for r in range(repeats) for n in (walls if r % 2 == 0 else walls[::-1])]
     floors = [TIMING_MAP, *floors] if floors else []
+    if only_floors:
+        order = []
     order += [(f"{DEFAULT_PROFILE}@{f}", r, "paced", steps) for r in range(repeats)
               for f in (floors if r % 2 == 0 else floors[::-1])]
     for name, repeat, mode, n_steps in order:  # one at a time: the two cores belong to the measured episode
@@ -457,14 +465,13 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=1, help="timing episodes per setting")
     parser.add_argument("--free-repeats", type=int, default=3, help="with --error: free-running (robot clock) "
                         "repeats of the default's error episodes, paired with its simulated-clock ones (0: none)")
-    parser.add_argument("--scenarios", type=int, default=0, help="with --error: only the first N scenarios "
-                        "(a quick check; 0: all)")
+    parser.add_argument("--scenarios", type=int, default=0, help="with --error: only the first N scenarios (0: all)")
     parser.add_argument("--timing-steps", type=int, default=TIMING_STEPS, help="paced episode length")
     parser.add_argument("--wall-steps", type=int, default=1000, help="unpaced episode length (episode wall time)")
     parser.add_argument("--loaded-settings", default=None, help="settings also timed paced while a busy-loop "
                         "process holds one core (default: full and the default profile; '' for none)")
-    parser.add_argument("--timing-floors", default="", help="with --timing: floors the default profile is also timed "
-                        f"on, paced, beside {TIMING_MAP} at 0.1 m (e.g. '{TIMING_MAP}@x2,generated,generated@0.05')")
+    parser.add_argument("--timing-floors", default="", help=f"with --timing: floors to time too (e.g. {TIMING_MAP}@x2)")
+    parser.add_argument("--only-floors", action="store_true", help="with --timing-floors: time those floors alone")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "realtime")
     args = parser.parse_args()
@@ -482,7 +489,8 @@ def main() -> int:
             if unknown:
                 raise ValueError(f"--loaded-settings: unknown setting(s) {unknown}")
         run_timing(_names(args.timing_settings) if args.timing_settings else names, walls, args.repeats, args.out,
-                   args.timing_steps, args.wall_steps, loaded, floors=[f for f in args.timing_floors.split(",") if f])
+                   args.timing_steps, args.wall_steps, loaded, floors=[f for f in args.timing_floors.split(",") if f],
+                   only_floors=args.only_floors)
     report(args.out)
     return 0
 
