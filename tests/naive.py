@@ -784,3 +784,31 @@ def naive_pool_mixture(mean, variance, k):
     out_mean = naive_pool_mean(mean, k)
     second = naive_pool_mean(variance + mean * mean, k)
     return out_mean, np.maximum(second - out_mean ** 2, 0.0)
+
+
+def naive_in_frame(message, frame):
+    """messages.OccupancyGridMessage.in_frame cell by cell: the frame cell holding each message cell's centre takes
+    the largest of their values; a frame cell that holds none, the message cell under its own centre; else -1."""
+    height, width = frame.shape
+    out = np.full((height, width), -1, np.int16)
+    hit = np.zeros((height, width), bool)
+    grid = np.asarray(message.data).reshape(message.height, message.width)  # row 0 at the bottom
+    res_f, res_m = frame.resolution_m, message.resolution_m
+    (fx, fy), (mx, my) = frame.origin_xy, message.origin_xy
+    for j in range(message.height):
+        for i in range(message.width):
+            c = int(np.floor((mx + (i + 0.5) * res_m - fx) / res_f))
+            r = int(np.floor((my + (j + 0.5) * res_m - fy) / res_f))
+            if 0 <= c < width and 0 <= r < height:
+                top = height - 1 - r
+                out[top, c] = max(out[top, c], grid[j, i]) if hit[top, c] else grid[j, i]
+                hit[top, c] = True
+    for top in range(height):
+        for c in range(width):
+            if hit[top, c]:
+                continue
+            i = int(np.floor((fx + (c + 0.5) * res_f - mx) / res_m))
+            j = int(np.floor((fy + (height - 1 - top + 0.5) * res_f - my) / res_m))
+            if 0 <= i < message.width and 0 <= j < message.height:
+                out[top, c] = grid[j, i]
+    return out.astype(np.int8)

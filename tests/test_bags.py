@@ -296,19 +296,19 @@ def test_a_slam_map_the_explorer_cannot_take_is_refused_when_the_bag_opens(tmp_p
         read_bag(_write_items(tmp_path / "rotated", items))
 
 
-def test_offline_refuses_a_resolution_other_than_the_slam_maps_before_it_runs(tmp_path):
-    # It ran the scans up to the first map, then stopped with the explorer's resolution error and no output.
+def test_offline_resamples_a_slam_map_of_another_resolution(tmp_path):
+    # A 0.1 m SLAM map for an explorer at 0.05 m (and the map's own 0.1 m): both run, and the finer map holds the
+    # SLAM map's free area (it stopped with the explorer's resolution error before).
     _, drive = _drive(4)
     slam = OccupancyGridMessage(float(np.float32(0.1)), 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
     bag = _write(tmp_path / "slam", 2, drive, slam=slam)
-    out = tmp_path / "out"
-    from superex_deploy.cli import build_parser
-    from superex_deploy.commands import offline
-
-    with pytest.raises(ValueError, match=r"--resolution 0.05 m: the SLAM map on /map has 0.1 m cells"):
-        offline.run(build_parser().parse_args(["offline", str(bag), "--out", str(out), "--resolution", "0.05"]))
-    assert not out.exists()
-    assert main(["offline", str(bag), "--out", str(out), "--resolution", "0.1", "--finish-after", "0"]) == 0
+    free = {}
+    for resolution in ("0.05", "0.1"):
+        out = tmp_path / f"out{resolution}"
+        assert main(["offline", str(bag), "--out", str(out), "--resolution", resolution, "--finish-after", "0"]) == 0
+        saved = np.load(out / "map.npz")
+        free[resolution] = np.count_nonzero(saved["observed"] == 0) * float(resolution) ** 2
+    assert free["0.05"] == pytest.approx(free["0.1"], rel=0.05) and free["0.1"] >= 0.9 * 7.0 * 4.0
 
 
 @pytest.mark.parametrize("option, value", [("--resolution", "0"), ("--resolution", "-0.1"), ("--margin-m", "-1")])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import load_map, start_poses
-from superex_deploy.messages import Observation, OccupancyGridMessage, Pose2D, PoseCovariance
+from superex_deploy.messages import MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance
 from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.planning.planners import make_planner
@@ -79,15 +79,24 @@ def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner,
     np.testing.assert_array_equal(fed.mapper.carved, own.mapper.carved)
 
 
-def test_a_slam_map_on_another_lattice_or_resolution_is_refused_and_may_cover_another_area():
+def test_a_slam_map_of_another_resolution_is_resampled_and_may_cover_another_area():
     grid = load_map(MAP)
     world = World(grid, start_poses(MAP)[0])
     explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
     observation = world.observe()
     data = np.zeros(100, np.int8)
-    bad = OccupancyGridMessage(resolution_m=0.05, width=10, height=10, origin_xy=(0.0, 0.0), data=data)
-    with pytest.raises(ValueError, match="resolution"):
-        explorer.step(Observation(0.0, observation.pose, None, occupancy_grid=bad))
+    # The floor's own map at 0.05 m (each cell a 2 x 2 block), on an explorer at 0.1 m with a frame smaller than
+    # it: the explorer's map is the floor's where the frame reaches.
+    fine = np.kron(np.where(grid.occupied, 100, 0).astype(np.int8), np.ones((2, 2), np.int8))
+    slam = OccupancyGridMessage(resolution_m=float(np.float32(0.05)), width=fine.shape[1], height=fine.shape[0],
+                                origin_xy=(0.0, 0.0), data=np.ascontiguousarray(fine[::-1]).reshape(-1))
+    small = Explorer(MapFrame((grid.shape[0] // 2, grid.shape[1] // 2), 0.1, (0.0, 0.0)), make_planner("nearest"),
+                     ObservedAsPrediction())
+    pose = Pose2D(0.1 * (grid.shape[1] // 4) + 0.05, 0.1 * (grid.shape[0] // 4) + 0.05, 0.0)  # inside the small frame
+    small.step(Observation(0.0, pose, None, occupancy_grid=slam))
+    lower_left = grid.occupied[grid.shape[0] - grid.shape[0] // 2:, :grid.shape[1] // 2]
+    walls = small.observed == OCCUPIED
+    assert np.count_nonzero(walls != lower_left) <= 9  # the robot's footprint, cleared whatever the map says
     # A SLAM map covering only a 10 x 10 patch around the robot: the rest of the explorer's frame is unknown.
     x, y = observation.pose.x, observation.pose.y
     patch = OccupancyGridMessage(resolution_m=0.1, width=10, height=10, origin_xy=(round(x - 0.55, 1),

@@ -12,7 +12,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, PredictionReuse, Pr
 from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame, reach_of
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-from superex_deploy.onboard.types import UNKNOWN, Prediction
+from superex_deploy.onboard.types import FREE, UNKNOWN, Prediction
 from superex_deploy.sim.world import World, WorldConfig
 
 GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
@@ -242,18 +242,21 @@ def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_
     assert tuple(saved["origin_xy"]) == pytest.approx(frames[-1].origin_xy) and saved["resolution_m"] == 0.1
 
 
-@pytest.mark.parametrize("origin_xy, resolution_m", [((-5.03, -5.0), 0.1), ((-5.0, -5.0), 0.05)])
-def test_a_slam_map_off_the_lattice_is_refused_before_the_grid_grows(origin_xy, resolution_m):
+@pytest.mark.parametrize("origin_xy, resolution_m", [((-5.03, -5.0), 0.1), ((-5.0, -5.0), 0.05),
+                                                     ((-5.0, -5.0), 0.2)])
+def test_a_slam_map_off_the_lattice_or_of_another_resolution_grows_the_grid_and_is_resampled(origin_xy, resolution_m):
     explorer = _explorer(MapFrame((40, 40), 0.1, (0.0, 0.0)), growth=GROWTH)
     scan = LaserScan(0.0, 2 * np.pi / 8, 0.05, 1.0, np.full(8, np.inf, np.float32))
     explorer.step(Observation(0.0, Pose2D(2.05, 2.05), scan))
-    before, frame = explorer.mapper.log_odds.copy(), explorer.frame
     cells = round(10.0 / resolution_m)
     message = OccupancyGridMessage(resolution_m, cells, cells, origin_xy, np.zeros(cells * cells, np.int8))
-    with pytest.raises(ValueError, match="whole number of cells|resolution"):
-        explorer.step(Observation(1.0, Pose2D(2.05, 2.05), None, occupancy_grid=message))
-    assert explorer.frame == frame and np.array_equal(explorer.mapper.log_odds, before)
-    explorer.step(Observation(1.0, Pose2D(2.05, 2.05), scan))  # and it goes on
+    explorer.step(Observation(1.0, Pose2D(2.05, 2.05), None, occupancy_grid=message))
+    frame = explorer.frame  # grown on its own lattice to hold the whole 10 m x 10 m map
+    assert frame.resolution_m == 0.1 and frame.origin_xy[0] <= origin_xy[0] and frame.origin_xy[1] <= -5.0
+    assert frame.origin_xy[0] + frame.shape[1] * 0.1 >= origin_xy[0] + 10.0 - 1e-9
+    free = np.count_nonzero(explorer.observed == FREE)
+    assert abs(free - 100 * 100) <= 2 * 100  # the map's 100 m^2 in 0.1 m cells (an edge may fall either way)
+    explorer.step(Observation(2.0, Pose2D(2.05, 2.05), scan))  # and it goes on
 
 
 class _SlowPredictor(_ShapeDependentPredictor):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.messages import MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance
+from tests.naive import naive_in_frame
 
 
 def test_a_frame_grid_round_trips_through_the_message():
@@ -36,16 +37,43 @@ def test_a_shifted_message_lands_on_the_right_cells_and_the_rest_is_unknown():
     assert (far.in_frame(frame) == -1).all()
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(resolution_m=0.5), "resolution"),
-    (dict(origin_xy=(0.05, 0.0)), "whole number of cells"),
-])
-def test_a_message_off_the_frame_lattice_is_refused(kwargs, message):
-    frame = MapFrame(shape=(4, 4), resolution_m=0.1)
-    base = dict(resolution_m=0.1, width=2, height=2, origin_xy=(0.0, 0.0), data=np.zeros(4, np.int8))
-    base.update(kwargs)
-    with pytest.raises(ValueError, match=message):
-        OccupancyGridMessage(**base).in_frame(frame)
+def test_a_finer_message_is_max_pooled_onto_the_frame():
+    # A 0.05 m map of 4 x 4 cells on a 0.1 m frame of 2 x 2: a frame cell takes the largest of its four (a wall
+    # in any of them; unknown only where all four are).
+    rows_from_bottom = np.array([[0, 0, -1, -1],
+                                 [0, 100, -1, -1],
+                                 [-1, 0, 30, 0],
+                                 [-1, -1, 0, 0]], np.int8)
+    message = OccupancyGridMessage(resolution_m=0.05, width=4, height=4, origin_xy=(0.0, 0.0),
+                                   data=rows_from_bottom.reshape(-1))
+    out = message.in_frame(MapFrame(shape=(2, 2), resolution_m=0.1))
+    np.testing.assert_array_equal(out, [[0, 30], [100, -1]])  # row 0 at the top
+    with pytest.raises(ValueError, match="resolution 0.05 m differs"):
+        message.lattice_offset(MapFrame(shape=(2, 2), resolution_m=0.1))
+
+
+def test_a_coarser_message_or_one_off_the_lattice_is_sampled_at_the_frame_cells_centres():
+    message = OccupancyGridMessage(resolution_m=0.2, width=2, height=1, origin_xy=(0.0, 0.0),
+                                   data=np.array([100, 0], np.int8))
+    out = message.in_frame(MapFrame(shape=(3, 5), resolution_m=0.1))
+    np.testing.assert_array_equal(out, [[-1, -1, -1, -1, -1], [100, 100, 0, 0, -1], [100, 100, 0, 0, -1]])
+    shifted = OccupancyGridMessage(resolution_m=0.1, width=2, height=1, origin_xy=(0.03, 0.0),
+                                   data=np.array([100, 0], np.int8))
+    np.testing.assert_array_equal(shifted.in_frame(MapFrame(shape=(1, 3), resolution_m=0.1)), [[100, 0, -1]])
+    with pytest.raises(ValueError, match="whole number of cells"):
+        shifted.lattice_offset(MapFrame(shape=(1, 3), resolution_m=0.1))
+
+
+def test_resampling_matches_its_slow_twin_over_random_messages():
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        res_m = float(rng.choice([0.025, 0.05, 0.07, 0.1, 0.2, 0.3]))
+        width, height = (int(n) for n in rng.integers(1, 30, size=2))
+        data = rng.choice(np.array([-1, 0, 50, 100], np.int8), size=width * height, p=[0.4, 0.4, 0.1, 0.1])
+        message = OccupancyGridMessage(res_m, width, height, tuple(float(v) for v in rng.uniform(-1, 1, size=2)), data)
+        frame = MapFrame(shape=(int(rng.integers(1, 25)), int(rng.integers(1, 25))), resolution_m=0.1,
+                         origin_xy=(-1.0, -1.0))
+        np.testing.assert_array_equal(message.in_frame(frame), naive_in_frame(message, frame))
 
 
 @pytest.mark.parametrize("kwargs, message", [

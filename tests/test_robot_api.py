@@ -137,13 +137,18 @@ def test_a_frame_built_from_a_float32_resolution_accepts_a_far_origin():
     frame = MapFrame((100, 100), resolution, (0.0, 0.0))
     far = OccupancyGridMessage(resolution_m=resolution, width=10, height=10, origin_xy=(-250.0, -250.0),
                                data=np.zeros(100, np.int8))
-    assert far.in_frame(frame).shape == (100, 100)
+    assert far.in_frame(frame).shape == (100, 100) and far.lattice_offset(frame) == (-5000, -5000)
+    # Off the lattice, or at another resolution: not copied cell for cell but resampled.
+    shifted = OccupancyGridMessage(resolution_m=resolution, width=10, height=10, origin_xy=(0.02, 0.0),
+                                   data=np.zeros(100, np.int8))
     with pytest.raises(ValueError, match="not a whole number of cells"):
-        OccupancyGridMessage(resolution_m=resolution, width=10, height=10, origin_xy=(0.02, 0.0),
-                             data=np.zeros(100, np.int8)).in_frame(frame)
+        shifted.lattice_offset(frame)
+    assert np.count_nonzero(shifted.in_frame(frame) == 0) == 100
+    coarse = OccupancyGridMessage(resolution_m=0.1, width=10, height=10, origin_xy=(0.0, 0.0),
+                                  data=np.zeros(100, np.int8))
     with pytest.raises(ValueError, match="resolution .* differs"):
-        OccupancyGridMessage(resolution_m=0.1, width=10, height=10, origin_xy=(0.0, 0.0),
-                             data=np.zeros(100, np.int8)).in_frame(frame)
+        coarse.lattice_offset(frame)
+    assert np.count_nonzero(coarse.in_frame(frame) == 0) == 400
 
 
 # 7. a refused SPAD frame leaves nothing integrated

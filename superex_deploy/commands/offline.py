@@ -89,7 +89,6 @@ def run(args: argparse.Namespace) -> int:
 
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PROFILES, build_explorer, resolve_profile
-    from superex_deploy.messages import same_resolution
     from superex_deploy.recording.bags import BagTopics, read_bag
 
     if not (math.isfinite(args.finish_after) and args.finish_after >= 0):
@@ -109,10 +108,6 @@ def run(args: argparse.Namespace) -> int:
     reading, observations = read_bag(args.bag, topics)
     try:
         resolution = args.resolution or reading.map_resolution_m or 0.1  # --resolution: checked > 0 above
-        if reading.map_resolution_m is not None and not same_resolution(resolution, reading.map_resolution_m):
-            raise ValueError(f"--resolution {args.resolution} m: the SLAM map on {reading.map_topic} has "
-                             f"{reading.map_resolution_m:.6g} m cells, and the explorer takes it on its own lattice "
-                             f"(leave --resolution out, or give --map-topic '' to run on the scans alone)")
         frame = frame_for(reading.extent_xy, resolution, args.margin_m, reading.map_origin_xy)
     except BaseException:
         observations.close()  # the bag

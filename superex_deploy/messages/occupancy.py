@@ -94,18 +94,22 @@ class OccupancyGridMessage:
                    origin_xy=frame.origin_xy, data=np.ascontiguousarray(grid[::-1]).reshape(-1))
 
     def in_frame(self, frame: MapFrame) -> np.ndarray:
-        """int8 ``[H, W]`` occupancy (``-1`` unknown, ``0..100``) of ``frame``'s cells, row 0 at the top.
+        """int8 ``[H, W]`` occupancy (``-1`` unknown, ``0..100``) of ``frame``'s cells, row 0 at the top; frame cells
+        outside the message are unknown, message cells outside the frame are dropped.
 
-        The message must share the frame's resolution (equal once both are rounded to float32, the type of
-        ``nav_msgs/MapMetaData.resolution``: :func:`same_resolution`) and its origin must lie on the frame's cell
-        lattice (a whole number of cells away, within 1e-6 cells plus the float32 rounding of the resolution over
-        that distance); the grids may cover different areas: frame cells outside the message are unknown, message
-        cells outside the frame are dropped.
-
-        Raises:
-            ValueError: another resolution, or an origin off the frame's lattice.
+        A message of the frame's resolution (equal once both are rounded to float32, the type of
+        ``nav_msgs/MapMetaData.resolution``: :func:`same_resolution`) whose origin lies on the frame's cell lattice
+        (a whole number of cells away, within 1e-6 cells plus the float32 rounding of the resolution over that
+        distance) is copied cell for cell. Any other (a 0.05 m SLAM map for a 0.1 m explorer, or an origin between
+        its cells) is resampled: a frame cell takes the largest value of the message cells whose centres fall in it
+        (a wall in any of them makes it a wall; unknown only where all are unknown, as ``-1`` is the smallest value),
+        and a frame cell that holds no message cell's centre (a coarser message) the value of the message cell
+        under its own centre.
         """
-        dx, dy = self.lattice_offset(frame)  # the message's cell (0, 0) is frame column dx, row from the bottom dy
+        on_lattice = self._lattice_cells(frame)
+        if on_lattice is None:
+            return self._resampled(frame)
+        dx, dy = on_lattice  # the message's cell (0, 0) is frame column dx, row from the bottom dy
         height, width = frame.shape
         out = np.full((height, width), OCCUPANCY_UNKNOWN, np.int8)
         bottom_up = self.data.reshape(self.height, self.width)
@@ -119,23 +123,65 @@ class OccupancyGridMessage:
         out[top:bottom + 1, cols.start + dx:cols.stop + dx] = bottom_up[rows, cols][::-1]
         return out
 
+    def _resampled(self, frame: MapFrame) -> np.ndarray:
+        """:meth:`in_frame` for a message of another resolution or off the frame's lattice."""
+        height, width = frame.shape
+        res_f, res_m = frame.resolution_m, self.resolution_m
+        (fx, fy), (mx, my) = frame.origin_xy, self.origin_xy
+        out = np.full(height * width, OCCUPANCY_UNKNOWN, np.int8)
+        # Every message cell's centre, into the frame cell holding it (columns and rows from the bottom).
+        col = np.floor((mx + (np.arange(self.width) + 0.5) * res_m - fx) / res_f).astype(np.int64)
+        row = np.floor((my + (np.arange(self.height) + 0.5) * res_m - fy) / res_f).astype(np.int64)
+        keep_c, keep_r = (col >= 0) & (col < width), (row >= 0) & (row < height)
+        if keep_c.any() and keep_r.any():
+            cells = ((height - 1 - row[keep_r])[:, None] * width + col[keep_c][None, :]).reshape(-1)
+            values = self.data.reshape(self.height, self.width)[np.ix_(keep_r, keep_c)].reshape(-1)
+            np.maximum.at(out, cells, values)
+            hit = np.zeros(height * width, bool)
+            hit[cells] = True
+        else:
+            hit = np.zeros(height * width, bool)
+        # Frame cells no message centre fell in: the message cell under the frame cell's centre, if any.
+        mcol = np.floor((fx + (np.arange(width) + 0.5) * res_f - mx) / res_m).astype(np.int64)
+        mrow = np.floor((fy + (np.arange(height) + 0.5) * res_f - my) / res_m).astype(np.int64)  # from the bottom
+        inside_c, inside_r = (mcol >= 0) & (mcol < self.width), (mrow >= 0) & (mrow < self.height)
+        out = out.reshape(height, width)
+        hit = hit.reshape(height, width)
+        rows_top = np.flatnonzero(inside_r[::-1])  # frame rows from the top whose centre lies in the message
+        cols = np.flatnonzero(inside_c)
+        if rows_top.size and cols.size:
+            sampled = self.data.reshape(self.height, self.width)[mrow[::-1][rows_top][:, None], mcol[cols][None, :]]
+            area = np.ix_(rows_top, cols)
+            out[area] = np.where(hit[area], out[area], sampled)
+        return out
+
     def lattice_offset(self, frame: MapFrame) -> tuple[int, int]:
         """``(columns, rows)`` from ``frame``'s origin to the message's (its cell ``(0, 0)`` is frame column
-        ``columns``, frame row ``rows`` counted from the bottom), after the checks of :meth:`in_frame`: what an
-        explorer asks before it changes anything for the message (a grid that grows keeps the lattice).
+        ``columns``, frame row ``rows`` counted from the bottom), for a message :meth:`in_frame` copies cell for
+        cell.
 
         Raises:
-            ValueError: another resolution, or an origin off the frame's lattice.
+            ValueError: another resolution, or an origin off the frame's lattice (:meth:`in_frame` resamples those).
         """
         if not same_resolution(self.resolution_m, frame.resolution_m):
-            raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the explorer's map "
-                             f"frame's {frame.resolution_m} m")
+            raise ValueError(f"the occupancy grid's resolution {self.resolution_m} m differs from the map frame's "
+                             f"{frame.resolution_m} m")
+        cells = self._lattice_cells(frame)
+        if cells is None:
+            raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
+                             f"map frame's {frame.origin_xy} m")
+        return cells
+
+    def _lattice_cells(self, frame: MapFrame):
+        """``(columns, rows)`` of :meth:`lattice_offset`, or None for a message of another resolution or off the
+        frame's lattice."""
+        if not same_resolution(self.resolution_m, frame.resolution_m):
+            return None
         shift = [(m - f) / frame.resolution_m for m, f in zip(self.origin_xy, frame.origin_xy)]
         cells = [round(s) for s in shift]
         # A resolution sent as float32 is off by up to half a float32 ulp: over |s| cells that is |s| ulps of s.
         if any(abs(s - c) > _LATTICE_TOLERANCE_CELLS + 4 * _FLOAT32_EPS * abs(s) for s, c in zip(shift, cells)):
-            raise ValueError(f"the occupancy grid's origin {self.origin_xy} m is not a whole number of cells from the "
-                             f"map frame's {frame.origin_xy} m")
+            return None
         return int(cells[0]), int(cells[1])
 
 

@@ -303,8 +303,6 @@ class Explorer:
         if self._closed:
             raise RuntimeError("this explorer was closed")
         # Every check comes before anything is integrated: a refused observation leaves the explorer as it was.
-        if obs.occupancy_grid is not None:  # its resolution and lattice, before the grid grows for it
-            obs.occupancy_grid.lattice_offset(self.frame)
         regrid = regrid_for(self.frame, obs, self.spad_processing, self.cfg.growth, self.planning_grid.factor) \
             if self.cfg.growth is not None else None
         if regrid is None:
