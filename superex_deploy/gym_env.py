@@ -128,8 +128,9 @@ class ExplorationEnv(gym.Env):
         return np.stack(planes).astype(np.float32)
 
     def _action_mask(self) -> np.ndarray:
-        observed = self._explorer.observed
-        plan = planning_map(observed, self._world.pose_rc, self.grid.resolution_m, self._cfg.explorer.motion)
+        blocks = self._explorer.planning_grid  # the explorer plans (and its agent chooses) on these
+        plan = planning_map(self._explorer.planning_observed, blocks.block(self._world.pose_rc), blocks.block_m,
+                            self._cfg.explorer.motion)
         # The explorer's own rules: a region already reached (in sight within the tolerance) or whose goal cell was
         # visited before would be dropped at once, wasting the action.
         regions = self._explorer.frontier_candidates(self._world.pose_rc)

@@ -205,3 +205,41 @@ def test_a_growing_fine_map_keeps_its_blocks_and_its_goal_through_each_growth():
             break
         world.apply(command)
     assert grown >= 2 and kept >= 1
+
+
+def test_the_gymnasium_agent_chooses_among_the_blocks_the_explorer_plans_on(tmp_path):
+    """On a 0.05 m map (a map_server YAML) the environment's actions are the explorer's frontier blocks, reachable
+    on its planning map: each chosen goal becomes the explorer's goal and the robot drives there."""
+    gym_env = pytest.importorskip("superex_deploy.gym_env")
+    from PIL import Image
+
+    grid = _upsampled_rooms(2)
+    Image.fromarray(np.where(grid.occupied, 0, 254).astype(np.uint8)).save(tmp_path / "rooms.pgm")
+    (tmp_path / "rooms.yaml").write_text("image: rooms.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
+                                         "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    env = gym_env.ExplorationEnv(map=str(tmp_path / "rooms.yaml"), max_steps=200, steps_per_action=10)
+    try:
+        _, info = env.reset(seed=0)
+        assert env._explorer.planning_grid.factor == 2
+        agent, taken = env._agent, []
+        choose = agent.choose_goal
+
+        def spy(ctx):  # whether the explorer takes the agent's target (else it falls back to the nearest frontier)
+            target = agent.target
+            chosen = choose(ctx)
+            if target is not None:
+                taken.append(chosen == target)
+            return chosen
+
+        agent.choose_goal = spy
+        coverage = info["coverage"]
+        for _ in range(8):
+            if not info["action_mask"].any():
+                break
+            # The farthest goal offered: every offered goal must be one the explorer can reach, not just the nearest.
+            _, _, terminated, truncated, info = env.step(len(env._goals) - 1)
+            if terminated or truncated:
+                break
+        assert len(taken) >= 2 and all(taken) and info["coverage"] > coverage
+    finally:
+        env.close()

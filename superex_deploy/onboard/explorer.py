@@ -2,10 +2,9 @@
 
 :meth:`Explorer.step`, with the robot at cell ``p_t``:
 
-1. **scan**: the scan is integrated into the explorer's log-odds map (:mod:`~superex_deploy.onboard.mapping.mapper`;
-   invalid readings are skipped, :class:`~superex_deploy.messages.LaserScan`), or a SLAM map in the observation
-   replaces the line-of-sight layer; a growing map first moves to a grid that holds what the step can touch
-   (:mod:`~superex_deploy.onboard.mapping.growth`);
+1. **scan**: the scan is integrated into the log-odds map (:mod:`~superex_deploy.onboard.mapping.mapper`; invalid
+   readings skipped), or a SLAM map replaces the line-of-sight layer; a growing map first moves to a grid that
+   holds what the step can touch (:mod:`~superex_deploy.onboard.mapping.growth`);
 2. **map_update**: a SPAD frame is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
    margins widened by the pose covariance): carved cells join the map as evidence towards free, the back-projection
    evidence is kept for the predictor;
@@ -14,15 +13,14 @@
    sight, :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), let go by the planner, or blocked with
    no other path (MapEx's locked frontier); otherwise the planner chooses among the frontiers offered in tiers
    (:func:`~superex_deploy.onboard.planning.goal_choice.choose_goal`) from the Dijkstra cost-to-go, calling the
-   predictor lazily. Paths cross only cells held free with confidence. Cells free only by carving count for
-   coverage and the prediction, and for planning only as ``MotionConfig.drive_carved`` allows (by default while the
-   pose is exact).
+   predictor lazily. Cells free only by carving count for coverage and the prediction, and for planning only as
+   ``MotionConfig.drive_carved`` allows (by default while the pose is exact). Steps 3-4 run on blocks of the map on
+   one finer than ``MotionConfig.planning_cell_m`` (:mod:`~superex_deploy.onboard.planning.coarse`).
 
 The predictor runs inline, in a worker thread or on a simulated clock (:class:`PredictionSchedule`), on the map or a
 crop (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`), so that a step fits the sensor's frame
 on a small CPU; the numba threads follow the cores given
-(:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`). Steps 3-4 run on the planning grid's blocks
-(:mod:`~superex_deploy.onboard.planning.coarse`) on a map finer than ``MotionConfig.planning_cell_m``.
+(:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`).
 
 The :class:`~superex_deploy.messages.Command` holds the goal, the path and a status (:mod:`.status`: bounds,
 blacklist, return to the start). Exploration is **finished** when the map holds known cells and no goal has been
@@ -81,10 +79,8 @@ class Explorer:
         spad_processing: SPAD processing for observations that carry a SPAD frame; None: SPAD frames are ignored.
         cfg: onboard parameters.
         seed: seed of the generator handed to the planner.
-        cores: the cores the explorer may use (None: the process's CPU affinity,
-            :func:`~superex_deploy.onboard.prediction.inference.available_cores`): its steps run on
-            ``budget.control_threads`` numba threads, its prediction worker on ``budget.worker_threads`` (give the
-            predictor's ONNX Runtime sessions the same: ``pipeline.make_predictor(..., cores=...)``).
+        cores: the cores the explorer may use (None: the process's affinity): its steps run on ``budget.control_threads``
+            numba threads, its worker on ``budget.worker_threads`` (``pipeline.make_predictor(..., cores=...)``).
 
     Attributes:
         frame, planner, predictor, spad_processing, cfg: as given.
@@ -93,6 +89,7 @@ class Explorer:
         planning_grid: the blocks the planning runs on
             (:class:`~superex_deploy.onboard.planning.coarse.PlanningGrid`: the map's own cells unless the map is
             finer than ``cfg.motion.planning_cell_m``); ``frontiers``, ``goal`` and ``path`` are in its blocks.
+        planning_observed: int8 the map the latest step planned on, on those blocks (read it, do not modify it).
         frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
             when those may not be driven on, see the module docstring).
         goal: the locked goal block, or None (:meth:`drop_goal` lets it go); the command's ``goal_rc`` is its
@@ -141,8 +138,7 @@ class Explorer:
         self.pose_estimate = None
         self.scan_match: Optional[ScanMatch] = None
         self.observed = self.mapper.observed()
-        # The map the latest step planned on (see the module docstring), on the planning grid.
-        self._planning = coarsen_observed(self.observed, self.planning_grid.factor)
+        self.planning_observed = coarsen_observed(self.observed, self.planning_grid.factor)
         self.frontiers: tuple[Frontier, ...] = ()
         self.goal: Optional[tuple[int, int]] = None
         self.path: list[tuple[int, int]] = []
@@ -169,9 +165,7 @@ class Explorer:
         self._closed = False
         self._stop_worker = None
         if cfg.prediction.asynchronous:
-            # The worker holds the explorer weakly, so that an explorer dropped without close() is collected at
-            # once and its worker thread stopped (a bound method would make a cycle only the garbage collector
-            # breaks, keeping the thread alive until it runs).
+            # The worker holds the explorer weakly (weak_prediction_runner: dropped, it stops its worker at once).
             self.scheduled = ScheduledPredictions(cfg.prediction, weak_prediction_runner(self),
                                                   self.budget.worker_threads)
             self._stop_worker = weakref.finalize(self, self.scheduled.close)
@@ -185,10 +179,10 @@ class Explorer:
         return frozenset(self._visited)
 
     def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
-        """The frontier regions, of every size, :meth:`step` would offer a planner with the robot at cell
-        ``pose_rc``: not reached already (:func:`~.planning.goal_choice.goal_reached`), their goal cell no goal
-        reached before nor next to one, in ``find_frontiers`` order (``()`` before the first observation). For a
-        goal chosen outside the explorer (a learning agent): one among these is not let go of at once.
+        """The frontier regions (in :attr:`planning_grid` blocks), of every size, :meth:`step` would offer a planner
+        with the robot at map cell ``pose_rc``: not reached already (:func:`~.planning.goal_choice.goal_reached`),
+        their goal no goal reached before nor next to one, in ``find_frontiers`` order (``()`` before the first
+        observation). For a goal chosen outside the explorer (a learning agent): one of these is kept.
 
         Raises:
             ValueError: a cell outside the map.
@@ -197,8 +191,8 @@ class Explorer:
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
         pose = self.planning_grid.block(pose)
-        not_free = self._planning != FREE
-        regions = self.mission.admit(find_frontiers(self._planning, 1), self._blocks_frame,
+        not_free = self.planning_observed != FREE
+        regions = self.mission.admit(find_frontiers(self.planning_observed, 1), self._blocks_frame,
                                      self._stamps[-1] if self._stamps else 0.0)
         return tuple(f for f in regions if not near_visited_goal(f.cell_rc, self._visited)
                      and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
@@ -260,7 +254,7 @@ class Explorer:
     def __enter__(self) -> "Explorer":
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, *exc) -> None:
         self.close()
 
     @property
@@ -375,7 +369,7 @@ class Explorer:
         else:
             prediction = LazyPrediction(self.step_predictor, observed, self.evidence)
         self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
-        self._planning = planning
+        self.planning_observed = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
             new_goal = self._decide(planning, frontiers, pose,
@@ -414,7 +408,7 @@ class Explorer:
         self.planning_grid = PlanningGrid.for_map(regrid.frame.shape, regrid.frame.resolution_m,
                                                   self.cfg.motion.planning_cell_m)
         self._blocks_frame = self.planning_grid.frame_of(regrid.frame)
-        self._planning = coarsen_observed(self.observed, self.planning_grid.factor)
+        self.planning_observed = coarsen_observed(self.observed, self.planning_grid.factor)
         self.goal = None if self.goal is None else move(self.goal)
         self.path, self._visited = [move(cell) for cell in self.path], {move(cell) for cell in self._visited}
         self.frontiers = ()
