@@ -83,6 +83,28 @@ def test_the_maps_blocks_stay_those_of_its_classes_through_scans_carving_and_wri
         mapper.blocks(0)
 
 
+def test_a_return_beyond_the_sensors_range_is_kept_in_the_derived_map():
+    """integrate_ranges walks a finite range longer than max_range (and its hit shift): the rectangle marked
+    changed holds it, so the derived map is the fresh one."""
+    mapper = Mapper((12, 60))
+    mapper.observed()
+    mapper.integrate_ranges((5.5, 30.5), np.array([0.0, np.pi]), np.array([25.0, 3.0]), 5.0, hit_shift_cells=1.0)
+    fresh = Mapper(mapper.shape)
+    fresh.log_odds[...] = mapper.log_odds
+    np.testing.assert_array_equal(mapper.observed(), fresh.observed())
+    assert mapper.observed()[5, 56] == OCCUPIED  # the return, 25 cells and a shift away
+
+
+def test_block_means_of_any_float_dtype_and_a_growth_aligned_to_nothing_is_refused():
+    from superex_deploy.messages import MapFrame
+    from superex_deploy.onboard.mapping.growth import MapGrowth, grown_frame
+
+    for dtype in (np.float16, np.float32, np.float64, np.longdouble):
+        np.testing.assert_allclose(pool_mean(np.ones((4, 5), dtype), 2), np.ones((2, 3)))
+    with pytest.raises(ValueError, match="align must be an integer >= 1"):
+        grown_frame(MapFrame((10, 10), 0.1), (0.0, 0.0, 5.0, 5.0), MapGrowth(), align=0)
+
+
 def test_block_means_and_mixtures_match_their_slow_twins():
     rng = np.random.default_rng(1)
     for _ in range(40):
@@ -243,3 +265,40 @@ def test_the_gymnasium_agent_chooses_among_the_blocks_the_explorer_plans_on(tmp_
         assert len(taken) >= 2 and all(taken) and info["coverage"] > coverage
     finally:
         env.close()
+
+
+def test_a_path_leaves_the_robots_block_around_a_wall_in_it_and_ends_on_a_free_cell():
+    grid = PlanningGrid((9, 9), 0.1 / 3, 3)
+    observed = np.full((9, 9), FREE, np.int8)
+    observed[2, 1] = OCCUPIED  # a wall in the robot's own block (kept under a footprint, or a phantom)
+    observed[3:6, 3] = UNKNOWN  # the goal block's left column and centre never seen
+    observed[4, 4] = UNKNOWN
+    goal_rc, path = grid.on_map((2, 0), (1, 1), [(0, 0), (1, 1)], observed)
+    cells = [tuple(c) for c in path.tolist()]
+    assert cells[0] == (2, 0) and (2, 1) not in cells
+    assert all(max(abs(a[0] - b[0]), abs(a[1] - b[1])) == 1 for a, b in zip(cells, cells[1:]))
+    assert goal_rc == cells[-1] and observed[goal_rc] == FREE  # the free cell nearest the block's centre
+    assert np.hypot(goal_rc[0] - 4, goal_rc[1] - 4) == 1.0
+    # Without the map: straight through, to the centre (what the planning alone knows).
+    assert grid.on_map((2, 0), (1, 1), [(0, 0), (1, 1)])[0] == (4, 4)
+
+
+@pytest.mark.parametrize("resolution", [0.05, 0.1 / 3])
+def test_every_commanded_goal_is_a_free_cell_and_no_path_cell_a_wall_on_a_fine_generated_floor(resolution):
+    from superex_deploy.maps import largest_region_start
+    from superex_deploy.sim.generated_floors import FloorLayout, generate_floor
+
+    grid = generate_floor(FloorLayout(width_m=30.0, height_m=20.0), resolution, 1)
+    world = World(grid, largest_region_start(grid, np.random.default_rng(1), 0.5))
+    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
+    goals = 0
+    for _ in range(80):
+        command = explorer.step(world.observe())
+        if command.finished:
+            break
+        if command.goal_rc is not None:
+            goals += 1
+            assert explorer.observed[command.goal_rc] == FREE
+        assert all(explorer.observed[tuple(cell)] != OCCUPIED for cell in command.path_rc[1:].tolist())
+        world.apply(command)
+    assert goals >= 10 and world.collisions == 0

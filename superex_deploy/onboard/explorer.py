@@ -92,8 +92,8 @@ class Explorer:
         planning_observed: int8 the map the latest step planned on, on those blocks (read it, do not modify it).
         frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
             when those may not be driven on, see the module docstring).
-        goal: the locked goal block, or None (:meth:`drop_goal` lets it go); the command's ``goal_rc`` is its
-            centre cell.
+        goal: the locked goal block, or None (:meth:`drop_goal` lets it go); the command's ``goal_rc`` is its free
+            cell nearest its centre.
         path: blocks from the robot to the goal (the command's ``path_rc``: cells through them).
         pose_estimate: the pose the latest step integrated and planned from (the observation's, or the scan
             matcher's correction of it; None before the first step).
@@ -381,8 +381,9 @@ class Explorer:
         timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
         if self.scheduled is None and prediction.value is not None:
             self._latest, self._latest_step = prediction.value, t
-        path_rc = np.asarray(grid.fine_path(pose_cell, self.path), np.int64).reshape(-1, 2)
-        goal_rc = None if self.goal is None else grid.centre(self.goal)
+        fine = None if grid.factor == 1 or self.goal is None else (  # the map the blocks were made of
+            observed if drive_carved else self.mapper.observed(include_carved=False))
+        goal_rc, path_rc = grid.on_map(pose_cell, self.goal, self.path, fine)
         aged = self._latest is not None
         return Command(stamp_s=obs.stamp_s,
                        goal_xy=None if goal_rc is None else self.frame.centre_xy(goal_rc),

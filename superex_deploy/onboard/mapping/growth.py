@@ -121,6 +121,8 @@ def grown_frame(frame: MapFrame, reach_xy, growth: MapGrowth, align: int = 1) ->
         ValueError: the grown grid would exceed the map size limit
             (:func:`~superex_deploy.messages.check_map_size`).
     """
+    if isinstance(align, bool) or not isinstance(align, (int, np.integer)) or align < 1:
+        raise ValueError(f"align must be an integer >= 1 (cells), got {align!r}")
     res = frame.resolution_m
     rows, cols = frame.shape
     ox, oy = frame.origin_xy

@@ -46,6 +46,7 @@ the line of sight holds a wall (``l >= occupied_threshold``).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Optional
 
@@ -233,23 +234,22 @@ class Mapper:
         self._log_odds = np.zeros(shape, np.float32)
         self._carve_log_odds = np.zeros(shape, np.float32)
         self._touched = np.zeros(shape + (2,), np.int32)  # the scan kernel's ray counts, all zero between scans
-        # The classes derived from the two layers, int8 [H, W] with and without carving, kept up to date over the
-        # rectangle each write changed (a scan changes the cells within its range, not the whole map).
+        # The classes (int8, with and without carving), kept up to date over the rectangle each write changed.
         self._classes = {True: np.full(shape, UNKNOWN, np.int8), False: np.full(shape, UNKNOWN, np.int8)}
         self._blocks: dict = {}  # (k, include_carved) -> the classes on blocks of k x k cells (blocks())
         self._stale: Optional[list] = None  # [r0, r1, c0, c1] changed since the classes were derived
+        self._lock = threading.RLock()  # reads derive: a reader in another thread and a step's marks in turn
 
     @property
     def log_odds(self) -> np.ndarray:
-        """float32 ``[H, W]`` line-of-sight log-odds (0: nothing measured). The array itself: it may be written in
-        place, right after it is read here (reading it marks the whole map changed, so the masks below are derived
-        afresh at their next read; a reference kept across such a read is not watched)."""
+        """float32 ``[H, W]`` line-of-sight log-odds (0: nothing measured), to write in place right after reading it
+        here (a read marks the whole map changed; a reference kept across a derivation is not watched)."""
         self._changed()
         return self._log_odds
 
     @property
     def carve_log_odds(self) -> np.ndarray:
-        """float32 ``[H, W]`` carving log-odds, in ``[cfg.carve_lowest, 0]`` (written in place as :attr:`log_odds`)."""
+        """float32 ``[H, W]`` carving log-odds in ``[cfg.carve_lowest, 0]`` (written in place as :attr:`log_odds`)."""
         self._changed()
         return self._carve_log_odds
 
@@ -258,28 +258,30 @@ class Mapper:
         rows, cols = self._log_odds.shape
         box = [max(r0, 0), rows if r1 is None else min(r1, rows), max(c0, 0), cols if c1 is None else min(c1, cols)]
         if box[0] < box[1] and box[2] < box[3]:
-            old = self._stale or box
-            self._stale = [min(old[0], box[0]), max(old[1], box[1]), min(old[2], box[2]), max(old[3], box[3])]
+            with self._lock:  # a reader deriving meanwhile (another thread) must not drop this mark
+                old = self._stale or box
+                self._stale = [min(old[0], box[0]), max(old[1], box[1]), min(old[2], box[2]), max(old[3], box[3])]
 
     def _derived(self, include_carved: bool) -> np.ndarray:
         """The int8 classes (see :meth:`observed`), derived again over the changed rectangle; not a copy."""
-        if self._stale is not None:
-            r0, r1, c0, c1 = self._stale
-            cfg = self.cfg
-            log_odds, carve = self._log_odds[r0:r1, c0:c1], self._carve_log_odds[r0:r1, c0:c1]
-            wall = log_odds >= cfg.occupied_threshold
-            free = log_odds <= cfg.free_threshold
-            carved_free = (carve < 0.0) & ~wall & (log_odds + carve <= cfg.free_threshold)
-            for carving, classes in self._classes.items():
-                area = classes[r0:r1, c0:c1]
-                area[...] = UNKNOWN
-                area[(free | carved_free) if carving else free] = FREE
-                area[wall] = OCCUPIED
-            for (k, carving), blocks in self._blocks.items():  # the blocks that hold a changed cell
-                b0, b1, d0, d1 = r0 // k, -(-r1 // k), c0 // k, -(-c1 // k)
-                blocks[b0:b1, d0:d1] = coarsen_observed(self._classes[carving][b0 * k:b1 * k, d0 * k:d1 * k], k)
-            self._stale = None
-        return self._classes[bool(include_carved)]
+        with self._lock:
+            if self._stale is not None:
+                r0, r1, c0, c1 = self._stale
+                cfg = self.cfg
+                log_odds, carve = self._log_odds[r0:r1, c0:c1], self._carve_log_odds[r0:r1, c0:c1]
+                wall = log_odds >= cfg.occupied_threshold
+                free = log_odds <= cfg.free_threshold
+                carved_free = (carve < 0.0) & ~wall & (log_odds + carve <= cfg.free_threshold)
+                for carving, classes in self._classes.items():
+                    area = classes[r0:r1, c0:c1]
+                    area[...] = UNKNOWN
+                    area[(free | carved_free) if carving else free] = FREE
+                    area[wall] = OCCUPIED
+                for (k, carving), blocks in self._blocks.items():  # the blocks that hold a changed cell
+                    b0, b1, d0, d1 = r0 // k, -(-r1 // k), c0 // k, -(-c1 // k)
+                    blocks[b0:b1, d0:d1] = coarsen_observed(self._classes[carving][b0 * k:b1 * k, d0 * k:d1 * k], k)
+                self._stale = None
+            return self._classes[bool(include_carved)]
 
     def blocks(self, k: int, include_carved: bool = True) -> np.ndarray:
         """int8 ``[ceil(H/k), ceil(W/k)]``: :meth:`observed` on blocks of ``k x k`` cells
@@ -292,10 +294,11 @@ class Mapper:
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise ValueError(f"the block size must be an integer >= 1, got {k!r}")
         key = (int(k), bool(include_carved))
-        classes = self._derived(include_carved)
-        if key not in self._blocks:
-            self._blocks[key] = coarsen_observed(classes, key[0]).copy()
-        return self._blocks[key].copy()
+        with self._lock:
+            classes = self._derived(include_carved)
+            if key not in self._blocks:
+                self._blocks[key] = coarsen_observed(classes, key[0]).copy()
+            return self._blocks[key].copy()
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -372,8 +375,10 @@ class Mapper:
         """
         integrate_log_odds(self._log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
                            hit_shift_cells)
-        # Every cell a ray touched lies within its range (the last return a shifted hit and a cell further).
-        reach = int(np.ceil(float(max_range_cells) + float(hit_shift_cells))) + 2
+        # Every cell a ray touched lies within its range or its return (shifted), and a cell further.
+        ranges = np.asarray(ranges_cells, np.float64)
+        longest = max(float(max_range_cells), float(ranges[np.isfinite(ranges)].max(initial=0.0)))
+        reach = int(np.ceil(longest + float(hit_shift_cells))) + 2
         row, col = int(np.floor(float(origin_yx[0]))), int(np.floor(float(origin_yx[1])))
         self._changed(row - reach, row + reach + 1, col - reach, col + reach + 1)
 

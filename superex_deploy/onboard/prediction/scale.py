@@ -158,6 +158,8 @@ def pool_mean(values: np.ndarray, k: int) -> np.ndarray:
     values = _check_map(values, "values")
     k = _check_factor(k)
     out = np.empty((-(-values.shape[0] // k), -(-values.shape[1] // k)), np.float32)
+    if values.dtype not in (np.float32, np.float64):  # float16, longdouble: summed in float64 as the rest
+        values = values.astype(np.float64)
     _block_means(np.ascontiguousarray(values), k, out)
     return out
 
