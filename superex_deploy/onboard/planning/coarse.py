@@ -155,34 +155,33 @@ class PlanningGrid:
         """A command's goal cell (:meth:`goal_cell`, or None without a goal block) and int64 ``[N, 2]`` path cells
         (:meth:`fine_path`) for the robot at map cell ``start_rc``, on ``observed`` (int8 ``[H, W]``, the map the
         blocks were made of; None: block centres and straight runs)."""
-        free = None if observed is None else observed == FREE
-        goal_rc = None if goal is None else self.goal_cell(goal, free)
-        path = self.fine_path(start_rc, blocks, None if observed is None else observed != OCCUPIED, goal_rc)
+        goal_rc = None if goal is None else self.goal_cell(goal, observed)
+        path = self.fine_path(start_rc, blocks, observed, goal_rc)
         return goal_rc, np.asarray(path, np.int64).reshape(-1, 2)
 
-    def goal_cell(self, block_rc, free: Optional[np.ndarray] = None) -> tuple[int, int]:
-        """The map cell a goal block stands for: of its cells ``free`` (bool ``[H, W]`` on the map) holds, the one
-        nearest its centre (:meth:`centre` without ``free``, or where none is: a free block always has one)."""
+    def goal_cell(self, block_rc, observed: Optional[np.ndarray] = None) -> tuple[int, int]:
+        """The map cell a goal block stands for: of its cells ``observed`` (int8 ``[H, W]``, the map) holds free,
+        the one nearest its centre (:meth:`centre` without ``observed``, or where none is: a free block has one)."""
         centre = self.centre(block_rc)
-        if self.factor == 1 or free is None:
+        if self.factor == 1 or observed is None:
             return centre
         k = self.factor
         r0, c0 = int(block_rc[0]) * k, int(block_rc[1]) * k
-        rows, cols = np.nonzero(free[r0:r0 + k, c0:c0 + k])
+        rows, cols = np.nonzero(observed[r0:r0 + k, c0:c0 + k] == FREE)
         if rows.size == 0:
             return centre
         best = int(np.argmin((rows + r0 - centre[0]) ** 2 + (cols + c0 - centre[1]) ** 2))
         return int(rows[best]) + r0, int(cols[best]) + c0
 
-    def fine_path(self, start_rc, blocks: Sequence[tuple[int, int]], passable: Optional[np.ndarray] = None,
+    def fine_path(self, start_rc, blocks: Sequence[tuple[int, int]], observed: Optional[np.ndarray] = None,
                   goal_rc=None) -> list[tuple[int, int]]:
         """The 8-connected path of map cells from ``start_rc`` (a cell of ``blocks[0]``) through ``blocks`` (each an
         8-neighbour of the one before) to ``goal_rc`` (a cell of the last block; its centre by default), every cell
         inside one of those blocks: in each block it runs straight or diagonally to the cell nearest the next block,
         then one step into it (across the corner both share, for a diagonal move: never through the two blocks
         beside it, which the planning did not check). The blocks after the first are free, so hold no wall; the
-        robot's own block may (the planning lets the robot leave its cell whatever it holds): with ``passable``
-        (bool ``[H, W]``, the cells that may be crossed) the path leaves it around its walls where it can.
+        robot's own block may (the planning lets the robot leave its cell whatever it holds): with ``observed``
+        (int8 ``[H, W]``, the map) the path leaves it around its walls where it can.
         ``blocks`` itself at ``k = 1``; ``[]`` for no blocks."""
         if self.factor == 1:
             return [(int(r), int(c)) for r, c in blocks]
@@ -192,19 +191,20 @@ class PlanningGrid:
         path = [(int(start_rc[0]), int(start_rc[1]))]
         for index, block in enumerate(blocks[1:]):
             entry = self._nearest_in(block, path[-1])
-            if index == 0 and passable is not None and self._route(path, entry, (blocks[0], block), passable):
+            if index == 0 and observed is not None and self._route(path, entry, (blocks[0], block), observed):
                 continue
             self._walk(path, self._nearest_in(self.block(path[-1]), entry))
             path.append(entry)
-        if len(blocks) == 1 and passable is not None and self._route(path, goal, (blocks[0],), passable):
+        if len(blocks) == 1 and observed is not None and self._route(path, goal, (blocks[0],), observed):
             return path
         self._walk(path, goal)
         return path
 
-    def _route(self, path: list, target: tuple[int, int], blocks, passable: np.ndarray) -> bool:
-        """Extend ``path`` to ``target`` by a shortest 8-connected route over ``passable`` cells of ``blocks``
-        (a breadth-first search over at most ``2 k^2`` cells); False, and ``path`` unchanged, where none is."""
-        allowed = {cell for block in blocks for cell in self._cells(block) if passable[cell]}
+    def _route(self, path: list, target: tuple[int, int], blocks, observed: np.ndarray) -> bool:
+        """Extend ``path`` to ``target`` by a shortest 8-connected route over the cells of ``blocks`` that
+        ``observed`` holds no wall in (a breadth-first search over at most ``2 k^2`` cells); False, and ``path``
+        unchanged, where none is."""
+        allowed = {cell for block in blocks for cell in self._cells(block) if observed[cell] != OCCUPIED}
         start = path[-1]
         allowed.add(start)
         if target not in allowed:
