@@ -191,14 +191,27 @@ class PlanningGrid:
         path = [(int(start_rc[0]), int(start_rc[1]))]
         for index, block in enumerate(blocks[1:]):
             entry = self._nearest_in(block, path[-1])
-            if index == 0 and observed is not None and self._route(path, entry, (blocks[0], block), observed):
+            if index == 0 and self._around(path, entry, (blocks[0], block), observed):
                 continue
             self._walk(path, self._nearest_in(self.block(path[-1]), entry))
             path.append(entry)
-        if len(blocks) == 1 and observed is not None and self._route(path, goal, (blocks[0],), observed):
+        if len(blocks) == 1 and self._around(path, goal, (blocks[0],), observed):
             return path
         self._walk(path, goal)
         return path
+
+    def _around(self, path: list, target: tuple[int, int], blocks, observed: Optional[np.ndarray]) -> bool:
+        """Extend ``path`` to ``target`` around a wall the straight run there would cross (:meth:`_route`); False,
+        and ``path`` unchanged, where the straight run crosses none (or ``observed`` is None, or no route exists)."""
+        if observed is None:
+            return False
+        straight = [path[-1]]
+        self._walk(straight, self._nearest_in(self.block(path[-1]), target))
+        if target != straight[-1]:
+            straight.append(target)
+        if not any(observed[cell] == OCCUPIED for cell in straight):
+            return False
+        return self._route(path, target, blocks, observed)
 
     def _route(self, path: list, target: tuple[int, int], blocks, observed: np.ndarray) -> bool:
         """Extend ``path`` to ``target`` by a shortest 8-connected route over the cells of ``blocks`` that
