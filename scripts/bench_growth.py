@@ -26,21 +26,17 @@ from superex_deploy.onboard import Explorer, ExplorerConfig
 from superex_deploy.onboard.mapping.growth import MapGrowth
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-from superex_deploy.sim.world import World, WorldConfig
+from superex_deploy.sim.episode import ExplorationConfig, run_episode
 
 
 def drive(grid, steps: int, seed: int):
-    world = World(grid, random_start(grid, np.random.default_rng(seed), 0.5), WorldConfig())
-    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
+    """One recorded drive: ``nearest`` on the observed map from a seeded start, the floor's own frame and its
+    observations."""
     observations = []
-    for _ in range(steps):
-        observation = world.observe()
-        observations.append(observation)
-        command = explorer.step(observation)
-        if command.finished:
-            break
-        world.apply(command)
-    return world.frame, observations
+    run_episode(grid, random_start(grid, np.random.default_rng(seed), 0.5), make_planner("nearest"),
+                ObservedAsPrediction(), steps=steps, cfg=ExplorationConfig(iou_every=0),
+                on_observation=lambda observation, command, explorer: observations.append(observation))
+    return MapFrame(grid.shape, grid.resolution_m), observations
 
 
 def padded(frame: MapFrame, cells: int) -> MapFrame:

@@ -13,6 +13,7 @@ from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame,
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, UNKNOWN, Prediction
+from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.world import World, WorldConfig
 
 GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
@@ -39,15 +40,9 @@ def test_a_growing_map_is_the_whole_floors_map_of_the_same_observations(seed):
     rng = np.random.default_rng(seed)
     grid = load_map(list_maps("train")[seed * 7])
     world = World(grid, random_start(grid, rng, 0.5), WorldConfig())
-    whole = _explorer(world.frame)
-    observations = []
-    for _ in range(40):
-        observation = world.observe()
-        observations.append(observation)
-        command = whole.step(observation)
-        if command.finished:
-            break
-        world.apply(command)
+    whole, observations = _explorer(world.frame), []
+    run_episode(grid, world.pose_rc, steps=40, cfg=ExplorationConfig(iou_every=0), explorer=whole,
+                on_observation=lambda observation, command, explorer: observations.append(observation))
     start = observations[0].pose
     growing = _explorer(MapFrame.around(start.x, start.y, grid.resolution_m, size_m=4.0), growth=GROWTH)
     for observation in observations:

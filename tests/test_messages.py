@@ -48,6 +48,9 @@ def test_a_finer_message_is_max_pooled_onto_the_frame():
                                    data=rows_from_bottom.reshape(-1))
     out = message.in_frame(MapFrame(shape=(2, 2), resolution_m=0.1))
     np.testing.assert_array_equal(out, [[0, 30], [100, -1]])  # row 0 at the top
+    again = message.in_frame(MapFrame(shape=(2, 2), resolution_m=0.1))  # the same map at the next step: kept
+    assert again is out and not out.flags.writeable
+    assert message.in_frame(MapFrame(shape=(2, 3), resolution_m=0.1)).shape == (2, 3)  # another frame: anew
     with pytest.raises(ValueError, match="resolution 0.05 m differs"):
         message.lattice_offset(MapFrame(shape=(2, 2), resolution_m=0.1))
 

@@ -100,15 +100,23 @@ class OccupancyGridMessage:
         A message of the frame's resolution (equal once both are rounded to float32, the type of
         ``nav_msgs/MapMetaData.resolution``: :func:`same_resolution`) whose origin lies on the frame's cell lattice
         (a whole number of cells away, within 1e-6 cells plus the float32 rounding of the resolution over that
-        distance) is copied cell for cell. Any other (a 0.05 m SLAM map for a 0.1 m explorer, or an origin between
+        distance) is copied cell for cell (a fresh array). Any other (a 0.05 m SLAM map for a 0.1 m explorer, or an origin between
         its cells) is resampled: a frame cell takes the largest value of the message cells whose centres fall in it
         (a wall in any of them makes it a wall; unknown only where all are unknown, as ``-1`` is the smallest value),
         and a frame cell that holds no message cell's centre (a coarser message) the value of the message cell
-        under its own centre.
+        under its own centre (a read-only array, kept for the next call with the same frame).
         """
         on_lattice = self._lattice_cells(frame)
         if on_lattice is None:
-            return self._resampled(frame)
+            # A robot hands the latest map to every step until SLAM publishes the next: resampled once per frame
+            # (tens of ms for a map of millions of cells), and read-only, as the message's own data.
+            memo = self.__dict__.get("_resampled_for")
+            if memo is None or memo[0] != frame:
+                out = self._resampled(frame)
+                out.flags.writeable = False
+                memo = (frame, out)
+                object.__setattr__(self, "_resampled_for", memo)
+            return memo[1]
         dx, dy = on_lattice  # the message's cell (0, 0) is frame column dx, row from the bottom dy
         height, width = frame.shape
         out = np.full((height, width), OCCUPANCY_UNKNOWN, np.int8)

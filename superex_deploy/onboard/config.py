@@ -21,6 +21,13 @@ from superex_deploy.onboard.prediction.schedule import PredictionSchedule
 __all__ = ["ExplorerConfig", "check_parts"]
 
 
+_PARTS = (("goal_policy", GoalPolicy, "a", True, False), ("growth", MapGrowth, "a", True, True),
+          ("occupancy", OccupancyConfig, "an", True, False), ("scan_matching", ScanMatchingConfig, "a", True, False),
+          ("motion", MotionConfig, "a", False, False), ("prediction", PredictionSchedule, "a", False, False),
+          ("reuse", PredictionReuse, "a", False, False))
+"""(field, its config class, the article of its name, a dict of its fields accepted, None accepted)."""
+
+
 @renames(frontier_min_cells=("frontier_min_m", 1))
 @dataclass(frozen=True)
 class ExplorerConfig:
@@ -84,30 +91,17 @@ class ExplorerConfig:
             object.__setattr__(self, "bounds", ExplorationBounds(**self.bounds))
         elif self.bounds is not None and not isinstance(self.bounds, ExplorationBounds):
             object.__setattr__(self, "bounds", ExplorationBounds(self.bounds))
-        if isinstance(self.goal_policy, dict):
-            object.__setattr__(self, "goal_policy", GoalPolicy(**self.goal_policy))
-        if not isinstance(self.goal_policy, GoalPolicy):
-            raise ValueError(f"goal_policy must be a GoalPolicy, got {type(self.goal_policy).__name__}")
         if not isinstance(self.return_to_start, bool):
             raise ValueError(f"return_to_start must be true or false, got {self.return_to_start!r}")
-        if isinstance(self.growth, dict):
-            object.__setattr__(self, "growth", MapGrowth(**self.growth))
-        if self.growth is not None and not isinstance(self.growth, MapGrowth):
-            raise ValueError(f"growth must be a MapGrowth or None, got {type(self.growth).__name__}")
-        if isinstance(self.occupancy, dict):
-            object.__setattr__(self, "occupancy", OccupancyConfig(**self.occupancy))
-        if isinstance(self.scan_matching, dict):
-            object.__setattr__(self, "scan_matching", ScanMatchingConfig(**self.scan_matching))
-        if not isinstance(self.scan_matching, ScanMatchingConfig):
-            raise ValueError(f"scan_matching must be a ScanMatchingConfig, got {type(self.scan_matching).__name__}")
-        if not isinstance(self.occupancy, OccupancyConfig):
-            raise ValueError(f"occupancy must be an OccupancyConfig, got {type(self.occupancy).__name__}")
-        if not isinstance(self.motion, MotionConfig):
-            raise ValueError(f"motion must be a MotionConfig, got {type(self.motion).__name__}")
-        if not isinstance(self.prediction, PredictionSchedule):
-            raise ValueError(f"prediction must be a PredictionSchedule, got {type(self.prediction).__name__}")
-        if not isinstance(self.reuse, PredictionReuse):
-            raise ValueError(f"reuse must be a PredictionReuse, got {type(self.reuse).__name__}")
+        # The composed parts; those a recording's metadata holds as dicts are built from them.
+        for name, kind, article, from_dict, optional in _PARTS:
+            value = getattr(self, name)
+            if from_dict and isinstance(value, dict):
+                value = kind(**value)
+                object.__setattr__(self, name, value)
+            if not isinstance(value, kind) and not (optional and value is None):
+                raise ValueError(f"{name} must be {article} {kind.__name__}{' or None' if optional else ''}, got "
+                                 f"{type(value).__name__}")
         if isinstance(self.finish_after_s, bool) or not isinstance(self.finish_after_s, (int, float)) \
                 or not (np.isfinite(self.finish_after_s) and self.finish_after_s >= 0.0):
             raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")

@@ -405,9 +405,7 @@ class Explorer:
                                       variance=regrid.embed(self._latest.variance, 0.0))
         self._no_evidence = None
         self.observed = regrid.embed(self.observed, UNKNOWN)
-        move = self.planning_grid.mover(regrid)  # the same blocks, shifted by whole blocks
-        self.planning_grid = PlanningGrid.for_map(regrid.frame.shape, regrid.frame.resolution_m,
-                                                  self.cfg.motion.planning_cell_m)
+        self.planning_grid, move = self.planning_grid.grown(regrid)  # the same blocks, shifted by whole blocks
         self._blocks_frame = self.planning_grid.frame_of(regrid.frame)
         self.planning_observed = coarsen_observed(self.observed, self.planning_grid.factor)
         self.goal = None if self.goal is None else move(self.goal)

@@ -284,9 +284,8 @@ class Mapper:
             return self._classes[bool(include_carved)]
 
     def blocks(self, k: int, include_carved: bool = True) -> np.ndarray:
-        """int8 ``[ceil(H/k), ceil(W/k)]``: :meth:`observed` on blocks of ``k x k`` cells
-        (:func:`~superex_deploy.onboard.mapping.blocks.coarsen_observed`: a wall where any cell is, else free where
-        any is), kept up to date where the map changed (the planning grid of a fine map); a fresh array.
+        """int8 ``[ceil(H/k), ceil(W/k)]``: :meth:`observed` on blocks of ``k x k`` cells (the planning grid of a
+        fine map, :func:`~superex_deploy.onboard.mapping.blocks.coarsen_observed`), kept up to date; a fresh array.
 
         Raises:
             ValueError: ``k`` not an integer >= 1.

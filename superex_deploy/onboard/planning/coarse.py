@@ -123,10 +123,10 @@ class PlanningGrid:
         top_y = frame.origin_xy[1] + frame.shape[0] * frame.resolution_m
         return MapFrame((rows, cols), self.block_m, (frame.origin_xy[0], top_y - rows * self.block_m))
 
-    def mover(self, regrid) -> Callable[[tuple[int, int]], tuple[int, int]]:
-        """The block that a block of this grid becomes on the grown grid of ``regrid`` (a
-        :class:`~superex_deploy.onboard.mapping.growth.Regrid` that adds whole blocks above and to the left:
-        ``grown_frame(..., align=factor)``).
+    def grown(self, regrid) -> tuple["PlanningGrid", Callable[[tuple[int, int]], tuple[int, int]]]:
+        """This grid on the grown map of ``regrid`` (a :class:`~superex_deploy.onboard.mapping.growth.Regrid` that
+        adds whole blocks above and to the left: ``grown_frame(..., align=factor)``), and the block a block of this
+        grid becomes there.
 
         Raises:
             ValueError: a growth by a part of a block (the blocks would not keep their cells).
@@ -135,7 +135,8 @@ class PlanningGrid:
         if regrid.top % k or regrid.left % k:
             raise ValueError(f"the grid grew by {regrid.top} rows and {regrid.left} columns, not whole blocks of {k}")
         top, left = regrid.top // k, regrid.left // k
-        return lambda block: (int(block[0]) + top, int(block[1]) + left)
+        return (PlanningGrid(tuple(regrid.frame.shape), self.resolution_m, k),
+                lambda block: (int(block[0]) + top, int(block[1]) + left))
 
     def block(self, cell_rc) -> tuple[int, int]:
         """The block (planning cell) holding map cell ``cell_rc``."""
