@@ -273,10 +273,13 @@ def collect_calibration_samples(kind: ModelKind, model_dir: PathLike = DEFAULT_M
 
 def calibrate(kinds: Sequence[ModelKind], model_dir: PathLike = DEFAULT_MODEL_DIR,
               cfg: CalibrationConfig = CalibrationConfig(), jobs: int = 1,
-              out: Optional[PathLike] = None) -> dict[ModelKind, LogitCalibration]:
+              out: Optional[PathLike] = None, keep: Optional[dict[ModelKind, LogitCalibration]] = None
+              ) -> dict[ModelKind, LogitCalibration]:
     """Collect samples and fit one calibration per ensemble kind; optionally write them as JSON to ``out``
-    (the file :func:`read_calibration` and ``superex export --calibration`` read)."""
-    result = {}
+    (the file :func:`read_calibration` and ``superex export --calibration`` read). ``keep``: fits of other kinds
+    written beside the new ones as they are (an ensemble that was not retrained keeps its calibration); a kind
+    both fitted and kept is fitted."""
+    result = {kind: fit for kind, fit in (keep or {}).items() if kind not in kinds}
     for kind in kinds:
         probability, is_wall = collect_calibration_samples(kind, model_dir, cfg, jobs)
         result[kind] = fit_logit_calibration(probability, is_wall)

@@ -119,9 +119,9 @@ def test_the_floors_are_cached_and_the_same_seed_gives_the_same_floor(tmp_path):
 def test_alteration_off_is_the_standard_suite(tmp_path):
     """The standard suite's episodes stay bit-identical: a short run reproduces the committed paper rows' first
     steps, and carries no alteration."""
-    committed = json.loads(open("benchmarks/eval_paper/rows/superex_oracle.json").read())["episodes"]
+    committed = json.loads(open("benchmarks/eval_paper/rows/superex_observed.json").read())["episodes"]
     start = start_poses(MAP)[0]
-    task = ScenarioTask(map_name=MAP, start_index=0, start_rc=start, planner="superex", predictor="oracle",
+    task = ScenarioTask(map_name=MAP, start_index=0, start_rc=start, planner="superex", predictor="observed",
                         spad=False, steps=30, seed=0, iou_every=10, iou_dense_until=0.35, profile="full")
     summary = run_scenario(task)
     reference = next(e for e in committed if e["map"] == MAP and e["start_index"] == 0)

@@ -297,3 +297,26 @@ def test_the_new_skips_are_checked_and_counted():
     processing.counts["rays"] = 5
     processing.reset()
     assert set(processing.counts.values()) == {0}
+
+
+@pytest.mark.parametrize("skips", [NlosSkips(), EXACT, NlosSkips(evidence_every=2)], ids=["none", "exact", "every2"])
+def test_without_carving_nothing_is_carved_and_the_evidence_is_that_of_processing_in_full(skips):
+    grid, frames = _episode_frames(1, 12)
+    full = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter(), skips=skips)
+    ablated = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter(), skips=replace(skips, carving=True))
+    known = np.zeros(grid.shape, bool)
+    rows, cols = np.indices(grid.shape)
+    carved_any = np.zeros(grid.shape, bool)
+    for pose, scan in frames:
+        known |= (rows - pose[0]) ** 2 + (cols - pose[1]) ** 2 < 30 ** 2
+        carved_f, evidence_f = full.process_scan(scan, known)
+        carved_a, evidence_a = ablated.process_scan(scan, known)
+        assert carved_a.shape == grid.shape and not carved_a.any()
+        np.testing.assert_array_equal(evidence_a, evidence_f)
+        carved_any |= carved_f
+    assert carved_any.any()  # the full processing does carve on these frames: the ablation takes something away
+
+
+def test_the_carving_skip_is_a_bool():
+    with pytest.raises(ValueError, match="carving must be True or False, got 1"):
+        NlosSkips(carving=1)

@@ -7,6 +7,8 @@ rows and metrics are :mod:`superex_deploy.sim.suite`'s.
 * :mod:`~superex_deploy.evaluation.tasks`: one benchmark episode by names, picklable for worker processes and Ray
   (:class:`~superex_deploy.evaluation.tasks.ScenarioTask`, what ``superex benchmark`` runs);
 * :mod:`~superex_deploy.evaluation.metrics`: first-half AUC, IoU at coverage levels, bootstrap intervals;
+* :mod:`~superex_deploy.evaluation.known_distance`: a predicted map's accuracy and calibration by distance from
+  known space, and the strength of a periodic lattice in it;
 * :mod:`~superex_deploy.evaluation.reports`: Markdown tables, atomic JSON / text / figure writers.
 """
 

@@ -20,6 +20,8 @@ class ScenarioTask:
         planner: planner name (``planners.make_planner``).
         predictor: predictor name (:data:`superex_deploy.pipeline.PREDICTORS`).
         spad: simulate the SPAD LiDAR every step.
+        carving: with ``spad``, write the carved cells into the map (False: the ablation "without carving"; the
+            evidence is made as with it, :attr:`NlosSkips.carving <superex_deploy.onboard.nlos.processing.NlosSkips>`).
         steps: step budget.
         seed: the planner's seed and the SPAD noise's.
         planner_options: overrides of the planner's config (``--planner-option``).
@@ -48,6 +50,7 @@ class ScenarioTask:
     spad: bool
     steps: int
     seed: int
+    carving: bool = True
     planner_options: dict = field(default_factory=dict)
     iou_every: int = 50
     iou_dense_until: float = 1.0
@@ -119,6 +122,8 @@ def run_scenario(task: ScenarioTask) -> dict:
     cfg = with_noise(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
                      task.pose_noise, task.lidar_noise, task.seed)
     sensing = with_spad_noise(make_sensing(task.predictor, task.spad, task.seed, profile=profile), task.spad_noise)
+    if sensing is not None and not task.carving:
+        sensing = replace(sensing, skips=replace(sensing.skips, carving=True))
     explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, task.predictor, profile=profile_name,
                               spad=False if sensing is None else sensing.processing(), seed=task.seed,
                               cfg=cfg.explorer, grid=grid)

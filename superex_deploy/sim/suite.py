@@ -35,12 +35,14 @@ class BenchmarkRow:
         predictor: predictor name (``observed``, ``oracle``, ``lama_los``, ``lama_bp``, ``evidence``).
         spad: SPAD sensing every step (carving, and the Pix2Pix evidence for ``lama_bp`` / ``evidence``).
         label: what the row is, for tables.
+        carving: with ``spad``, the carved cells join the map (False: the ablation without carving).
     """
 
     planner: str
     predictor: str
     spad: bool
     label: str
+    carving: bool = True
 
 
 PAPER_ROWS: dict[str, BenchmarkRow] = {
@@ -55,6 +57,9 @@ PAPER_ROWS: dict[str, BenchmarkRow] = {
     "superex_oracle": BenchmarkRow("superex", "oracle", False, "superex planner, true map (ceiling)"),
     "no_pix2pix": BenchmarkRow("superex", "lama_los", True, "ablation no Pix2Pix: LaMa-LOS + SPAD carving"),
     "no_lama": BenchmarkRow("superex", "evidence", True, "ablation no LaMa: SPAD carving + Pix2Pix evidence"),
+    "no_carving": BenchmarkRow("superex", "lama_bp", True, "ablation no carving: LaMa-BP + Pix2Pix evidence",
+                               carving=False),
+    "carving_only": BenchmarkRow("superex", "observed", True, "ablation carving only: observed map + SPAD carving"),
 }
 """The rows of the paper's table, by name."""
 

@@ -108,6 +108,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     calibrate.add_argument("--steps", type=int, default=400)
     calibrate.add_argument("--jobs", type=int, default=max(1, os.cpu_count() or 1), help="worker processes")
     calibrate.add_argument("--seed", type=int, default=0)
+    calibrate.add_argument("--keep-from", type=Path, default=None,
+                           help="a calibration JSON whose other kinds are written beside the fitted ones (an "
+                                "ensemble that was not retrained keeps its fit)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -141,8 +144,14 @@ def run(args: argparse.Namespace) -> int:
         cfg = CalibrationConfig(maps=maps[:args.max_maps] if args.max_maps else maps, steps=args.steps,
                                 seed=args.seed)
         kinds = [ModelKind.LAMA_BP if k == "bp" else ModelKind.LAMA_LOS for k in args.kinds]
-        result = calibrate(kinds, args.models or DEFAULT_MODEL_DIR, cfg, args.jobs, args.out)
+        from superex_train.calibration import read_calibration
+
+        keep = read_calibration(args.keep_from) if args.keep_from is not None else None
+        result = calibrate(kinds, args.models or DEFAULT_MODEL_DIR, cfg, args.jobs, args.out, keep=keep)
         for kind, fit in result.items():
+            if kind not in kinds:
+                print(f"{kind.value}: kept from {args.keep_from}")
+                continue
             print(f"{kind.value}: logit_scale {fit.logit_scale:.3f}, logit_offset {fit.logit_offset:.3f} on "
                   f"{fit.cells:,} cells ({fit.wall_fraction:.1%} walls); NLL {fit.nll_before:.3f} -> "
                   f"{fit.nll_after:.3f}; predicted walls at 0.5 {fit.predicted_walls_before:.1%} -> "

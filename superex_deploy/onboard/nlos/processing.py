@@ -84,6 +84,8 @@ class NlosSkips:
         evidence_every: back-project and filter only every this many frames (1: every frame); the frames between
             are still carved. Not exact: the evidence misses those frames' glimpses (``scripts/bench_nlos_skips.py``
             measures the error).
+        carving: leave the carving out (no cell is ever carved; the evidence is made as without it): the paper
+            suite's ablation "without carving", which measures what the carved cells add.
     """
 
     without_unknown: bool = False
@@ -92,10 +94,11 @@ class NlosSkips:
     rays_without_unknown: bool = False
     filter_same_input: bool = False
     evidence_every: int = 1
+    carving: bool = False
 
     def __post_init__(self) -> None:
         for name in ("without_unknown", "when_still", "filter_without_votes", "rays_without_unknown",
-                     "filter_same_input"):
+                     "filter_same_input", "carving"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         every = self.evidence_every
@@ -230,20 +233,20 @@ class SpadProcessing:
         if frame_index % self.skips.evidence_every:
             self.counts["evidence_skipped"] += 1
             los = estimate_los(scan, self.nlos_cfg)
-            return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+            return self._carve(scan, los, pose_sigma), self._evidence
         if self.bp_filter is None and not self.skips.rays_without_unknown:
             result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
-            return result.carved, self._evidence
+            return (np.zeros(scan.grid_shape, bool) if self.skips.carving else result.carved), self._evidence
         los = estimate_los(scan, self.nlos_cfg)
         if self.bp_filter is None:
             bp = self._back_projection(scan, los, known)
             filtered = laplacian_filter_patch(bp, self.nlos_cfg.in_cells(scan.resolution_m).laplacian_sigma)
             area = filtered.slices
             np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
-            return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+            return self._carve(scan, los, pose_sigma), self._evidence
         # The learned filter replaces the Laplacian one (that is not computed), at its model's scale: on a finer
         # grid the back-projection itself is drawn on the model's cells (model_scan), as the filter would pool it.
         model, k = self._model_scan(scan, los, known)
@@ -254,7 +257,13 @@ class SpadProcessing:
             self.counts["same_input"] += 1
         else:
             self._filter_into_evidence(model[0], bp, k)
-        return carve(scan, los, self.nlos_cfg, pose_sigma), self._evidence
+        return self._carve(scan, los, pose_sigma), self._evidence
+
+    def _carve(self, scan: SpadScan, los, pose_sigma) -> np.ndarray:
+        """bool ``[H, W]``: the cells this frame carves (none with ``skips.carving``)."""
+        if self.skips.carving:
+            return np.zeros(scan.grid_shape, bool)
+        return carve(scan, los, self.nlos_cfg, pose_sigma)
 
     def _model_scan(self, scan: SpadScan, los, known: np.ndarray) -> tuple[tuple, int]:
         """``((scan, los, known), k)``: the scan, its line-of-sight estimate and the known cells on the grid the

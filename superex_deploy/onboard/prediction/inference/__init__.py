@@ -20,6 +20,8 @@ One module per concept (this package re-exports their public names, so
   model file with its checks.
 * :mod:`~superex_deploy.onboard.prediction.inference.pix2pix`: :class:`Pix2PixFilter`, the learned back-projection filter.
 * :mod:`~superex_deploy.onboard.prediction.inference.lama`: :class:`LamaEnsemble`, the LaMa map predictors.
+* :mod:`~superex_deploy.onboard.prediction.inference.lattice`: :func:`remove_lattice`, the filter that takes the
+  LaMa members' lines every ``size_multiple`` cells out of their outputs.
 
 This package never imports torch; ``onnxruntime`` is imported when the first session is made.
 """
@@ -35,9 +37,10 @@ from superex_deploy.onboard.prediction.inference.sessions import (GraphOptimizat
                                                       make_session)
 from superex_deploy.onboard.prediction.inference.pix2pix import Pix2PixFilter
 from superex_deploy.onboard.prediction.inference.lama import LamaEnsemble, check_member_options
+from superex_deploy.onboard.prediction.inference.lattice import remove_lattice
 
 __all__ = ["ModelKind", "BpEncoding", "MODEL_CHANNELS", "METADATA_KEYS", "FORMAT_VERSION", "MANIFEST_NAME",
            "DEFAULT_MODEL_DIR", "GraphOptimization", "SessionConfig", "ThreadBudget", "available_cores", "make_session",
            "sha256_file", "ManifestEntry", "manifest_resolution",
            "read_manifest", "encode_bp_windows", "encode_map", "crop_window", "Pix2PixFilter", "LamaEnsemble",
-           "check_member_options", "NORMALISATION", "RESOLUTION_M", "PathLike"]
+           "check_member_options", "remove_lattice", "NORMALISATION", "RESOLUTION_M", "PathLike"]

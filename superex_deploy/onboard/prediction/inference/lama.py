@@ -13,6 +13,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from superex_deploy.onboard.prediction.inference.encoding import encode_map
+from superex_deploy.onboard.prediction.inference.lattice import remove_lattice
 from superex_deploy.onboard.prediction.inference.manifest import (DEFAULT_MODEL_DIR, MODEL_CHANNELS, ModelKind, PathLike,
                                                        manifest_entries, manifest_resolution)
 from superex_deploy.onboard.prediction.inference.sessions import SessionConfig, load_model
@@ -58,6 +59,7 @@ class LamaEnsemble:
         session: ONNX Runtime settings.
         keep_observed: see above.
         expected_resolution_m: the training resolution the manifest gives the members (None: not checked).
+        lattice_filter: see above.
 
     Attributes:
         kind: LAMA_BP or LAMA_LOS.
@@ -68,6 +70,7 @@ class LamaEnsemble:
         size_multiple, min_size: padding targets (cells).
         max_members: members run per prediction (None: all).
         agreement_stop: see above (None: never stop early).
+        lattice_filter: whether members' outputs go through the lattice filter (see above).
         members_run: how many members the latest prediction ran.
     """
 
@@ -75,7 +78,7 @@ class LamaEnsemble:
 
     def __init__(self, paths: Sequence[PathLike], expected_sha256: Optional[Sequence[str]] = None,
                  session: SessionConfig = SessionConfig(), keep_observed: bool = True,
-                 expected_resolution_m: Optional[float] = None):
+                 expected_resolution_m: Optional[float] = None, lattice_filter: bool = False):
         paths = list(paths)
         if not paths:
             raise ValueError("a LamaEnsemble needs at least one member file")
@@ -103,6 +106,7 @@ class LamaEnsemble:
                 raise ValueError(f"ensemble members {first.path} and {member.path} were trained at different "
                                  f"resolutions ({self.resolution_m} and {member.resolution_m} m/cell)")
         self.keep_observed = bool(keep_observed)
+        self.lattice_filter = bool(lattice_filter)
         self.max_members: Optional[int] = None
         self.agreement_stop: Optional[float] = None
         self.members_run = 0
@@ -122,15 +126,22 @@ class LamaEnsemble:
         view.members_run = 0
         return view
 
+    def with_lattice_filter(self, enabled: bool = True) -> "LamaEnsemble":
+        """This ensemble (sharing its sessions) with the lattice filter on or off (see the class docstring)."""
+        view = copy.copy(self)
+        view.lattice_filter = bool(enabled)
+        return view
+
     @classmethod
     def from_manifest(cls, kind: ModelKind, directory: PathLike = DEFAULT_MODEL_DIR,
-                      session: SessionConfig = SessionConfig(), keep_observed: bool = True) -> "LamaEnsemble":
+                      session: SessionConfig = SessionConfig(), keep_observed: bool = True,
+                      lattice_filter: bool = False) -> "LamaEnsemble":
         """Every ``kind`` member listed in ``directory/manifest.json``, in member order, sha256 checked."""
         if kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
             raise ValueError(f"a LamaEnsemble is made of lama_bp or lama_los models, got {kind}")
         entries = manifest_entries(directory, kind)
         return cls([e.path for e in entries], [e.sha256 for e in entries], session, keep_observed,
-                   manifest_resolution(entries))
+                   manifest_resolution(entries), lattice_filter)
 
     @property
     def members(self) -> int:
@@ -143,8 +154,8 @@ class LamaEnsemble:
         return tuple(max(-(-int(n) // m) * m, self.min_size) for n in shape)  # type: ignore[return-value]
 
     def predict_members(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> np.ndarray:
-        """Each member's wall probability: float32 ``[M, H, W]`` in [0, 1] (before ``keep_observed``); ``M`` is the
-        members run (see ``max_members`` and ``agreement_stop``)."""
+        """Each member's wall probability: float32 ``[M, H, W]`` in [0, 1] (before ``keep_observed``, after the
+        lattice filter when it is on); ``M`` is the members run (see ``max_members`` and ``agreement_stop``)."""
         encoded = encode_map(observed, extra, self.kind)
         height, width = observed.shape
         rows, cols = self.padded_shape((height, width))
@@ -155,8 +166,10 @@ class LamaEnsemble:
         out = np.empty((len(members), height, width), np.float32)
         unknown = observed == UNKNOWN
         for i, member in enumerate(members):
-            result = member.session.run([member.output_name], {member.input_name: padded})[0]
-            out[i] = np.clip(result[0, 0, :height, :width], 0.0, 1.0)
+            result = member.session.run([member.output_name], {member.input_name: padded})[0][0, 0]
+            if self.lattice_filter:
+                result = remove_lattice(np.clip(result, 0.0, 1.0), self.size_multiple)
+            out[i] = np.clip(result[:height, :width], 0.0, 1.0)
             if i == 1 and self.agreement_stop is not None and len(members) > 2:
                 disagreement = float(np.abs(out[0] - out[1])[unknown].mean()) if unknown.any() else 0.0
                 if disagreement <= self.agreement_stop:
