@@ -19,10 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import (bootstrap_interval, markdown_table, save_figure, scenario_key,
-                                       scenario_metrics, write_json, write_text)
+from superex_deploy.evaluation import markdown_table, save_figure, scenario_metrics, write_json, write_text
 from superex_deploy.evaluation.reports import pyplot
-from superex_deploy.sim.suite import PAPER_ROWS
+from superex_deploy.sim.suite import PAPER_ROWS, paired_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 MEASURES = {"auc_first_half": ("first-half AUC, carved cells counted (points)", 100.0),
@@ -34,25 +33,22 @@ FULL, REFERENCE = "superex", "mapex_lama_los"
 ORDER = ("no_pix2pix", "no_lama", "no_carving", "carving_only")
 
 
-def _row(path: Path) -> dict:
-    return {scenario_key(e): e for e in json.loads(path.read_text())["episodes"]}
+def _episodes(path: Path) -> list[dict]:
+    return json.loads(path.read_text())["episodes"]
 
 
-def _metrics(row: dict, steps: int) -> dict:
-    return {key: scenario_metrics(episode, steps) for key, episode in row.items()}
-
-
-def _paired(new: dict, old: dict, measure: str, scale: float) -> dict:
-    keys = sorted(set(new) & set(old))
-    a = np.array([new[k][measure] for k in keys], float)
-    b = np.array([old[k][measure] for k in keys], float)
-    keep = np.isfinite(a) & np.isfinite(b)
-    diff = (a[keep] - b[keep]) * scale
-    low, high = bootstrap_interval(diff)
-    return {"scenarios": int(keep.sum()), "mean": float(a[keep].mean() * scale), "against": float(b[keep].mean() * scale),
-            "difference": float(diff.mean()), "interval": [float(low), float(high)],
-            "ratio": float(a[keep].mean() / b[keep].mean() - 1.0), "better": int((diff > 0).sum()),
-            "worse": int((diff < 0).sum())}
+def _compare(candidate: list[dict], reference: list[dict], steps: int) -> dict:
+    """Measure -> the paired difference of :func:`~superex_deploy.sim.suite.paired_summary` (scaled for the
+    table) with the candidate's mean beside it."""
+    summary = paired_summary(reference, candidate, steps)
+    out = {}
+    for measure, (_, scale) in MEASURES.items():
+        p = summary[measure]
+        values = np.array([scenario_metrics(e, steps)[measure] for e in candidate], float)
+        out[measure] = {"scenarios": p["n"], "mean": float(np.nanmean(values) * scale),
+                        "difference": p["mean"] * scale, "interval": [p["low"] * scale, p["high"] * scale],
+                        "ratio": p["ratio"], "better": p["better"], "worse": p["worse"]}
+    return out
 
 
 def main(argv=None) -> int:
@@ -63,19 +59,21 @@ def main(argv=None) -> int:
                         help="the ablations' run folder (its rows/ are read; the tables and plots written there)")
     args = parser.parse_args(argv)
     steps = 1000  # the paper protocol's: first half = steps 1-500
-    full = _metrics(_row(args.rows / f"{FULL}.json"), steps)
-    reference = _metrics(_row(args.rows / f"{REFERENCE}.json"), steps)
+    full = _episodes(args.rows / f"{FULL}.json")
+    reference = _episodes(args.rows / f"{REFERENCE}.json")
     names = [n for n in ORDER if (args.out / "rows" / f"{n}.json").is_file()]
     if not names:
         raise SystemExit(f"no ablation row in {args.out / 'rows'}")
-    ablations = {n: _metrics(_row(args.out / "rows" / f"{n}.json"), steps) for n in names}
-    result = {n: {m: {"vs_full": _paired(ablations[n], full, m, s), "vs_reference": _paired(ablations[n], reference, m, s)}
-                  for m, (_, s) in MEASURES.items()} for n in names}
-    result[FULL] = {m: {"vs_reference": _paired(full, reference, m, s)} for m, (_, s) in MEASURES.items()}
+    result = {}
+    for n in names:
+        rows = _episodes(args.out / "rows" / f"{n}.json")
+        vs_full, vs_reference = _compare(rows, full, steps), _compare(rows, reference, steps)
+        result[n] = {m: {"vs_full": vs_full[m], "vs_reference": vs_reference[m]} for m in MEASURES}
+    result[FULL] = {m: {"vs_reference": p} for m, p in _compare(full, reference, steps).items()}
 
     def cell(p: dict) -> str:
         return (f"{p['difference']:+.2f} [{p['interval'][0]:+.2f}, {p['interval'][1]:+.2f}] {p['ratio']:+.1%} "
-                f"{p['better']}/{p['worse']}" if abs(p["against"]) >= 1 else
+                f"{p['better']}/{p['worse']}" if abs(p["mean"]) >= 1 else
                 f"{p['difference']:+.3f} [{p['interval'][0]:+.3f}, {p['interval'][1]:+.3f}] {p['ratio']:+.1%} "
                 f"{p['better']}/{p['worse']}")
 
