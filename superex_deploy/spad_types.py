@@ -71,10 +71,11 @@ class SpadConfig:
         range_m: maximum range of primary and secondary rays (metres).
         bin_width_s: histogram bin width (seconds); see :attr:`bin_path_m`.
         n_secondary: secondary rays per wall hit, spread over [-90, 90] degrees about the normal. The carving's
-            radius cap grows with it (``onboard.nlos.carve_radius_cap_m``: 2.0 m at 64, 8.1 m at 256). 256 rays
-            cost the simulator 2-3x the time per scan of 64 with the fan cache (benchmarks/carving/), but
-            change the histograms (4x the late photons, about 2x the non-zero late bins): the Pix2Pix filter and
-            LaMa-BP were trained on 64-ray scans and would need retraining before the full pipeline runs at 256.
+            radius cap grows with it (``onboard.nlos.carve_radius_cap_m``: 8.1 m at 256, 2.0 m at 64): 256 rays
+            carve more than 64 (docs/benchmarks/spad.md, "Carving nearer its bound") and cost the simulator 2-3x
+            the time per scan with the fan cache (benchmarks/carving/). The count shapes the histograms (4x the
+            late photons of 64 rays, about 2x the non-zero late bins), so the Pix2Pix filter and LaMa-BP are
+            trained on scans of this default (``scripts/train_models.sh``).
         reflectance: Lambertian surface reflectance rho in (0, 1].
         detector_efficiency: photon detection efficiency alpha in (0, 1].
         pulse_energy_j: laser pulse energy E (joules).
@@ -85,7 +86,7 @@ class SpadConfig:
     n_rays: int = 2500
     range_m: float = 20.0
     bin_width_s: float = 0.1 / SPEED_OF_LIGHT
-    n_secondary: int = 64
+    n_secondary: int = 256
     reflectance: float = 0.5
     detector_efficiency: float = 0.3
     pulse_energy_j: float = 1e-9
@@ -271,7 +272,7 @@ def _dense_to_sparse(histograms, threshold):
 class SparseHistograms:
     """Histograms stored by their non-zero bins, ray by ray (compressed sparse rows).
 
-    A noise-free SPAD histogram has at most ``1 + n_secondary`` non-zero bins of ``n_bins`` (65 of 801 at the
+    A noise-free SPAD histogram has at most ``1 + n_secondary`` non-zero bins of ``n_bins`` (257 of 801 at the
     defaults): the simulator writes this form and the NLOS processing reads it, neither touches the zeros.
 
     Attributes:

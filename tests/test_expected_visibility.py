@@ -195,18 +195,26 @@ def test_planners_with_the_expected_gain_see_through_faint_walls_but_not_behind_
                           rng=np.random.default_rng(0))
     # Thresholded at 0.5, both sides look equally open: the tie goes to the lower cell, the left one.
     assert SuperexPlanner(SuperexConfig(gain="goal", n_rays=61)).choose_goal(ctx) == (30, 24)
-    # Expected: the faint walls on the left stop 40 % of each ray per cell; the right side is worth more (each
-    # frontier also sees across the strip into the other side).
+    # Expected, cells independent: the faint walls on the left stop 40 % of each ray per cell; the right side is
+    # worth more (each frontier also sees across the strip into the other side).
+    for gain in ("expected", "expected_goal"):
+        planner = SuperexPlanner(SuperexConfig(gain=gain, n_rays=61, transmittance="independent"))
+        gains = planner.gains(ctx, prediction, list(frontiers))
+        assert gains[1] > 1.4 * gains[0]
+        assert planner.choose_goal(ctx) == (30, 35)
+    # Correlated (the default): a ray into the left side passes its faint walls with probability 0.6 however many
+    # it crosses, so the left is worth less than the right, by less.
     for gain in ("expected", "expected_goal"):
         planner = SuperexPlanner(SuperexConfig(gain=gain, n_rays=61))
         gains = planner.gains(ctx, prediction, list(frontiers))
-        assert gains[1] > 1.4 * gains[0]
+        assert gains[1] > gains[0]
         assert planner.choose_goal(ctx) == (30, 35)
     assert MapexPlanner(MapexConfig(gain="expected")).choose_goal(ctx) == (30, 35)
 
 
 def test_defaults_are_unchanged_and_the_wall_support_reads_the_evidence_of_the_step():
-    assert SuperexConfig().gain == "path" and SuperexConfig().wall_support is None
+    assert SuperexConfig().gain == "expected" and SuperexConfig().transmittance == "correlated"
+    assert SuperexConfig().wall_support is None
     assert MapexConfig().gain == "visible" and MapexConfig().wall_support is None
     observed = np.full((8, 8), UNKNOWN, np.int8)
     observed[4, 4] = FREE

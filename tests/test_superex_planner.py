@@ -52,7 +52,7 @@ def test_pathwise_gain_matches_the_naive_union_of_views_along_the_path():
     grid, observed = _corridor_with_rooms()
     prediction = OraclePredictor(grid).predict(observed)
     ctx = _context(observed, (45, 25), prediction)
-    cfg = SuperexConfig(n_rays=48, sense_every_m=2.0, range_m=6.0)
+    cfg = SuperexConfig(n_rays=48, sense_every_m=2.0, range_m=6.0, gain="path")
     gains = SuperexPlanner(cfg).gains(ctx, prediction, list(ctx.frontiers))
     visibility = VisibilityConfig(n_rays=48, range_m=6.0, hit_threshold=cfg.wall_threshold)
     for frontier, gain in zip(ctx.frontiers, gains):
@@ -66,6 +66,12 @@ def test_pathwise_gain_matches_the_naive_union_of_views_along_the_path():
     goal_only = SuperexPlanner(SuperexConfig(n_rays=48, range_m=6.0, gain="goal")).gains(
         ctx, prediction, list(ctx.frontiers))
     assert np.all(gains >= goal_only) and gains[1] > goal_only[1]  # the corridor's path passes the room's door
+    # The same for the expected gain (the default) against its goal-only form.
+    expected = SuperexPlanner(SuperexConfig(n_rays=48, sense_every_m=2.0, range_m=6.0)).gains(
+        ctx, prediction, list(ctx.frontiers))
+    expected_goal = SuperexPlanner(SuperexConfig(n_rays=48, range_m=6.0, gain="expected_goal")).gains(
+        ctx, prediction, list(ctx.frontiers))
+    assert np.all(expected >= expected_goal) and expected[1] > expected_goal[1]
 
 
 def test_the_prediction_changes_the_choice_where_the_observed_map_cannot():

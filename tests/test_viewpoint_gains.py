@@ -152,7 +152,7 @@ def test_planners_choose_the_same_goal_as_with_the_reference_scoring(name):
         frontiers, _ = reachable_frontiers(ctx)
         if len(frontiers) < 2:
             continue
-        planner = make_planner(name)
+        planner = make_planner(name, **({"gain": "path"} if name == "superex" else {}))  # the reference's gain
         goal = planner.choose_goal(ctx)
         saved = (superex.SuperexPlanner.gains, mapex.visible_gains, hector.visible_gains)
         superex.SuperexPlanner.gains = lambda self, c, p, f: naive.reference_superex_gains(self, c, p, f)

@@ -19,6 +19,7 @@ from superex_deploy.commands.options import (add_noise_options, add_parallel_opt
                                              make_backend, name_list, noise_options, noise_settings,
                                              non_negative_int, planner_options, settings_differences)
 from superex_deploy.files import write_atomically
+from superex_deploy.spad_types import SpadConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "lama_bp: the ensemble that also reads the Pix2Pix-filtered back-projection (needs "
                              "--spad)")
     parser.add_argument("--spad", action="store_true",
-                        help="simulate the SPAD LiDAR every step: NLOS carving and back-projection evidence")
+                        help=f"simulate the SPAD LiDAR every step ({SpadConfig.n_rays} rays, {SpadConfig.n_secondary} "
+                             "secondary rays per wall hit): NLOS carving and back-projection evidence")
     parser.add_argument("--steps", type=int, default=1000)
     add_profile_option(parser)
     add_noise_options(parser)

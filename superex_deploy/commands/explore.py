@@ -22,6 +22,7 @@ from superex_deploy.commands.options import (add_live_options, add_noise_options
 from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
                                      resolve_profile)
 from superex_deploy.recording.live import live_view
+from superex_deploy.spad_types import SpadConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--spad", action="store_true",
-                        help="also scan with the SPAD LiDAR every step and merge its carved free space "
+                        help=f"also scan with the SPAD LiDAR every step ({SpadConfig.n_rays} rays, "
+                             f"{SpadConfig.n_secondary} secondary rays per wall hit) and merge its carved free space "
                              "(coverage is reported with and without carving)")
     parser.add_argument("--gif-every", type=non_negative_int, default=5,
                         help="record a GIF frame every N steps; 0: no GIF (episode.gif is not written)")

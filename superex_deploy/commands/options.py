@@ -205,9 +205,14 @@ def _short(value, limit: int = 80) -> str:
 
 def add_planner_option(parser: argparse.ArgumentParser) -> None:
     """``--planner-option FIELD=VALUE`` (repeatable; :func:`planner_options` parses it)."""
+    from superex_deploy.onboard.planning.planners import SuperexConfig
+
     parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
-                             "straight-line divisor (repeatable; numbers, true/false and none are converted)")
+                             "straight-line divisor, or gain=path for the superex planner's count on the thresholded "
+                             f"prediction (its defaults: gain={SuperexConfig.gain}, "
+                             f"transmittance={SuperexConfig.transmittance}) (repeatable; numbers, true/false and none "
+                             "are converted)")
 
 
 def planner_options(pairs: list[str]) -> dict:

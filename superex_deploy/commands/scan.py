@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from superex_deploy.commands.options import check_output_folder, non_negative_int, positive_int, resolve_start
+from superex_deploy.spad_types import SpadConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -14,7 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=non_negative_int, default=0,
                         help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="robot cell instead of --start")
-    parser.add_argument("--secondary", type=positive_int, default=64, help="secondary rays per wall hit")
+    parser.add_argument("--secondary", type=positive_int, default=None,
+                        help=f"secondary rays per wall hit (default: the sensor model's, {SpadConfig.n_secondary})")
     parser.add_argument("--noise", action="store_true", help="Poisson, ambient, dark counts and timing jitter")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="noise seed")
     parser.add_argument("--out", required=True, type=Path, help="output directory")
@@ -29,14 +31,14 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
     from superex_deploy.sim.spad import nlos_ground_truth
     from superex_deploy.render import save_scan_figure
-    from superex_deploy.spad_types import SpadConfig, SpadNoise
+    from superex_deploy.spad_types import SpadNoise
     from superex_deploy.sim.spad import simulate_scan
 
     check_output_folder(args.out)
     grid = load_map(args.map)
     pose = resolve_start(args.map, grid, args.start, args.pose, require_valid=False, seed=args.seed,
                          command="superex scan")
-    cfg = SpadConfig(n_secondary=args.secondary, noise=SpadNoise(enabled=args.noise))
+    cfg = SpadConfig(n_secondary=args.secondary or SpadConfig.n_secondary, noise=SpadNoise(enabled=args.noise))
     scan = simulate_scan(grid, pose, cfg, rng=np.random.default_rng(args.seed) if args.noise else None)
     seen_free = np.zeros(grid.shape, bool)
     seen_wall = np.zeros(grid.shape, bool)

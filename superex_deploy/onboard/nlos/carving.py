@@ -12,7 +12,7 @@ needs three more arguments, each a margin below:
    ``~ s / rho``; it is certain to be crossed by a sampled direction only while ``s / rho >= pi / K``. Beyond
    ``rho_max = s K / pi`` a thin wall end pointing at the wall point can slip between two rays, and the first
    return then overstates the empty radius. The carve radius is therefore capped at ``rho_max``: a denser
-   fan (``SpadConfig.n_secondary``) carves further (2.0 m at 64 rays of 0.1 m cells, 8.1 m at 256).
+   fan (``SpadConfig.n_secondary``) carves further (8.1 m at the default 256 rays of 0.1 m cells, 2.0 m at 64).
 2. **Where the wall point is.** The processing knows ``h1`` only from the direct-return bin: its estimate can
    be one cell off, and the simulator's fans start at ``X1`` on the cell's face. The radius is reduced by
    ``apex_margin_m`` plus ``s / sqrt(2)`` (a cell counts as a wall when any part of it is hit, and we test
@@ -32,12 +32,13 @@ needs three more arguments, each a margin below:
    ``|dxy| + rho |dyaw|`` (position error, yaw error, ``rho`` its distance from the robot). Each wall point's
    carve radius is reduced, and its wall strip widened, by ``pose_sigma_margin`` times
    ``sigma_xy + rho_max sigma_yaw`` (``rho_max``: the farthest point its disc could hold); the sector's
-   35-degree narrowing covers the normal's turn by the yaw error. The displacement also moves the hits across
-   cell borders, so a wall cell's estimate may land beside a corner or a wall end whose hits, re-drawn, look
-   straight: the property test found a 4.6 m distant staircase corner trusted under a 2 cm / 0.7 degree error,
-   whose true fan faced elsewhere. A normal is therefore trusted for carving only with the interior distance
-   (``normal_interior_m``) widened by the same margin at the wall cell (``sigma_xy + rho sigma_yaw``, ``rho``
-   its distance). Without a covariance every margin is zero and the carving is the noise-free one, bit for bit.
+   narrowing by ``sector_margin_deg`` (20 degrees) covers the normal's turn by the yaw error. The displacement
+   also moves the hits across cell borders, so a wall cell's estimate may land beside a corner or a wall end
+   whose hits, re-drawn, look straight: the property test found a 4.6 m distant staircase corner trusted under
+   a 2 cm / 0.7 degree error, whose true fan faced elsewhere. A normal is therefore trusted for carving only
+   with the interior distance (``normal_interior_m``) widened by the same margin at the wall cell
+   (``sigma_xy + rho sigma_yaw``, ``rho`` its distance). Without a covariance every margin is zero and the
+   carving is the noise-free one, bit for bit.
 """
 
 from __future__ import annotations

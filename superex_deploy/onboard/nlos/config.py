@@ -25,10 +25,9 @@ class NlosConfig:
         window_m: back-projection is computed within this distance of the robot (square window, metres).
         apex_margin_m: carve-radius reduction for the wall point's estimate (metres).
         sector_margin_deg: the carved half-disc is narrowed to +-(90 - this) degrees about the normal: near
-            grazing, a small error in the estimated normal would carve past the wall's end. 20 carves more and no
-            true wall on the benchmark trajectories, 15 carves true walls (measured in
-            docs/benchmarks/spad.md, "Carving nearer its bound"); the default stays at 35 until the learned filter
-            is retrained for 256 secondary rays.
+            grazing, a small error in the estimated normal would carve past the wall's end. 20 carves more than
+            35 and no true wall on the benchmark trajectories, 15 carves true walls (measured in
+            docs/benchmarks/spad.md, "Carving nearer its bound").
         wall_strip_m: cells within this distance of the wall's own line are never carved (metres).
         false_alarm_rate: noisy mode: probability that a ray's late part holds a false detection.
         normal_radius_m: observed wall hits within this radius of a wall cell estimate its normal (metres; at
@@ -63,7 +62,7 @@ class NlosConfig:
 
     window_m: float = 8.0
     apex_margin_m: float = 0.15
-    sector_margin_deg: float = 35.0
+    sector_margin_deg: float = 20.0
     wall_strip_m: float = 0.15
     false_alarm_rate: float = 1e-3
     normal_radius_m: float = 0.5
@@ -252,7 +251,7 @@ class NlosResult:
 
 def carve_radius_cap_m(n_secondary: int, resolution_m: float) -> float:
     """Largest radius (metres) within which ``n_secondary`` rays over 180 degrees must cross every cell: the fan
-    density sets it (2.0 m at 64 rays and 0.1 m cells, 4.1 m at 128, 8.1 m at 256), not the physics."""
+    density sets it (8.1 m at 256 rays, the default, and 0.1 m cells; 4.1 m at 128, 2.0 m at 64), not the physics."""
     return resolution_m * n_secondary / np.pi
 
 

@@ -21,7 +21,8 @@ FAN_VARIANTS = 4
 """Fans cached per wall cell: a cell with a normal leaves along it or its reverse (variants 0, 1); a cell
 without one along the face the light entered (variants 0-3: +rows, -rows, +cols, -cols)."""
 MAX_CACHED_FAN_BYTES = 64 << 20
-"""A grid's fan cache starts afresh when it would outgrow this (about 26,000 fans at 64 secondary rays)."""
+"""A grid's fan cache starts afresh when it would outgrow this (about 6,500 fans at the default 256 secondary rays,
+26,000 at 64)."""
 
 
 class FanCache:

@@ -1,27 +1,31 @@
-"""The SuperEx planner: pathwise predicted gain per unit of travel.
+"""The SuperEx planner: pathwise expected gain per unit of travel.
 
 MapEx scores a frontier by what its predicted map says is visible from the frontier cell alone. The robot,
 though, scans every 0.3 m on its way there: a frontier down a corridor lined with doors is worth what the robot
 sees through every door it passes, a frontier behind a wall that the prediction closes is worth little even if
 its own view is open. The SuperEx planner scores each reachable frontier by the **pathwise gain** (as the PIPE
-planner does): the currently unknown cells predicted visible from its goal cell *or* from any point of the path
+planner does): the currently unknown cells it expects to see from its goal cell *or* from any point of the path
 to it, sampled every ``sense_every_m``, per unit of travel cost; the best frontier wins and is kept until
-reached or blocked (MapEx's locked goal). Rays stop at cells predicted walls at or above ``wall_threshold``.
+reached or blocked (MapEx's locked goal).
+
+The gain reads the prediction as probabilities (``gain="expected"``,
+:mod:`~superex_deploy.onboard.planning.expected_visibility`): each unknown cell counts with the probability that a
+ray reaches it, the largest over the path's viewpoints, and a ray passes the cells it crosses with probability
+``1 - max p`` over their predicted wall probabilities (``transmittance="correlated"``: the cells of one predicted
+wall are one event). Measured in docs/benchmarks/better-map.md, "Reading predictions as probabilities"
+(``scripts/bench_expected_gain.py``): a count on the thresholded prediction (``gain="path"``) pays for every wrong
+predicted wall, and the product of ``1 - p`` (``"independent"``) cuts the rays short where a learned prediction
+spreads a little wall probability over every unknown cell.
 
 Options a user may choose (measured on the train floors, docs/benchmarks/better-map.md):
 
-* ``gain="goal"``: MapEx's gain (the view from the goal cell only);
-* ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
-
-Reading the prediction as probabilities (``scripts/bench_expected_gain.py``; measured in
-docs/benchmarks/better-map.md, "Reading predictions as probabilities"):
-
-* ``gain="expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path / from the
-  goal, each ray's transmittance the product of ``1 - p`` over the cells it crosses
-  (:mod:`~superex_deploy.onboard.planning.expected_visibility`), instead of the count on the map thresholded at
-  ``wall_threshold``;
-* ``wall_support``: a :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` shrinks each predicted wall
-  that neither NLOS evidence nor an observed wall nearby supports, before any gain reads the prediction.
+* ``gain="path"``: the count of unknown cells visible along the path on the prediction thresholded at
+  ``wall_threshold`` (rays stop at cells predicted walls at or above it); ``"goal"``: the same from the goal cell
+  only (MapEx's gain); ``"expected_goal"``: the expected gain from the goal cell only;
+* ``transmittance="independent"``: each ray's transmittance the product of ``1 - p`` over the cells it crosses;
+* ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it;
+* ``wall_support``: a :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` shrinks each predicted
+  wall that neither NLOS evidence nor an observed wall nearby supports, before any gain reads the prediction.
 """
 
 from __future__ import annotations
@@ -52,14 +56,15 @@ class SuperexConfig:
     """Settings of :class:`SuperexPlanner` (chosen on the train floors only, never on ``eval/``).
 
     Attributes:
-        gain: ``"path"``: unknown cells predicted visible from the goal or along the path to it; ``"goal"``:
-            from the goal cell only (MapEx); ``"expected"`` / ``"expected_goal"``: the expected number of unknown
-            cells seen along the path / from the goal (transmittance through the predicted wall probabilities,
-            no threshold; ``n_rays`` and ``range_m`` as for the others).
-        wall_threshold: a cell blocks a ray when its predicted wall probability reaches this. 0.5, chosen on the
-            held-out train buildings with LaMa-LOS (docs/benchmarks/better-map.md, "Ceilings first"): a lower
-            threshold lets the ensembles' faint predicted walls stop most rays, and the choice drifts towards the
-            nearest frontier. Binary maps (observed, oracle) do not depend on it.
+        gain: ``"expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path to
+            the goal / from the goal (transmittance through the predicted wall probabilities, no threshold);
+            ``"path"``: unknown cells visible from the goal or along the path to it on the prediction thresholded
+            at ``wall_threshold``; ``"goal"``: the same from the goal cell only (MapEx). ``n_rays`` and
+            ``range_m`` serve all four.
+        wall_threshold: for ``gain="path"`` and ``"goal"``, a cell blocks a ray when its predicted wall probability
+            reaches this. 0.5, chosen on the held-out train buildings with LaMa-LOS (docs/benchmarks/better-map.md,
+            "Ceilings first"): a lower threshold lets the ensembles' faint predicted walls stop most rays, and the
+            choice drifts towards the nearest frontier. Binary maps (observed, oracle) do not depend on it.
         sense_every_m: the path is sampled every this many metres for the pathwise gain.
         range_m: the sensor's range (metres; the LiDAR's 20 m).
         n_rays: rays of each visibility cast (over a full turn).
@@ -69,8 +74,8 @@ class SuperexConfig:
             :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
             scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
             first, for every gain.
-        transmittance: how the expected gains combine the wall probabilities along a ray: ``"independent"``
-            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
+        transmittance: how the expected gains combine the wall probabilities along a ray: ``"correlated"``
+            (``1 - max p``) or ``"independent"`` (the product of ``1 - p``; see
             :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
@@ -81,14 +86,14 @@ class SuperexConfig:
             :mod:`~superex_deploy.onboard.checks`); a retired option.
     """
 
-    gain: str = "path"
+    gain: str = "expected"
     wall_threshold: float = 0.5
     sense_every_m: float = 1.5
     range_m: float = 20.0
     n_rays: int = 250
     drop_resolved_m: Optional[float] = None
     wall_support: Optional[WallSupport] = None
-    transmittance: str = "independent"
+    transmittance: str = "correlated"
 
     def __post_init__(self) -> None:
         check_choice("gain", self.gain, ("path", "goal", "expected", "expected_goal"))
