@@ -264,7 +264,8 @@ def test_a_recording_with_a_huge_map_frame_is_refused(write_recording, tmp_path)
 # The metadata of a recording has fixed types.
 
 @pytest.mark.parametrize("key, value", [("planner_options", [1, 2]), ("planner_options", "x"), ("seed", "3"),
-                                        ("seed", True), ("planner", 3), ("explorer", []), ("frame", None)])
+                                        ("seed", True), ("planner", 3), ("explorer", []), ("frame", None),
+                                        ("planner_config", None), ("planner_config", "path")])
 def test_recording_metadata_of_the_wrong_type_is_refused(write_recording, tmp_path, monkeypatch, key, value, capsys):
     import superex_deploy.recording.writer as writer
     from superex_deploy.cli import main

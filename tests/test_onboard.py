@@ -21,6 +21,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
+from superex_deploy.commands.recorded_config import previous_planner_options, previous_sensing
 from tests.naive import naive_mark_ranges
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,11 +35,14 @@ LEGACY = json.loads((ROOT / "tests" / "data" / "legacy_episodes.json").read_text
 def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(case):
     # tests/data/legacy_episodes.json was written by the ground-truth loop at commit 4253e2c (mapper casting rays
     # on grid.occupied, the SPAD hook called with the grid): every pose, goal, coverage and IoU must be identical.
+    # It ran the defaults of then: the planner's and the sensing's that changed since are given as they were.
     grid = load_map(case["map"])
     start = start_poses(case["map"])[case["start_index"]]
-    result = run_episode(grid, start, make_planner(case["planner"]), make_predictor(case["predictor"], grid),
-                         steps=case["steps"], seed=case["seed"], cfg=ExplorationConfig(iou_every=case["iou_every"]),
-                         sensing=make_sensing(case["predictor"], case["spad"], case["seed"]))
+    sensing = make_sensing(case["predictor"], case["spad"], case["seed"])
+    result = run_episode(grid, start, make_planner(case["planner"], **previous_planner_options(case["planner"], {})),
+                         make_predictor(case["predictor"], grid), steps=case["steps"], seed=case["seed"],
+                         cfg=ExplorationConfig(iou_every=case["iou_every"]),
+                         sensing=None if sensing is None else previous_sensing(sensing))
     assert result.poses.tolist() == case["poses"]
     assert result.goal_steps == case["goal_steps"] and [list(g) for g in result.goals] == case["goals"]
     assert result.coverage.tolist() == case["coverage"]

@@ -17,6 +17,7 @@ from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer, make_sensing
+from superex_deploy.commands.recorded_config import previous_planner_options
 from superex_deploy.sim.episode import run_episode
 from superex_deploy.sim.oracle import OraclePredictor
 
@@ -167,7 +168,8 @@ def test_a_retired_scan_matching_option_is_refused_by_name(field):
 
 def _old_recording(tmp_path, record_episode, scan_matching_extra: dict, planner_options: dict):
     """A short recording whose metadata is written as a version before the retirement wrote it: the scan matcher's
-    retired fields in its explorer configuration, and retired planner options."""
+    retired fields in its explorer configuration, and retired planner options; its planner ran the defaults of
+    then (``PREVIOUS_DEFAULTS``), which the metadata does not name."""
     from superex_deploy.sim.episode import make_world_and_explorer
 
     grid = load_map(MAP)
@@ -178,7 +180,8 @@ def _old_recording(tmp_path, record_episode, scan_matching_extra: dict, planner_
                 "seed": 0, "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": explorer_cfg,
                 "profile": "full", "profile_settings": PROFILES["full"].to_json()}
     path = tmp_path / "old.mcap"
-    world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1], make_planner("superex"),
+    world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1],
+                                              make_planner("superex", **previous_planner_options("superex", {})),
                                               ObservedAsPrediction(), 0, cfg)
     goals = record_episode(path, world, explorer, metadata)
     return path, goals

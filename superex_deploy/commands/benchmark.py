@@ -60,6 +60,8 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
     ``OUT/settings.json`` records the run's settings; a folder that holds episodes of another run is refused (the
     error names the settings that differ, with their recorded and new values), and one that holds episodes of
     this run only with ``resume``. A folder whose journal holds no episode has nothing to lose: it is reused.
+    What the episodes ran is compared (:func:`settings_as_now`): where both settings hold the planners' whole
+    configurations (``planner_configs``), the options that gave them (``planner_options``) may differ.
 
     Raises:
         ValueError: ``out`` is a file, holds episodes of other settings, or holds episodes without ``resume``.
@@ -72,16 +74,55 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
         if not recorded.is_file():
             raise ValueError(f"{journal} has no settings.json beside it: its settings cannot be checked; choose "
                              f"another --out")
-        differences = settings_differences(json.loads(recorded.read_text()), json.loads(json.dumps(settings)))
+        old, new = json.loads(recorded.read_text()), json.loads(json.dumps(settings))
+        differences = settings_differences(_what_ran(settings_as_now(old, new)), _what_ran(new))
         if differences:
-            raise ValueError(f"{out} holds a run with other settings ({'; '.join(differences)}); choose another "
-                             f"--out, or rerun with its settings")
+            before = ("; its settings.json was written before the settings held the planners' and the sensing's "
+                      "configurations: its episodes ran the defaults of the versions before 0.2"
+                      if isinstance(old, dict) and "planner_configs" in new and "planner_configs" not in old else "")
+            raise ValueError(f"{out} holds a run with other settings ({'; '.join(differences)}){before}; choose "
+                             f"another --out, or rerun with its settings")
         if not resume:
             raise ValueError(f"{out} already holds a run ({journal}): pass --resume to finish it, or choose another "
                              f"--out")
     out.mkdir(parents=True, exist_ok=True)
     write_atomically(recorded, json.dumps(settings))
     return journal
+
+
+def settings_as_now(recorded, new: dict):
+    """A benchmark's ``recorded`` settings in the form of the ``new`` ones: settings written before they held the
+    planners' whole configurations (``planner_configs``) and the SPAD sensing's (``sensing``) get those their
+    episodes ran (where ``new`` holds them): the options given, the other fields at the defaults of the versions
+    before 0.2 (:mod:`~superex_deploy.commands.recorded_config`). Anything else as recorded (what differs is then
+    named)."""
+    from superex_deploy.commands.recorded_config import (default_sensing_settings, planner_settings,
+                                                         previous_planner_options)
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("planners"), list):
+        return recorded
+    recorded = dict(recorded)
+    options = recorded.get("planner_options") or {}
+    if "planner_configs" in new and "planner_configs" not in recorded and isinstance(options, dict):
+        try:
+            recorded["planner_configs"] = json.loads(json.dumps({
+                name: planner_settings(make_planner(name, **previous_planner_options(name, options)))
+                for name in recorded["planners"]}))
+        except (TypeError, ValueError):
+            pass  # left out: the comparison names it
+    if "sensing" in new and "sensing" not in recorded and isinstance(recorded.get("spad"), bool):
+        recorded["sensing"] = (default_sensing_settings(recorded.get("spad_noise", "off"), previous=True)
+                               if recorded["spad"] else None)
+    return recorded
+
+
+def _what_ran(settings):
+    """``settings`` without the options given where the planners' whole configurations are there (those say what
+    ran: an option given at its default runs as one left out)."""
+    if isinstance(settings, dict) and "planner_configs" in settings:
+        return {key: value for key, value in settings.items() if key != "planner_options"}
+    return settings
 
 
 def run(args: argparse.Namespace) -> int:
@@ -127,8 +168,13 @@ def run(args: argparse.Namespace) -> int:
                           spad_noise=noise["spad_noise"])
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
-    settings = {"maps": names, "planners": planners, "planner_options": options, "predictor": args.predictor,
-                "spad": args.spad, "steps": args.steps, "seed": args.seed, "profile": profile_name,
+    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings
+
+    configs = {planner: planner_settings(instance) for planner, instance in zip(planners, instances)}
+    settings = {"maps": names, "planners": planners, "planner_options": options, "planner_configs": configs,
+                "predictor": args.predictor, "spad": args.spad,
+                "sensing": default_sensing_settings(noise["spad_noise"]) if args.spad else None,
+                "steps": args.steps, "seed": args.seed, "profile": profile_name,
                 "profile_settings": PROFILES[profile_name].to_json(), **noise_settings(noise)}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
@@ -142,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     noisy = noise_settings(noise)
     table = summarise(results, checkpoints, map_errors=bool(noisy))
     write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,
-                                                          "planner_options": options}))
+                                                          "planner_options": options, "planner_configs": configs}))
     table_text = results_markdown(table)
     settings = "".join(f", {k}={v}" for k, v in options.items())
     write_atomically(

@@ -62,12 +62,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path)
 
 
-def recording_metadata(grid, args, options: dict, sensing, explorer_cfg) -> dict:
-    """What a replay needs to rebuild the explorer of this run (JSON values); ``sensing``: the episode's
-    :class:`~superex_deploy.sim.sensing.SpadSensing` or None (recorded under ``sensor`` and ``nlos``)."""
+def recording_metadata(grid, args, options: dict, planner, sensing, explorer_cfg) -> dict:
+    """What a replay needs to rebuild the explorer of this run (JSON values): ``options`` as the user gave them
+    (``planner_options``) and every field of ``planner``'s configuration (``planner_config``: a replay builds it
+    whatever the defaults are then); ``sensing``: the episode's :class:`~superex_deploy.sim.sensing.SpadSensing` or
+    None (recorded in full under ``sensor`` and ``nlos``)."""
     from dataclasses import asdict
 
-    return {"map": grid.name, "planner": args.planner, "planner_options": options, "predictor": args.predictor,
+    from superex_deploy.commands.recorded_config import planner_settings
+
+    return {"map": grid.name, "planner": args.planner, "planner_options": options,
+            "planner_config": planner_settings(planner), "predictor": args.predictor,
             "seed": args.seed, "spad": sensing is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
             "sensor": None if sensing is None else asdict(sensing.spad),
@@ -153,7 +158,7 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
     record = None
     try:
         if args.record is not None:
-            metadata = recording_metadata(grid, args, options, sensing, cfg.explorer)
+            metadata = recording_metadata(grid, args, options, planner, sensing, cfg.explorer)
             metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
             record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
         result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live)

@@ -7,7 +7,9 @@ row by row.
 second pairing, against MapEx on the observed map (the oracle ceiling's baseline).
 
 A finished row run on fewer maps (``--maps``, e.g. an expensive SPAD row) enters the table of a later run of the
-same protocol; it is paired on the scenarios it shares with the reference.
+same protocol; it is paired on the scenarios it shares with the reference. A row's setting holds its planner's and
+its SPAD sensing's whole configurations (``planner_config``, ``sensing``): a row finished with other defaults is
+refused by a rerun that names it, and left out of the table of a run that does not.
 """
 
 from __future__ import annotations
@@ -39,6 +41,34 @@ def _rows(names: list[str]) -> list[str]:
 
 CEILING_REFERENCE = "mapex_observed"
 """The altered suite also pairs every row against this one: the oracle ceiling's baseline."""
+
+
+def _row_setting(setting: dict, name: str) -> dict:
+    """``setting`` with what row ``name`` runs in full: its planner's whole configuration (``planner_config``) and
+    its SPAD sensing's (``sensing``, None without)."""
+    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    row = PAPER_ROWS[name]
+    return json.loads(json.dumps({**setting, "planner_config": planner_settings(make_planner(row.planner)),
+                                  "sensing": default_sensing_settings() if row.spad else None}))
+
+
+def _row_setting_as_now(recorded, name: str):
+    """A row's recorded setting in this version's form: one written before the settings held the planner's and the
+    sensing's whole configurations gets those the row ran then, the defaults of the versions before 0.2
+    (:mod:`~superex_deploy.commands.recorded_config`); anything else as recorded."""
+    from superex_deploy.commands.recorded_config import (default_sensing_settings, planner_settings,
+                                                         previous_planner_options)
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    if not isinstance(recorded, dict) or "planner_config" in recorded:
+        return recorded
+    row = PAPER_ROWS[name]
+    return json.loads(json.dumps({
+        **recorded, "planner_config": planner_settings(make_planner(row.planner,
+                                                                    **previous_planner_options(row.planner, {}))),
+        "sensing": default_sensing_settings(previous=True) if row.spad else None}))
 
 
 def _same_protocol(recorded: dict, setting: dict) -> bool:
@@ -87,7 +117,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
     recorded = rows_dir / f"{name}.setting.json"
     setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad}}
     if recorded.is_file():
-        _refuse_other_settings(recorded, json.loads(recorded.read_text()), setting,
+        _refuse_other_settings(recorded, _row_setting_as_now(json.loads(recorded.read_text()), name), setting,
                                f"move it and {name}.episodes.jsonl away or choose another --out")
     write_atomically(recorded, json.dumps(setting))
     episodes = run_tasks(run_scenario, tasks, keys, backend, rows_dir / f"{name}.episodes.jsonl", name)
@@ -221,26 +251,27 @@ def run_paper(args: argparse.Namespace) -> int:
         write_atomically(args.out / "floors.json", json.dumps(floors, indent=1))
         floors_text = _floors_text(floors).replace("{}", f"`{ALTERATION_SEED_RULE}`")
     for name in names:
-        path = rows_dir / f"{name}.json"
+        path, row_setting = rows_dir / f"{name}.json", _row_setting(setting, name)
         if path.is_file():
             done = json.loads(path.read_text())
-            if done.get("setting") == setting:
+            if _row_setting_as_now(done.get("setting"), name) == row_setting:
                 print(f"{name}: done already ({path})")
                 continue
-            _refuse_other_settings(path, done.get("setting"), setting, "move it away or choose another --out")
+            _refuse_other_settings(path, _row_setting_as_now(done.get("setting"), name), row_setting,
+                                   "move it away or choose another --out")
         try:
-            episodes = _run_row(name, args, maps, rows_dir, setting, backend)
+            episodes = _run_row(name, args, maps, rows_dir, row_setting, backend)
         except Interrupted as stop:
             stop.kept = (f"the finished episodes of row {name} are in {rows_dir / (name + '.episodes.jsonl')}: rerun "
                          f"the same command to finish")
             raise
-        write_atomically(path, json.dumps({"row": name, "setting": setting, "episodes": episodes}))
+        write_atomically(path, json.dumps({"row": name, "setting": row_setting, "episodes": episodes}))
     rows = {}
     for name in PAPER_ROWS:  # every finished row of this protocol (perhaps on fewer maps), in the table's order
         path = rows_dir / f"{name}.json"
         if path.is_file():
             done = json.loads(path.read_text())
-            if _same_protocol(done.get("setting"), setting):
+            if _same_protocol(_row_setting_as_now(done.get("setting"), name), _row_setting(setting, name)):
                 rows[name] = done["episodes"]
     text, summary = _table(rows, args.steps, references)
     sizes = sorted(set(summary["scenarios"].values()))

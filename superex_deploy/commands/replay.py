@@ -1,12 +1,14 @@
 """``superex replay FILE --out DIR``: rerun a fresh explorer on a recorded episode's observations alone.
 
-The explorer is rebuilt from the recording's metadata (planner and options, predictor, seed, sensor model, NLOS and
-explorer configuration) and given no map: it sees exactly the recorded observations. Its goals are compared with the
-recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything
-that stopped the reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its
-frame: ``shape``, ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's
-first). A recording without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed
-steps are served on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`).
+The explorer is rebuilt from the recording's metadata (the planner's configuration, predictor, seed, sensor model,
+NLOS and explorer configuration) and given no map: it sees exactly the recorded observations. A recording made before
+the planner's whole configuration was recorded holds the options given: the other fields are rebuilt at the defaults
+of its version (:mod:`~superex_deploy.commands.recorded_config`). Its goals are compared with the recorded commands
+step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything that stopped the
+reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
+``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's first). A recording
+without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed steps are served
+on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`).
 """
 
 from __future__ import annotations
@@ -40,12 +42,13 @@ def build_explorer(metadata: dict, frame, models=None):
     """
     from superex_deploy import pipeline
     from superex_deploy.onboard.planning.motion import MotionConfig
-    from superex_deploy.onboard.checks import from_cells, without_retired
+    from superex_deploy.onboard.checks import from_cells, nested_configs, without_retired
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.onboard.planning.planners import make_planner, planner_config
     from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
+    from superex_deploy.commands.recorded_config import previous_planner_options
 
     try:
         planner_name, predictor_name = metadata["planner"], metadata["predictor"]
@@ -68,11 +71,17 @@ def build_explorer(metadata: dict, frame, models=None):
     if isinstance(metadata["seed"], bool) or seed != metadata["seed"] or seed < 0:
         raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
     try:
+        # The planner's whole configuration as recorded; a recording made before it was recorded holds the options
+        # given, the other fields at the defaults of its version (those that changed since: PREVIOUS_DEFAULTS).
         # A recording made before an option was retired carries it at its old default (accepted) or at another
         # value (refused, named); one made before an option counted metres carries cells (converted).
+        if "planner_config" in metadata:
+            options = metadata["planner_config"]
+        elif isinstance(options, dict):
+            options = previous_planner_options(planner_name, options)
         config = planner_config(planner_name)
         if config is not None and isinstance(options, dict):
-            options = without_retired(config, from_cells(config, options, frame.resolution_m))
+            options = nested_configs(config, without_retired(config, from_cells(config, options, frame.resolution_m)))
         planner = make_planner(planner_name, **options)
     except ValueError as error:
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None

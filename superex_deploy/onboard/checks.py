@@ -9,20 +9,22 @@ become ``float`` where a real is expected) or raises one ``ValueError`` that nam
 and shows what it got. No check lets a non-finite number through: a count or a distance of ``inf`` is never a
 setting. A config whose options were retired (:func:`retires`) refuses them by name, and one whose options counted
 cells and now take metres (:func:`renames`) names the new field; :func:`from_cells` converts a recorded config of
-the old names with its grid's cell size, and :func:`in_cells`, :func:`cells_at_least` and :func:`cells_within` give
-a length's cells.
+the old names with its grid's cell size, :func:`nested_configs` turns a recorded config's nested objects back into
+their dataclasses, and :func:`in_cells`, :func:`cells_at_least` and :func:`cells_within` give a length's cells.
 """
 
 from __future__ import annotations
 
 import functools
+import dataclasses
 import math
 import numbers
+import typing
 from types import MappingProxyType
 from typing import Mapping, Optional
 
 __all__ = ["check_int", "check_real", "check_choice", "check_instance", "retires", "without_retired", "renames",
-           "from_cells", "in_cells", "cells_at_least", "cells_within"]
+           "from_cells", "nested_configs", "in_cells", "cells_at_least", "cells_within"]
 
 
 def _number(value) -> Optional[float]:
@@ -217,4 +219,26 @@ def from_cells(config_class, values: Mapping[str, object], resolution_m: float) 
             raise ValueError(f"{config_class.__name__}: both {old!r} and its new name {new!r} are given")
         count = check_real(f"{config_class.__name__}: {old}", converted.pop(old), 0.0)
         converted[new] = round(count * float(resolution_m) ** power, 12)
+    return converted
+
+
+def nested_configs(config_class, values: Mapping[str, object]) -> dict:
+    """``values`` (the fields of a ``config_class`` recorded as JSON, e.g. a recording's ``planner_config``) with each
+    object that holds a field whose type is a config dataclass (``VisibilityConfig``, ``Optional[WallSupport]``)
+    made that dataclass again (its own nested objects too); the other values as they are.
+
+    Raises:
+        ValueError: a nested object with fields its dataclass does not take, named.
+    """
+    hints = typing.get_type_hints(config_class)
+    converted = dict(values)
+    for name, value in values.items():
+        if not isinstance(value, Mapping) or name not in hints:
+            continue
+        kinds = [kind for kind in (typing.get_args(hints[name]) or (hints[name],)) if dataclasses.is_dataclass(kind)]
+        if len(kinds) == 1:
+            try:
+                converted[name] = kinds[0](**nested_configs(kinds[0], value))
+            except TypeError as error:
+                raise ValueError(f"{config_class.__name__}.{name}: {error}") from None
     return converted

@@ -13,9 +13,10 @@ __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata"
 FORMAT_VERSION = "1"
 METADATA_NAME = "superex.episode"
 METADATA_TYPES: dict = {"format_version": (str,), "frame": (dict,), "map": (str,), "planner": (str,),
-                        "planner_options": (dict, type(None)), "predictor": (str,), "seed": (int,), "spad": (bool,),
-                        "models": (str, type(None)), "sensor": (dict, type(None)), "nlos": (dict, type(None)),
-                        "explorer": (dict,), "profile": (str, type(None)), "profile_settings": (dict,)}
+                        "planner_options": (dict, type(None)), "planner_config": (dict,), "predictor": (str,),
+                        "seed": (int,), "spad": (bool,), "models": (str, type(None)), "sensor": (dict, type(None)),
+                        "nlos": (dict, type(None)), "explorer": (dict,), "profile": (str, type(None)),
+                        "profile_settings": (dict,)}
 """The JSON type of each known ``superex.episode`` value (JSON objects are dicts; other keys are free)."""
 
 
