@@ -13,7 +13,8 @@ from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
 from superex_deploy.onboard.nlos import NlosConfig
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import PROFILES
-from superex_deploy.commands.recorded_config import PREVIOUS_DEFAULTS, planner_settings, previous_planner_options
+from superex_deploy.commands.recorded_config import (PREVIOUS_DEFAULTS, planner_settings,
+                                                     previous_planner_options)
 from superex_deploy.spad_types import SpadConfig
 
 MAP = "50052750"

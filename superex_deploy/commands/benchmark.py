@@ -94,9 +94,11 @@ def settings_as_now(recorded, new: dict):
     """A benchmark's ``recorded`` settings in the form of the ``new`` ones: settings written before they held the
     planners' whole configurations (``planner_configs``) and the SPAD sensing's (``sensing``) get those their
     episodes ran (where ``new`` holds them): the options given, the other fields at the defaults of the versions
-    before 0.2 (:mod:`superex_deploy.commands.recorded_config`). Anything else as recorded (what differs is then named)."""
+    before 0.2 (:mod:`~superex_deploy.commands.recorded_config`). Anything else as recorded (what differs is then
+    named)."""
+    from superex_deploy.commands.recorded_config import (default_sensing_settings, planner_settings,
+                                                         previous_planner_options)
     from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings, previous_planner_options
 
     if not isinstance(recorded, dict) or not isinstance(recorded.get("planners"), list):
         return recorded

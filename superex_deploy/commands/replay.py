@@ -3,9 +3,9 @@
 The explorer is rebuilt from the recording's metadata (the planner's configuration, predictor, seed, sensor model,
 NLOS and explorer configuration) and given no map: it sees exactly the recorded observations. A recording made before
 the planner's whole configuration was recorded holds the options given: the other fields are rebuilt at the defaults
-of its version (:mod:`superex_deploy.commands.recorded_config`). Its goals are compared with the recorded commands step by
-step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything that stopped the reading, the
-final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
+of its version (:mod:`~superex_deploy.commands.recorded_config`). Its goals are compared with the recorded commands
+step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything that stopped the
+reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
 ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's first). A recording
 without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed steps are served
 on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`).
