@@ -47,7 +47,7 @@ import numpy as np
 from superex_deploy.evaluation import markdown_table, run_benchmark_episode, write_json
 from superex_deploy.evaluation.known_distance import (DISTANCE_BINS_M, CalibrationCounts, counts_by_distance,
                                                       distance_bin_label, distance_to_known, lattice_strength,
-                                                      pool_counts)
+                                                      LATTICE_MIN_CELLS, pool_counts)
 from superex_deploy.sim.episode import EpisodeState
 from superex_deploy.sim.metrics import evaluation_area, map_iou
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
@@ -70,15 +70,12 @@ PLANNERS = ("nearest", "hector", "mapex")
 LATTICE_DISTANCE_M = 5.0
 """The lattice is measured on unknown cells farther than this from known space (metres): beyond the 0-2 and 2-5 m
 bins, where what is known shapes the prediction."""
-LATTICE_MIN_CELLS = 1024
-"""Fewer far cells than this (16 a phase of a period-8 lattice) give no lattice measure (None in the records)."""
 
 
-def heldout_maps(limit: int | None = None) -> list[str]:
-    """The ``train`` maps of the held-out buildings, in name order; the first ``limit`` (None: all)."""
+def heldout_maps() -> list[str]:
+    """The ``train`` maps of the held-out buildings, in name order."""
     held = set(heldout_buildings())
-    maps = [name for name in list_maps("train") if map_building(name) in held]
-    return maps if limit is None else maps[:limit]
+    return [name for name in list_maps("train") if map_building(name) in held]
 
 
 def _pooled_iou(pairs) -> float:
@@ -121,11 +118,11 @@ def evaluate_filter(model_dir: Path, n_samples: int, jobs: int, maps: list[str])
 
 
 def _score_distance_and_lattice(record: dict, method: str, members: np.ndarray, mean: np.ndarray, grid,
-                                unknown: np.ndarray, area: np.ndarray, distance: np.ndarray, period: int) -> None:
-    """Add one ensemble's distance-bin counts and far-out lattice measures to ``record`` (in place)."""
-    counts = counts_by_distance(mean, grid.occupied, unknown, grid.resolution_m, area=area, distance=distance)
+                                unknown: np.ndarray, far: np.ndarray, distance: np.ndarray, period: int) -> None:
+    """Add one ensemble's distance-bin counts over the ``unknown`` cells (of the evaluation area) and its lattice
+    measures over the ``far`` ones to ``record`` (in place)."""
+    counts = counts_by_distance(mean, grid.occupied, unknown, grid.resolution_m, distance=distance)
     record.setdefault("distance_counts", {})[method] = {label: c.to_dict() for label, c in counts.items()}
-    far = unknown & area & (distance > LATTICE_DISTANCE_M)
     if np.count_nonzero(far) < LATTICE_MIN_CELLS:
         for key in ("share", "amplitude", "member_share", "variance"):
             record[f"{method}_lattice_{key}_far"] = None
@@ -166,23 +163,21 @@ def _episode(args: tuple[str, int, str, bool]) -> list[dict]:
                 continue
             pending.remove((low, high))
             los = state.mapper.observed(include_carved=False)
-            unknown = (state.observed == UNKNOWN) & area
             record = {"map": name, "step": state.step, "coverage": state.coverage, "bin": f"{low:.0%}-{high:.0%}"}
             # One set of cells for both ensembles: unknown in the pipeline's map (line of sight and carving), at
             # their distance from its known cells.
             pipeline_unknown = state.observed == UNKNOWN
+            unknown = pipeline_unknown & area
             distance = distance_to_known(pipeline_unknown, grid.resolution_m)
+            far = unknown & (distance > LATTICE_DISTANCE_M)
             means = {"observed": (state.observed == OCCUPIED).astype(np.float32)}
             for method, ensemble in ensembles.items():
                 # LaMa-LOS sees the line-of-sight map (its own unknown cells: carving is not its input).
-                observed = state.observed if method.startswith("lama_bp") else los
-                members = ensemble.predict_members(observed, sensing.evidence if ensemble.kind is ModelKind.LAMA_BP
-                                                   else None)
-                mean = members.mean(axis=0)
-                known = observed != UNKNOWN
-                mean[known] = observed[known] == OCCUPIED  # what LamaEnsemble.predict does with keep_observed
-                means[method] = mean
-                _score_distance_and_lattice(record, method, members, mean, grid, pipeline_unknown, area, distance,
+                bp = ensemble.kind is ModelKind.LAMA_BP
+                observed = state.observed if bp else los
+                members = ensemble.predict_members(observed, sensing.evidence if bp else None)
+                means[method] = mean = ensemble.combine(members, observed).mean
+                _score_distance_and_lattice(record, method, members, mean, grid, unknown, far, distance,
                                             ensemble.size_multiple)
             for method, mean in means.items():
                 record[f"{method}_iou"] = map_iou(mean, grid, area=area)
@@ -293,8 +288,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.maps is not None and args.maps < 1:
         parser.error(f"--maps must be >= 1, got {args.maps}")
-    maps = heldout_maps(args.maps)
-    result = {"heldout_buildings": list(heldout_buildings()), "heldout_maps": heldout_maps(), "maps_scored": maps,
+    all_maps = heldout_maps()
+    maps = all_maps[:args.maps]
+    result = {"heldout_buildings": list(heldout_buildings()), "heldout_maps": all_maps, "maps_scored": maps,
               "models": str(args.models), "seconds": {}}
     if not args.skip_filter:
         clock = time.perf_counter()
@@ -340,7 +336,6 @@ def main(argv=None) -> int:
             print(f"\n## Lattice far out: unknown cells > {LATTICE_DISTANCE_M:g} m from known space, period "
                   f"size_multiple, over the predictions with at least {LATTICE_MIN_CELLS} such cells\n")
             print("\n".join(lattice_markdown(p["lattice"])))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, result)
     print(f"\nwrote {args.out} ({', '.join(f'{k} {v:.0f} s' for k, v in result['seconds'].items())})")
     return 0

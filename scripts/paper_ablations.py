@@ -17,14 +17,13 @@ full pipeline with its bootstrap 95 % interval, one bar per row), and ``pairs.md
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
-from superex_deploy.evaluation import markdown_table, save_figure, scenario_metrics, write_json, write_text
+from superex_deploy.evaluation import markdown_table, read_json, save_figure, write_json, write_text
 from superex_deploy.evaluation.reports import pyplot
-from superex_deploy.sim.suite import PAPER_ROWS, paired_summary
+from superex_deploy.sim.suite import PAPER_ROWS, paired_summary, row_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 MEASURES = {"auc_first_half": ("first-half AUC, carved cells counted (points)", 100.0),
@@ -51,18 +50,17 @@ PAIRS = (("superex", "superex_lama_los", "what the SPAD adds (same planner, LaMa
 
 
 def _episodes(path: Path) -> list[dict]:
-    return json.loads(path.read_text())["episodes"]
+    return read_json(path)["episodes"]
 
 
 def _compare(candidate: list[dict], reference: list[dict], steps: int) -> dict:
     """Measure -> the paired difference of :func:`~superex_deploy.sim.suite.paired_summary` (scaled for the
-    table) with the candidate's mean beside it."""
-    summary = paired_summary(reference, candidate, steps)
+    table) with the candidate's mean (:func:`~superex_deploy.sim.suite.row_summary`) beside it."""
+    summary, means = paired_summary(reference, candidate, steps), row_summary(candidate, steps)
     out = {}
     for measure, (_, scale) in MEASURES.items():
         p = summary[measure]
-        values = np.array([scenario_metrics(e, steps)[measure] for e in candidate], float)
-        out[measure] = {"scenarios": p["n"], "mean": float(np.nanmean(values) * scale),
+        out[measure] = {"scenarios": p["n"], "mean": means[measure] * scale,
                         "difference": p["mean"] * scale, "interval": [p["low"] * scale, p["high"] * scale],
                         "ratio": p["ratio"], "better": p["better"], "worse": p["worse"]}
     return out
@@ -89,8 +87,8 @@ def _pairs(rows_dir: Path, steps: int) -> tuple[list[str], dict]:
         pair = _compare(_episodes(path(candidate)), _episodes(path(reference)), steps)
         result[f"{candidate} - {reference}"] = {"what": what, **pair}
         table.append([f"{candidate} - {reference}", what] + [_cell(pair[m]) for m in MEASURES])
-    lines = ["The paper's planner rows paired by scenario (40 eval scenarios, 1000 steps; measures over steps 1-500 and "
-             "below 30 % coverage): mean difference [bootstrap 95 %], ratio of means - 1, better / worse; "
+    lines = ["The paper's planner rows paired by scenario (40 eval scenarios, 1000 steps; measures over steps 1-500 "
+             "and below 30 % coverage): mean difference [bootstrap 95 %], ratio of means - 1, better / worse; "
              f"`NAME{PREVIOUS}`: the row with the previous defaults (`previous_defaults/rows/`).", ""]
     lines += markdown_table(["pair", "what it measures"] + [MEASURES[m][0] for m in MEASURES], table,
                             ["-", "-"] + ["-"] * len(MEASURES))

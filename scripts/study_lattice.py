@@ -46,7 +46,8 @@ import numpy as np
 
 from superex_deploy.evaluation import markdown_table, run_benchmark_episode, save_figure, write_json
 from superex_deploy.evaluation.reports import pyplot
-from superex_deploy.evaluation.known_distance import distance_to_known, lattice_strength
+from superex_deploy.evaluation.known_distance import (LATTICE_MIN_CELLS, distance_to_known, lattice_strength,
+                                                      phase_means)
 from superex_deploy.maps import list_maps, load_map, map_building
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,
@@ -94,10 +95,9 @@ def peak_period(field: np.ndarray, region: np.ndarray) -> list:
 
 
 def phase_template(field: np.ndarray, region: np.ndarray, period: int, offset: int = 0) -> np.ndarray:
-    """``[period * period]`` mean of ``field`` over ``region`` per phase of cell ``(r - offset, c - offset)``."""
-    rows, cols = np.nonzero(region)
-    phase = ((rows - offset) % period) * period + (cols - offset) % period
-    return np.bincount(phase, field[rows, cols], period * period) / np.bincount(phase, minlength=period * period)
+    """``[period * period]`` mean of ``field`` over ``region`` per phase of cell ``(r - offset, c - offset)``
+    (:func:`~superex_deploy.evaluation.known_distance.phase_means`)."""
+    return phase_means(field, region, period, offset)[0]
 
 
 def network_part(model_dir: Path, checkpoints: Path | None) -> dict:
@@ -258,22 +258,22 @@ def heldout_part(model_dir: Path, min_side: int, coverage: float, figure: Path |
             # Off the map's frame: many floors' first and last rows and columns are walls, which puts 1.4x the
             # walls on row phase 0 (away from the frame, every phase holds 0.92-1.14x): a property of the files.
             far[:BORDER], far[-BORDER:], far[:, :BORDER], far[:, -BORDER:] = False, False, False, False
-            if np.count_nonzero(far) < 1024:
+            if np.count_nonzero(far) < LATTICE_MIN_CELLS:
                 continue
             members = ensemble.predict_members(observed, seen["evidence"] if kind is ModelKind.LAMA_BP else None)
             if figure is not None and kind is ModelKind.LAMA_LOS:
                 draw(figure, name, observed, members, ensemble.with_lattice_filter().predict_members(observed))
                 figure = None
+            period = ensemble.size_multiple
+            rows, cols = np.nonzero(far)
+            phase = (rows % period) * period + cols % period
+            truth = grid.occupied[rows, cols]
+            walls_by_phase = phase_template(grid.occupied.astype(np.float64), far, period)
             for i, member in enumerate(members):
-                period = ensemble.size_multiple
                 lattice = lattices[kind][i]
                 crest = np.argsort(lattice)[-16:]
                 trough = np.argsort(lattice)[:16]
-                rows, cols = np.nonzero(far)
-                phase = (rows % period) * period + cols % period
                 on_crest, on_trough = np.isin(phase, crest), np.isin(phase, trough)
-                truth = grid.occupied[rows, cols]
-                walls_by_phase = phase_template(grid.occupied.astype(np.float64), far, period)
                 out[f"{name} {kind.value}_{i}"] = {
                     "kind": kind.value, "coverage": seen["coverage"], "far_cells": int(rows.size),
                     "period": peak_period(member, far), "share": lattice_strength(member, far, period).share,
@@ -364,7 +364,6 @@ def main(argv=None) -> int:
               f"{v['member_correlation_mean']:+.2f}", v["period_8"]]
              for k, v in result["heldout_summary"].items()], ["-"] + ["---:"] * 6)))
     result["seconds"] = time.perf_counter() - clock
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, result)
     print(f"\nwrote {args.out} ({result['seconds']:.0f} s)")
     return 0

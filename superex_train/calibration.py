@@ -279,7 +279,7 @@ def calibrate(kinds: Sequence[ModelKind], model_dir: PathLike = DEFAULT_MODEL_DI
     (the file :func:`read_calibration` and ``superex export --calibration`` read). ``keep``: fits of other kinds
     written beside the new ones as they are (an ensemble that was not retrained keeps its calibration); a kind
     both fitted and kept is fitted."""
-    result = {kind: fit for kind, fit in (keep or {}).items() if kind not in kinds}
+    result = dict(keep or {})
     for kind in kinds:
         probability, is_wall = collect_calibration_samples(kind, model_dir, cfg, jobs)
         result[kind] = fit_logit_calibration(probability, is_wall)

@@ -181,3 +181,33 @@ def record_episode():
                 world.apply(command)
         return goals
     return record
+
+
+@pytest.fixture(scope="session")
+def old_recording(record_episode):
+    """``old_recording(path, start_index, planner_options={}, scan_matching_extra={})``: a short recording of the
+    superex planner on map 50052750 from that start, its metadata written as a version before 0.2 wrote it (the
+    options given, no ``planner_config``; the scan matcher's fields plus ``scan_matching_extra``); the planner ran
+    the defaults of then (``PREVIOUS_DEFAULTS``), which the metadata does not name. Returns ``(path, goals)``."""
+    def record(path, start_index, planner_options=None, scan_matching_extra=None):
+        from dataclasses import asdict
+
+        from superex_deploy.commands.recorded_config import previous_planner_options
+        from superex_deploy.maps import load_map, start_poses
+        from superex_deploy.onboard.planning.planners import make_planner
+        from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
+        from superex_deploy.pipeline import PROFILES
+        from superex_deploy.sim.episode import make_world_and_explorer
+
+        name = "50052750"
+        cfg = PROFILES["full"].episode_config(iou_every=0)
+        explorer_cfg = asdict(cfg.explorer)
+        explorer_cfg["scan_matching"].update(scan_matching_extra or {})
+        metadata = {"map": name, "planner": "superex", "planner_options": dict(planner_options or {}),
+                    "predictor": "observed", "seed": 0, "spad": False, "models": None, "sensor": None, "nlos": None,
+                    "explorer": explorer_cfg, "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+        world, explorer = make_world_and_explorer(load_map(name), start_poses(name)[start_index],
+                                                  make_planner("superex", **previous_planner_options("superex", {})),
+                                                  ObservedAsPrediction(), 0, cfg)
+        return path, record_episode(path, world, explorer, metadata)
+    return record

@@ -299,11 +299,13 @@ def test_the_new_skips_are_checked_and_counted():
     assert set(processing.counts.values()) == {0}
 
 
+@pytest.mark.parametrize("learned", [True, False], ids=["learned", "laplacian"])
 @pytest.mark.parametrize("skips", [NlosSkips(), EXACT, NlosSkips(evidence_every=2)], ids=["none", "exact", "every2"])
-def test_without_carving_nothing_is_carved_and_the_evidence_is_that_of_processing_in_full(skips):
+def test_without_carving_nothing_is_carved_and_the_evidence_is_that_of_processing_in_full(skips, learned):
     grid, frames = _episode_frames(1, 12)
-    full = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter(), skips=skips)
-    ablated = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter(), skips=replace(skips, carving=True))
+    full = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter() if learned else None, skips=skips)
+    ablated = SpadProcessing(sensor=SENSOR, bp_filter=PoseDependentFilter() if learned else None,
+                             skips=replace(skips, carving=True))
     known = np.zeros(grid.shape, bool)
     rows, cols = np.indices(grid.shape)
     carved_any = np.zeros(grid.shape, bool)

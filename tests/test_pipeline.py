@@ -17,7 +17,6 @@ from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer, make_sensing
-from superex_deploy.commands.recorded_config import previous_planner_options
 from superex_deploy.sim.episode import run_episode
 from superex_deploy.sim.oracle import OraclePredictor
 
@@ -166,31 +165,10 @@ def test_a_retired_scan_matching_option_is_refused_by_name(field):
     assert not hasattr(ScanMatchingConfig(), field)
 
 
-def _old_recording(tmp_path, record_episode, scan_matching_extra: dict, planner_options: dict):
-    """A short recording whose metadata is written as a version before the retirement wrote it: the scan matcher's
-    retired fields in its explorer configuration, and retired planner options; its planner ran the defaults of
-    then (``PREVIOUS_DEFAULTS``), which the metadata does not name."""
-    from superex_deploy.sim.episode import make_world_and_explorer
-
-    grid = load_map(MAP)
-    cfg = PROFILES["full"].episode_config(iou_every=0)
-    explorer_cfg = asdict(cfg.explorer)
-    explorer_cfg["scan_matching"].update(scan_matching_extra)
-    metadata = {"map": MAP, "planner": "superex", "planner_options": planner_options, "predictor": "observed",
-                "seed": 0, "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": explorer_cfg,
-                "profile": "full", "profile_settings": PROFILES["full"].to_json()}
-    path = tmp_path / "old.mcap"
-    world, explorer = make_world_and_explorer(grid, start_poses(MAP)[1],
-                                              make_planner("superex", **previous_planner_options("superex", {})),
-                                              ObservedAsPrediction(), 0, cfg)
-    goals = record_episode(path, world, explorer, metadata)
-    return path, goals
-
-
-def test_a_recording_made_before_the_retirement_replays(tmp_path, record_episode):
+def test_a_recording_made_before_the_retirement_replays(tmp_path, old_recording):
     old_defaults = dict(ScanMatchingConfig.RETIRED)
-    path, goals = _old_recording(tmp_path, record_episode, old_defaults,
-                                 {"choice": "greedy", "candidates": 5, "n_rays": 250})
+    path, goals = old_recording(tmp_path / "old.mcap", 1, {"choice": "greedy", "candidates": 5, "n_rays": 250},
+                                old_defaults)
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
     assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals
@@ -200,9 +178,9 @@ def test_a_recording_made_before_the_retirement_replays(tmp_path, record_episode
     ({"match_sigma_cells": 0.3}, {}, "ScanMatchingConfig: the option 'match_sigma_cells' was retired"),
     ({}, {"choice": "rollout"}, "SuperexConfig: the option 'choice' was retired"),
 ])
-def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, record_episode, scan_matching,
+def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, old_recording, scan_matching,
                                                                      options, named):
-    path, _ = _old_recording(tmp_path, record_episode, scan_matching, options)
+    path, _ = old_recording(tmp_path / "old.mcap", 1, options, scan_matching)
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 2
     err = capsys.readouterr().err
     assert named in err and "cannot be rebuilt" in err

@@ -8,10 +8,8 @@ from dataclasses import asdict
 import pytest
 
 from superex_deploy.cli import main
-from superex_deploy.maps import load_map, start_poses
 from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
 from superex_deploy.onboard.nlos import NlosConfig
-from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import PROFILES
 from superex_deploy.commands.recorded_config import (PREVIOUS_DEFAULTS, planner_settings,
                                                      previous_planner_options)
@@ -33,23 +31,6 @@ def test_the_previous_defaults_are_those_that_changed():
 
 # Recordings.
 
-def _old_recording(tmp_path, record_episode):
-    """A recording of the superex planner at the defaults before 0.2, its metadata as a version of then wrote it:
-    the options given (none), no ``planner_config``. From start 2 the new defaults choose another first goal."""
-    from superex_deploy.sim.episode import make_world_and_explorer
-
-    grid = load_map(MAP)
-    cfg = PROFILES["full"].episode_config(iou_every=0)
-    metadata = {"map": MAP, "planner": "superex", "planner_options": {}, "predictor": "observed", "seed": 0,
-                "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": asdict(cfg.explorer),
-                "profile": "full", "profile_settings": PROFILES["full"].to_json()}
-    path = tmp_path / "old.mcap"
-    world, explorer = make_world_and_explorer(grid, start_poses(MAP)[2], make_planner("superex", **OLD_SUPEREX),
-                                              ObservedAsPrediction(), 0, cfg)
-    goals = record_episode(path, world, explorer, metadata)
-    return path, goals
-
-
 def _replayed_goals(metadata, recording) -> list:
     from superex_deploy.commands.replay import build_explorer
 
@@ -62,11 +43,11 @@ def _replayed_goals(metadata, recording) -> list:
     return goals
 
 
-def test_a_recording_made_with_the_defaults_before_replays_with_them(tmp_path, record_episode):
+def test_a_recording_made_with_the_defaults_before_replays_with_them(tmp_path, old_recording):
     from superex_deploy.commands.replay import build_explorer
     from superex_deploy.recording import read_recording
 
-    path, goals = _old_recording(tmp_path, record_episode)
+    path, goals = old_recording(tmp_path / "old.mcap", 2)  # from start 2 the new defaults choose another first goal
     recording = read_recording(path)
     assert "planner_config" not in recording.metadata and recording.metadata["planner_options"] == {}
     with build_explorer(recording.metadata, recording.frame) as explorer:

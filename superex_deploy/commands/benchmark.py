@@ -96,9 +96,7 @@ def settings_as_now(recorded, new: dict):
     episodes ran (where ``new`` holds them): the options given, the other fields at the defaults of the versions
     before 0.2 (:mod:`~superex_deploy.commands.recorded_config`). Anything else as recorded (what differs is then
     named)."""
-    from superex_deploy.commands.recorded_config import (default_sensing_settings, planner_settings,
-                                                         previous_planner_options)
-    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.commands.recorded_config import default_planner_settings, default_sensing_settings
 
     if not isinstance(recorded, dict) or not isinstance(recorded.get("planners"), list):
         return recorded
@@ -107,8 +105,7 @@ def settings_as_now(recorded, new: dict):
     if "planner_configs" in new and "planner_configs" not in recorded and isinstance(options, dict):
         try:
             recorded["planner_configs"] = json.loads(json.dumps({
-                name: planner_settings(make_planner(name, **previous_planner_options(name, options)))
-                for name in recorded["planners"]}))
+                name: default_planner_settings(name, options, previous=True) for name in recorded["planners"]}))
         except (TypeError, ValueError):
             pass  # left out: the comparison names it
     if "sensing" in new and "sensing" not in recorded and isinstance(recorded.get("spad"), bool):

@@ -69,14 +69,13 @@ def recording_metadata(grid, args, options: dict, planner, sensing, explorer_cfg
     None (recorded in full under ``sensor`` and ``nlos``)."""
     from dataclasses import asdict
 
-    from superex_deploy.commands.recorded_config import planner_settings
+    from superex_deploy.commands.recorded_config import planner_settings, sensing_settings
 
     return {"map": grid.name, "planner": args.planner, "planner_options": options,
             "planner_config": planner_settings(planner), "predictor": args.predictor,
             "seed": args.seed, "spad": sensing is not None,
             "models": None if args.models is None else str(Path(args.models).resolve()),
-            "sensor": None if sensing is None else asdict(sensing.spad),
-            "nlos": None if sensing is None else asdict(sensing.nlos_cfg),
+            **(sensing_settings(sensing) or {"sensor": None, "nlos": None}),
             "explorer": asdict(explorer_cfg), "profile": args.profile,
             "profile_settings": PROFILES[args.profile].to_json()}
 

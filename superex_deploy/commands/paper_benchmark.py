@@ -43,31 +43,23 @@ CEILING_REFERENCE = "mapex_observed"
 """The altered suite also pairs every row against this one: the oracle ceiling's baseline."""
 
 
-def _row_setting(setting: dict, name: str) -> dict:
+def _row_setting(setting: dict, name: str, previous: bool = False) -> dict:
     """``setting`` with what row ``name`` runs in full: its planner's whole configuration (``planner_config``) and
-    its SPAD sensing's (``sensing``, None without)."""
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings
+    its SPAD sensing's (``sensing``, None without); ``previous``: those of the defaults before 0.2."""
+    from superex_deploy.commands.recorded_config import default_planner_settings, default_sensing_settings
 
     row = PAPER_ROWS[name]
-    return json.loads(json.dumps({**setting, "planner_config": planner_settings(make_planner(row.planner)),
-                                  "sensing": default_sensing_settings() if row.spad else None}))
+    return json.loads(json.dumps({**setting, "planner_config": default_planner_settings(row.planner, previous=previous),
+                                  "sensing": default_sensing_settings(previous=previous) if row.spad else None}))
 
 
 def _row_setting_as_now(recorded, name: str):
     """A row's recorded setting in this version's form: one written before the settings held the planner's and the
     sensing's whole configurations gets those the row ran then, the defaults of the versions before 0.2
     (:mod:`superex_deploy.commands.recorded_config`); anything else as recorded."""
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings, previous_planner_options
-
     if not isinstance(recorded, dict) or "planner_config" in recorded:
         return recorded
-    row = PAPER_ROWS[name]
-    return json.loads(json.dumps({
-        **recorded, "planner_config": planner_settings(make_planner(row.planner,
-                                                                    **previous_planner_options(row.planner, {}))),
-        "sensing": default_sensing_settings(previous=True) if row.spad else None}))
+    return _row_setting(recorded, name, previous=True)
 
 
 def _same_protocol(recorded: dict, setting: dict) -> bool:
@@ -254,12 +246,11 @@ def run_paper(args: argparse.Namespace) -> int:
     for name in names:
         path, row_setting = rows_dir / f"{name}.json", _row_setting(setting, name)
         if path.is_file():
-            done = json.loads(path.read_text())
-            if _row_setting_as_now(done.get("setting"), name) == row_setting:
+            done = _row_setting_as_now(json.loads(path.read_text()).get("setting"), name)
+            if done == row_setting:
                 print(f"{name}: done already ({path})")
                 continue
-            _refuse_other_settings(path, _row_setting_as_now(done.get("setting"), name), row_setting,
-                                   "move it away or choose another --out")
+            _refuse_other_settings(path, done, row_setting, "move it away or choose another --out")
         try:
             episodes = _run_row(name, args, maps, rows_dir, row_setting, backend)
         except Interrupted as stop:

@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import asdict, replace
 from typing import Optional
 
-__all__ = ["PREVIOUS_DEFAULTS", "planner_settings", "previous_planner_options", "previous_sensing",
-           "sensing_settings", "default_sensing_settings"]
+__all__ = ["PREVIOUS_DEFAULTS", "planner_settings", "previous_planner_options", "default_planner_settings",
+           "previous_sensing", "sensing_settings", "default_sensing_settings"]
 
 PREVIOUS_DEFAULTS: dict = {
     "planners": {"superex": {"gain": "path", "transmittance": "independent"}},
@@ -48,6 +48,16 @@ def previous_planner_options(name: str, options: dict) -> dict:
     its user gave), with the fields whose default changed since at their previous default
     (:data:`PREVIOUS_DEFAULTS`): what rebuilds the planner that run used."""
     return {**PREVIOUS_DEFAULTS["planners"].get(name, {}), **options}
+
+
+def default_planner_settings(name: str, options: Optional[dict] = None, previous: bool = False) -> dict:
+    """:func:`planner_settings` of planner ``name`` built with ``options`` (the user's; None: none) and this
+    version's defaults otherwise; ``previous``: the defaults of the versions before 0.2
+    (:func:`previous_planner_options`), what a run ran before it recorded its planner's configuration."""
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    options = dict(options or {})
+    return planner_settings(make_planner(name, **(previous_planner_options(name, options) if previous else options)))
 
 
 def sensing_settings(sensing) -> Optional[dict]:

@@ -15,8 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=non_negative_int, default=0,
                         help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="robot cell instead of --start")
-    parser.add_argument("--secondary", type=positive_int, default=None,
-                        help=f"secondary rays per wall hit (default: the sensor model's, {SpadConfig.n_secondary})")
+    parser.add_argument("--secondary", type=positive_int, default=SpadConfig.n_secondary,
+                        help="secondary rays per wall hit (default: the sensor model's, %(default)s)")
     parser.add_argument("--noise", action="store_true", help="Poisson, ambient, dark counts and timing jitter")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="noise seed")
     parser.add_argument("--out", required=True, type=Path, help="output directory")
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     grid = load_map(args.map)
     pose = resolve_start(args.map, grid, args.start, args.pose, require_valid=False, seed=args.seed,
                          command="superex scan")
-    cfg = SpadConfig(n_secondary=args.secondary or SpadConfig.n_secondary, noise=SpadNoise(enabled=args.noise))
+    cfg = SpadConfig(n_secondary=args.secondary, noise=SpadNoise(enabled=args.noise))
     scan = simulate_scan(grid, pose, cfg, rng=np.random.default_rng(args.seed) if args.noise else None)
     seen_free = np.zeros(grid.shape, bool)
     seen_wall = np.zeros(grid.shape, bool)

@@ -16,11 +16,12 @@ from superex_deploy.evaluation.episodes import EpisodeRun, run_benchmark_episode
 from superex_deploy.evaluation.metrics import (bootstrap_interval, coverage_at, coverage_auc, coverage_curve,
                                                first_half_auc, iou_at_coverage, mean_with_interval, scenario_key,
                                                scenario_metrics)
-from superex_deploy.evaluation.reports import markdown_table, save_figure, write_json, write_text
+from superex_deploy.evaluation.reports import markdown_table, read_json, save_figure, write_json, write_text
 from superex_deploy.evaluation.scenarios import (HELDOUT_BUILDINGS, Scenario, altered_scenarios, eval_scenarios,
                                                  heldout_scenarios, train_scenarios)
 
 __all__ = ["EpisodeRun", "run_benchmark_episode", "bootstrap_interval", "coverage_at", "coverage_auc",
            "coverage_curve", "first_half_auc", "iou_at_coverage", "mean_with_interval", "scenario_key",
-           "scenario_metrics", "markdown_table", "save_figure", "write_json", "write_text", "HELDOUT_BUILDINGS",
-           "Scenario", "altered_scenarios", "eval_scenarios", "heldout_scenarios", "train_scenarios"]
+           "scenario_metrics", "markdown_table", "read_json", "save_figure", "write_json", "write_text",
+           "HELDOUT_BUILDINGS", "Scenario", "altered_scenarios", "eval_scenarios", "heldout_scenarios",
+           "train_scenarios"]

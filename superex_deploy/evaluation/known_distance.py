@@ -27,7 +27,8 @@ import numpy as np
 from scipy import ndimage
 
 __all__ = ["DISTANCE_BINS_M", "PROBABILITY_BINS", "NLL_EPSILON", "CalibrationCounts", "LatticeStrength",
-           "distance_to_known", "distance_bin_label", "counts_by_distance", "pool_counts", "lattice_strength"]
+           "distance_to_known", "distance_bin_label", "counts_by_distance", "pool_counts", "phase_means",
+           "LATTICE_MIN_CELLS", "lattice_strength"]
 
 DISTANCE_BINS_M: tuple[tuple[float, float], ...] = ((0.0, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf))
 """Distance bins, metres from the nearest known cell, ``low < d <= high`` (an unknown cell next to a known one is
@@ -210,6 +211,23 @@ class LatticeStrength(NamedTuple):
     cells: int
 
 
+LATTICE_MIN_CELLS = 1024
+"""Fewer cells than this in a region (16 a phase of a period-8 lattice) give no lattice measure in the model
+evaluations (``scripts/eval_models.py``, ``scripts/study_lattice.py``)."""
+
+
+def phase_means(values: np.ndarray, region: np.ndarray, period: int, offset: int = 0
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(means, counts)``, float64 and int64 ``[period * period]``: the mean of ``values`` (``[H, W]``) over the
+    bool ``[H, W]`` ``region`` per phase ``((r - offset) mod period, (c - offset) mod period)`` of cell ``(r, c)``,
+    index ``row_phase * period + col_phase``, and the region's cells per phase (a phase without one: mean 0)."""
+    rows, cols = np.nonzero(region)
+    phase = ((rows - offset) % period) * period + (cols - offset) % period
+    counts = np.bincount(phase, minlength=period * period)
+    sums = np.bincount(phase, np.asarray(values, np.float64)[rows, cols], minlength=period * period)
+    return sums / np.maximum(counts, 1), counts
+
+
 def lattice_strength(probability: np.ndarray, region: np.ndarray, period: int) -> LatticeStrength:
     """:class:`LatticeStrength` of ``probability`` (float ``[H, W]``) over the bool ``[H, W]`` ``region``.
 
@@ -230,9 +248,7 @@ def lattice_strength(probability: np.ndarray, region: np.ndarray, period: int) -
     if rows.size == 0:
         raise ValueError("the region has no cell")
     values = probability[rows, cols]
-    phase = (rows % period) * period + cols % period
-    counts = np.bincount(phase, minlength=period * period)
-    means = np.bincount(phase, values, minlength=period * period) / np.maximum(counts, 1)
+    means, counts = phase_means(probability, region, period)
     centre = values.mean()
     total = float(((values - centre) ** 2).sum())
     between = float((counts * (means - centre) ** 2).sum())

@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     if args.model == "calibrate":
-        from superex_train.calibration import CalibrationConfig, calibration_maps, calibrate
+        from superex_train.calibration import CalibrationConfig, calibration_maps, calibrate, read_calibration
 
         if args.max_maps < 0:
             raise ValueError(f"--max-maps must be >= 0, got {args.max_maps}")
@@ -144,8 +144,6 @@ def run(args: argparse.Namespace) -> int:
         cfg = CalibrationConfig(maps=maps[:args.max_maps] if args.max_maps else maps, steps=args.steps,
                                 seed=args.seed)
         kinds = [ModelKind.LAMA_BP if k == "bp" else ModelKind.LAMA_LOS for k in args.kinds]
-        from superex_train.calibration import read_calibration
-
         keep = read_calibration(args.keep_from) if args.keep_from is not None else None
         result = calibrate(kinds, args.models or DEFAULT_MODEL_DIR, cfg, args.jobs, args.out, keep=keep)
         for kind, fit in result.items():

@@ -181,7 +181,11 @@ class LamaEnsemble:
     def predict(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> Prediction:
         """Mean and variance over the members (see the class docstring). ``observed`` int8 ``[H, W]``;
         ``extra`` float32 ``[H, W]`` filtered back-projection (LAMA_BP: required; LAMA_LOS: ignored)."""
-        members = self.predict_members(observed, extra)
+        return self.combine(self.predict_members(observed, extra), observed)
+
+    def combine(self, members: np.ndarray, observed: np.ndarray) -> Prediction:
+        """The prediction of the members' outputs ``members`` (float32 ``[M, H, W]``, :meth:`predict_members`) on
+        ``observed`` (int8 ``[H, W]``): their mean and variance, the known cells kept where ``keep_observed``."""
         mean = members.mean(axis=0)
         variance = members.var(axis=0)
         if self.keep_observed:
