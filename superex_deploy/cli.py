@@ -25,6 +25,8 @@ COMMANDS = {
     "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
     "replay": "Rerun the onboard explorer on a recorded episode (MCAP) and compare its goals",
     "offline": "Run the explorer open-loop on a robot's bag (ROS 1, ROS 2 or MCAP): map, goals, finished, timings",
+    "node": "Run the ROS 2 exploration node on DDS (no ROS install): map, scans, tf in; Nav2 goals out",
+    "robot-sim": "Run a simulated ROS 2 robot on DDS (LiDAR, SLAM stand-in, Nav2-like follower) for superex node",
     "warmup": "Compile the numba kernels once (cached on disk) and check the models load",
 }
 
@@ -33,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="superex", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for name, help_text in COMMANDS.items():
-        module = importlib.import_module(f"superex_deploy.commands.{name}")
+        module = importlib.import_module(f"superex_deploy.commands.{name.replace('-', '_')}")
         command_parser = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(command_parser)
         command_parser.set_defaults(_module=module)
@@ -93,7 +95,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"superex {args.command}: error: {error}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as error:
-        extra = {"torch": "train", "onnx": "train", "onnxscript": "train", "gymnasium": "gym"}.get(
+        extra = {"torch": "train", "onnx": "train", "onnxscript": "train", "gymnasium": "gym",
+                 "cyclonedds": "ros2"}.get(
             (error.name or "").split(".")[0])
         if extra is None:
             raise

@@ -812,3 +812,74 @@ def naive_in_frame(message, frame):
             if 0 <= i < message.width and 0 <= j < message.height:
                 out[top, c] = grid[j, i]
     return out.astype(np.int8)
+
+
+# --- ros.tf (transforms as 4 x 4 matrices, rotations by Rodrigues' formula, the tree walked from the root) ---
+
+
+def naive_rotation_matrix(q):
+    """ros.tf.Transform.matrix's rotation: the unit quaternion ``(x, y, z, w)`` as an axis and an angle, turned into a
+    3 x 3 matrix by Rodrigues' formula."""
+    q = np.asarray(q, np.float64) / np.linalg.norm(q)
+    s = np.linalg.norm(q[:3])
+    if s == 0.0:
+        return np.eye(3)
+    ax, ay, az = q[:3] / s
+    angle = 2.0 * np.arctan2(s, q[3])
+    k = np.array([[0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def naive_quaternion_product(a, b):
+    """The quaternion ``a b`` in ``(x, y, z, w)`` order: the 4 x 4 left-multiplication matrix of ``a`` times ``b``."""
+    x, y, z, w = a
+    left = np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
+    return left @ np.asarray(b, np.float64)
+
+
+def naive_slerp(q1, q2, ratio):
+    """ros.tf.Transform.interpolate's rotation: ``q1`` turned by ``ratio`` of the relative rotation
+    ``conj(q1) q2``, whose angle is taken in [0, pi] (the shorter arc), about the same axis."""
+    q1 = np.asarray(q1, np.float64) / np.linalg.norm(q1)
+    q2 = np.asarray(q2, np.float64) / np.linalg.norm(q2)
+    relative = naive_quaternion_product(q1 * np.array([-1.0, -1.0, -1.0, 1.0]), q2)
+    if relative[3] < 0.0:
+        relative = -relative
+    s = np.linalg.norm(relative[:3])
+    if s == 0.0:
+        return q1
+    angle = 2.0 * np.arctan2(s, relative[3]) * ratio
+    step = np.append(relative[:3] / s * np.sin(angle / 2.0), np.cos(angle / 2.0))
+    return naive_quaternion_product(q1, step)
+
+
+def naive_link_matrix(samples, stamp):
+    """One link of ros.tf.TfBuffer at ``stamp``: ``samples`` is a list of ``(stamp, translation, quaternion)``; the
+    sample at the stamp, else the two around it interpolated (translation lerp, :func:`naive_slerp`), as a 4 x 4."""
+    samples = sorted(samples, key=lambda sample: sample[0])
+    out = np.eye(4)
+    for k, (t0, p0, q0) in enumerate(samples):
+        if t0 == stamp or len(samples) == 1:
+            out[:3, :3], out[:3, 3] = naive_rotation_matrix(q0), p0
+            return out
+        t1, p1, q1 = samples[k + 1]
+        if t0 < stamp < t1:
+            ratio = (stamp - t0) / (t1 - t0)
+            out[:3, :3] = naive_rotation_matrix(naive_slerp(q0, q1, ratio))
+            out[:3, 3] = (1.0 - ratio) * np.asarray(p0, np.float64) + ratio * np.asarray(p1, np.float64)
+            return out
+    raise ValueError(f"no sample around {stamp}")
+
+
+def naive_lookup(links, target, source, stamp):
+    """ros.tf.TfBuffer.lookup on a fixed tree: ``links`` maps each child to ``(parent, samples)`` (samples as
+    :func:`naive_link_matrix` takes them; one sample for a static link); every frame's pose in its root is the
+    product of its links' matrices from the root down, and the result is ``inv(target's) @ source's`` (4 x 4)."""
+    def in_root(frame):
+        pose = np.eye(4)
+        while frame in links:
+            parent, samples = links[frame]
+            pose = naive_link_matrix(samples, stamp) @ pose
+            frame = parent
+        return pose
+    return np.linalg.inv(in_root(target)) @ in_root(source)

@@ -57,7 +57,9 @@ def test_finished_means_a_known_map_without_a_reachable_frontier():
     explorer = Explorer(MapFrame((20, 20), 0.1), make_planner("nearest"), ObservedAsPrediction())
     scan = LaserScan(0.0, 2 * math.pi / 1440, 0.1, 20.0, np.full(1440, np.inf, np.float32))
     command = explorer.step(Observation(0.0, Pose2D(1.0, 1.0), scan))
-    assert command.finished and command.goal_rc is None and explorer.mapper.known().all()
+    assert not command.finished and command.goal_rc is None and explorer.mapper.known().all()  # 5 s to wait
+    command = explorer.step(Observation(5.0, Pose2D(1.0, 1.0), scan))
+    assert command.finished and command.goal_rc is None
 
 
 @FUZZ

@@ -43,7 +43,7 @@ def test_a_signal_inside_a_deferred_block_is_handled_when_it_ends():
 def test_every_command_stopped_by_a_signal_says_so_in_one_line(monkeypatch, capsys, tmp_path, command, signum):
     import importlib
 
-    module = importlib.import_module(f"superex_deploy.commands.{command}")
+    module = importlib.import_module(f"superex_deploy.commands.{command.replace('-', '_')}")
 
     def interrupted_run(args):
         os.kill(os.getpid(), signum)
@@ -53,7 +53,7 @@ def test_every_command_stopped_by_a_signal_says_so_in_one_line(monkeypatch, caps
     monkeypatch.setattr(module, "run", interrupted_run)
     argv = {"scan": ["--map", MAP, "--out", str(tmp_path)], "explore": ["--map", MAP, "--out", str(tmp_path)],
             "benchmark": ["--out", str(tmp_path)], "replay": ["x.mcap", "--out", str(tmp_path)], "warmup": [],
-            "offline": ["x.bag", "--out", str(tmp_path)]}[command]
+            "offline": ["x.bag", "--out", str(tmp_path)], "node": [], "robot-sim": ["--map", MAP]}[command]
     handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     assert main([command, *argv]) == CODES[signum]
     err = capsys.readouterr().err

@@ -22,7 +22,7 @@ from superex_deploy.onboard.planning.goal_policy import GoalPolicy, GoalTracker
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.status import (ALL_BLACKLISTED, BACK_AT_START, NO_FRONTIER, NO_MEASUREMENT,
-                                           OUTSIDE_BOUNDS, START_UNREACHABLE, Mission)
+                                           NO_PROGRESS_HOME, OUTSIDE_BOUNDS, START_UNREACHABLE, Mission)
 from superex_deploy.onboard.types import Frontier
 from tests.test_cli_arguments import refused
 
@@ -72,7 +72,11 @@ def test_frontiers_outside_the_bounds_are_not_chosen():
 
 
 def test_a_region_without_frontiers_inside_is_done_and_says_why():
-    command = _step(_explorer(bounds=((2.0, 3.0), (5.0, 3.0), (5.0, 5.0), (2.0, 5.0))), _corridor(), 0)
+    explorer = _explorer(bounds=((2.0, 3.0), (5.0, 3.0), (5.0, 5.0), (2.0, 5.0)))
+    command = _step(explorer, _corridor(), 0)
+    assert command.goal_rc is None and not command.finished  # the default finish delay, 5 s, first
+    assert (command.status, command.reason) == (NO_REACHABLE_FRONTIER, OUTSIDE_BOUNDS)
+    command = _step(explorer, _corridor(), 5.0)
     assert command.goal_rc is None and command.finished
     assert (command.status, command.reason) == (DONE, OUTSIDE_BOUNDS)
 
@@ -141,7 +145,7 @@ def test_an_episode_in_bounds_reports_coverage_inside_them_and_ends_when_they_ar
     free = run_episode(grid, (5, 5), make_planner("nearest"), ObservedAsPrediction(), steps=300,
                        cfg=ExplorationConfig(iou_every=0))
     bounded = run_episode(grid, (5, 5), make_planner("nearest"), ObservedAsPrediction(), steps=300,
-                          cfg=ExplorationConfig(explorer=ExplorerConfig(bounds=left), iou_every=0))
+                          cfg=ExplorationConfig(explorer=ExplorerConfig(bounds=left).for_simulation(), iou_every=0))
     assert free.coverage_in_bounds is None and "coverage_in_bounds" not in free.to_json()
     assert bounded.finished and bounded.status == DONE and bounded.reason == OUTSIDE_BOUNDS
     assert bounded.steps < free.steps and bounded.coverage[-1] < free.coverage[-1]
@@ -160,7 +164,7 @@ def test_the_robot_returns_to_its_start_and_says_so(two_rooms):
 
     statuses = []
     start = (5, 5)
-    cfg = ExplorationConfig(explorer=ExplorerConfig(return_to_start=True), iou_every=0)
+    cfg = ExplorationConfig(explorer=ExplorerConfig(return_to_start=True).for_simulation(), iou_every=0)
     result = run_episode(two_rooms(), start, make_planner("nearest"), ObservedAsPrediction(), steps=500, cfg=cfg,
                          on_observation=lambda obs, command, explorer: statuses.append(
                              (command.status, command.finished)))
@@ -176,18 +180,37 @@ def test_the_robot_returns_to_its_start_and_says_so(two_rooms):
     assert np.hypot(*(away.poses[-1] - np.array(start))) > reach and away.steps < result.steps
 
 
-def test_a_start_no_path_reaches_ends_the_return_at_once():
-    explorer = _explorer(return_to_start=True)
+def test_a_start_cut_off_is_tried_again_and_given_up_only_after_the_progress_timeout():
+    # 0.2.0 ended the mission for good at the first map that cut the start off (a SLAM map restarting).
+    explorer = _explorer(return_to_start=True, finish_after_s=0.0, goal_policy=GoalPolicy(no_progress_s=5.0))
     assert _step(explorer, _corridor(), 0, pose_rc=(40, 20)).status == EXPLORING
     walled = _closed_room()
     walled[36:45, 30] = 100  # the start (column 20) cut off from the robot (column 60)
     command = _step(explorer, walled, 1, pose_rc=(40, 60))
+    assert (command.status, command.reason, command.finished, command.goal_rc) == (RETURNING, START_UNREACHABLE,
+                                                                                     False, None)
+    command = _step(explorer, _closed_room(), 2, pose_rc=(40, 60))  # the next map: reachable again
+    assert (command.status, command.reason, command.finished) == (RETURNING, "", False)
+    assert command.goal_rc == FRAME.cell_of(*FRAME.centre_xy((40, 20)))
+    for t in (3, 7):  # cut off from t = 3 on: given up 5 s later
+        command = _step(explorer, walled, t, pose_rc=(40, 60))
+    assert (command.status, command.reason, command.finished) == (RETURNING, START_UNREACHABLE, False)
+    command = _step(explorer, walled, 8, pose_rc=(40, 60))
     assert (command.status, command.reason, command.finished, command.goal_rc) == (DONE, START_UNREACHABLE, True,
                                                                                      None)
 
 
+def test_a_return_without_progress_is_given_up():
+    # 0.2.0: a robot that makes no progress while returning stayed `returning` for ever.
+    explorer = _explorer(return_to_start=True, finish_after_s=0.0, goal_policy=GoalPolicy(no_progress_s=5.0))
+    _step(explorer, _corridor(), 0, pose_rc=(40, 20))
+    statuses = [_step(explorer, _closed_room(), t, pose_rc=(40, 60)) for t in range(1, 8)]
+    assert [c.status for c in statuses[:5]] == [RETURNING] * 5 and statuses[0].goal_rc is not None
+    assert (statuses[5].status, statuses[5].reason, statuses[5].finished) == (DONE, NO_PROGRESS_HOME, True)
+
+
 def test_the_status_goes_from_waiting_for_a_scan_to_exploring_to_done():
-    explorer = _explorer()
+    explorer = _explorer(finish_after_s=0.0)
     pose = Pose2D(*FRAME.centre_xy((40, 30)), 0.0)
     invalid = LaserScan(0.0, 2 * np.pi / 90, 0.1, 4.0, np.full(90, np.nan))
     command = explorer.step(Observation(0.0, pose, invalid))
@@ -228,9 +251,11 @@ def test_a_goal_without_progress_is_blacklisted_after_the_timeout_and_another_is
 
 def test_every_frontier_blacklisted_is_said():
     explorer = _explorer(bounds=EAST_ONLY, goal_policy=GoalPolicy(no_progress_s=2.0))
-    commands = [_step(explorer, _corridor(), t) for t in range(3)]
+    commands = [_step(explorer, _corridor(), t) for t in range(8)]  # blacklisted at t = 2, done 5 s later
     assert commands[0].goal_rc[1] >= 68 and commands[2].goal_rc is None
-    assert (commands[2].status, commands[2].reason) == (DONE, ALL_BLACKLISTED)
+    assert (commands[2].status, commands[2].reason) == (NO_REACHABLE_FRONTIER, ALL_BLACKLISTED)
+    assert (commands[6].status, commands[7].status, commands[7].reason) == (NO_REACHABLE_FRONTIER, DONE, ALL_BLACKLISTED)
+    assert len(explorer.mission.tracker.blacklist) == 1
 
 
 @pytest.mark.parametrize("blacklist_unreachable", [False, True])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import load_map, start_poses
-from superex_deploy.messages import LaserScan, MapFrame, Observation, Pose2D
+from superex_deploy.messages import NO_REACHABLE_FRONTIER, LaserScan, MapFrame, Observation, Pose2D
 from superex_deploy.onboard import Explorer
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.planning.planners import NearestFrontier
@@ -88,7 +88,8 @@ def test_frontier_candidates_drop_regions_reached_already_and_goals_visited_befo
     # The last resort: the explorer drives onto the goal cell; reached there, the region stays (nothing new seen).
     assert command.goal_rc == ring.cell_rc
     command = explorer.step(_disc_observation(frame, ring.cell_rc, 0.02, step=1))
-    assert explorer.visited_goals == {ring.cell_rc} and command.finished
+    assert explorer.visited_goals == {ring.cell_rc} and command.goal_rc is None
+    assert not command.finished and command.status == NO_REACHABLE_FRONTIER  # until the finish delay, 5 s
     assert [f.cell_rc for f in find_frontiers(explorer.observed, 1)] == [ring.cell_rc]
     assert explorer.frontier_candidates(far) == ()  # a goal visited before is not offered again
 

@@ -21,8 +21,10 @@ LAYERS = (
     ("base", ("superex_deploy",)),  # geometry, messages, maps, spad_types, parallel, files, ...
     ("onboard", ("superex_deploy.onboard",)),
     ("recording", ("superex_deploy.recording",)),
+    ("ros 2 wire", ("superex_deploy.ros",)),  # messages over DDS, QoS, transforms, the node's parameters
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
+    ("ros 2 node", ("superex_deploy.ros.core", "superex_deploy.ros.node")),  # builds its explorer by the pipeline
     ("gym env", ("superex_deploy.gym_env",)),  # builds its explorer with pipeline.build_explorer
     ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
     ("commands", ("superex_deploy.commands",)),

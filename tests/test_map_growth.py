@@ -20,7 +20,9 @@ GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)
 
 
 def _explorer(frame, **cfg) -> Explorer:
-    return Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=ExplorerConfig(**cfg))
+    """The simulated benchmarks' explorer (finished at the first step without a goal)."""
+    return Explorer(frame, make_planner("nearest"), ObservedAsPrediction(),
+                    cfg=ExplorerConfig(**cfg).for_simulation())
 
 
 def _in_frame(observed: np.ndarray, frame: MapFrame, target: MapFrame) -> np.ndarray:

@@ -127,7 +127,7 @@ def test_a_phantom_wall_under_the_robot_does_not_end_exploration(clearing):
     walls[13:17, 30] = False  # a door to an unseen room
     grid = OccupancyGrid(walls, ~walls, 0.1, "two rooms")
     world = World(grid, (15, 10))
-    cfg = ExplorerConfig(occupancy=OccupancyConfig(footprint_clearing=clearing))
+    cfg = ExplorerConfig(occupancy=OccupancyConfig(footprint_clearing=clearing)).for_simulation()
     explorer = Explorer(world.frame, NearestFrontier(), ObservedAsPrediction(), cfg=cfg)
     obs = world.observe()
     assert not explorer.step(obs).finished

@@ -90,20 +90,21 @@ def test_every_entry_point_defaults_to_the_one_default_profile(tmp_path):
     assert main(["explore", "--map", MAP, "--steps", "2", "--gif-every", "0", "--out", str(out)]) == 0
     explored = json.loads((out / "metrics.json").read_text())
     assert explored["profile"] == DEFAULT_PROFILE
-    assert explored["config"]["explorer"] == json.loads(json.dumps(asdict(PROFILES[DEFAULT_PROFILE].explorer_config())))
+    assert explored["config"]["explorer"] == json.loads(json.dumps(asdict(
+        PROFILES[DEFAULT_PROFILE].explorer_config().for_simulation())))
 
     task = ScenarioTask(map_name=MAP, start_index=0, start_rc=start_poses(MAP)[0], planner="nearest",
                         predictor="observed", spad=False, steps=2, seed=0, iou_every=0)
     summary = run_scenario(task)
     assert summary["profile"] == DEFAULT_PROFILE
     assert summary["config"]["explorer"] == json.loads(json.dumps(
-        asdict(PROFILES[DEFAULT_PROFILE].explorer_config("simulated"))))
+        asdict(PROFILES[DEFAULT_PROFILE].explorer_config("simulated").for_simulation())))
 
     env = gym_env.ExplorationEnv(map=MAP, max_steps=5)
     try:
         env.reset(seed=0)
         assert env.profile == DEFAULT_PROFILE
-        assert env._explorer.cfg == PROFILES[DEFAULT_PROFILE].explorer_config("simulated")
+        assert env._explorer.cfg == PROFILES[DEFAULT_PROFILE].explorer_config("simulated").for_simulation()
     finally:
         env.close()
     # The paper suite names the profile its table was measured with.

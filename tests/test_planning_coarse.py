@@ -180,7 +180,8 @@ def _upsampled_rooms(k: int) -> OccupancyGrid:
 def test_an_explorer_on_a_fine_floor_plans_on_blocks_and_never_drives_through_a_wall(k):
     grid = _upsampled_rooms(k)
     world = World(grid, (10 * k, 10 * k))
-    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction())
+    explorer = Explorer(world.frame, make_planner("nearest"), ObservedAsPrediction(),
+                        cfg=ExplorerConfig().for_simulation())
     assert explorer.planning_grid.factor == k
     goals = 0
     for _ in range(120):

@@ -30,9 +30,10 @@ def test_a_profile_gives_the_explorer_and_episode_configurations():
     assert explorer.prediction is realtime.schedule and explorer.reuse is realtime.reuse
     assert explorer.motion == type(explorer)().motion
     episode = realtime.episode_config(iou_every=10, iou_dense_until=0.35)
-    assert episode.explorer == realtime.explorer_config("simulated") and episode.explorer.reuse is realtime.reuse
+    assert episode.explorer == realtime.explorer_config("simulated").for_simulation()
+    assert episode.explorer.reuse is realtime.reuse
     assert (episode.iou_every, episode.iou_dense_until) == (10, 0.35)
-    assert realtime.episode_config(clock="robot").explorer == explorer
+    assert realtime.episode_config(clock="robot").explorer == explorer.for_simulation()
     with pytest.raises(ValueError, match="clock must be 'robot' or 'simulated', got 'wall'"):
         realtime.explorer_config("wall")
 

@@ -314,7 +314,11 @@ def test_finished_waits_for_finish_after_s_without_a_frontier_and_restarts_when_
         assert command.goal_rc is None or grid is open_
 
 
-def test_by_default_finished_comes_at_the_first_step_without_a_frontier():
-    assert _map_step(_new(), _closed_room()).finished
+def test_by_default_finished_comes_five_seconds_after_the_last_frontier():
+    explorer = _new()
+    assert not _map_step(explorer, _closed_room(), stamp=0.0).finished
+    assert not _map_step(explorer, _closed_room(), stamp=4.9).finished
+    assert _map_step(explorer, _closed_room(), stamp=5.0).finished
+    assert _map_step(_new(cfg=ExplorerConfig().for_simulation()), _closed_room()).finished  # the simulated rule
     with pytest.raises(ValueError, match="finish_after_s must be a finite number of seconds >= 0"):
         ExplorerConfig(finish_after_s=-1.0)

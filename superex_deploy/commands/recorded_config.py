@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import asdict, replace
 from typing import Optional
 
-__all__ = ["PREVIOUS_DEFAULTS", "planner_settings", "previous_planner_options", "default_planner_settings",
+__all__ = ["PREVIOUS_DEFAULTS", "ADDED_EXPLORER_FIELDS", "recorded_explorer_fields", "planner_settings", "previous_planner_options", "default_planner_settings",
            "previous_sensing", "sensing_settings", "default_sensing_settings"]
 
 PREVIOUS_DEFAULTS: dict = {
@@ -33,6 +33,28 @@ fields (:class:`~superex_deploy.onboard.planning.planners.SuperexConfig`); the s
 (:class:`~superex_deploy.spad_types.SpadConfig`) and the NLOS processing's
 (:class:`~superex_deploy.onboard.nlos.NlosConfig`). What a run recorded before its full configuration was recorded
 used; a later change of a default adds its field here (with the value it had before)."""
+
+
+ADDED_EXPLORER_FIELDS: dict = {"finish_frontier_m": 0.0, "goal_policy": {"drop_resolved_m": None,
+                                                                         "confirm_visit_m": None}}
+"""Fields of :class:`~superex_deploy.onboard.config.ExplorerConfig` (and of its ``goal_policy``) added after 0.2.0, at
+the values that behave as the explorer did before them: a recording made then holds the whole configuration it ran
+but these (its ``finish_after_s`` counted goals of any size, and a goal was kept until reached)."""
+
+
+def recorded_explorer_fields(fields: dict) -> dict:
+    """A recording's ``explorer`` configuration (JSON values) with the fields added since it was made
+    (:data:`ADDED_EXPLORER_FIELDS`) filled in: what rebuilds the explorer it ran."""
+    fields = dict(fields)
+    for name, value in ADDED_EXPLORER_FIELDS.items():
+        if isinstance(value, dict):
+            if name not in fields:
+                fields[name] = dict(value)
+            elif isinstance(fields[name], dict):
+                fields[name] = {**value, **fields[name]}
+        else:
+            fields.setdefault(name, value)
+    return fields
 
 
 def planner_settings(planner) -> dict:

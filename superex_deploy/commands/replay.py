@@ -48,7 +48,7 @@ def build_explorer(metadata: dict, frame, models=None):
     from superex_deploy.onboard.nlos import NlosConfig
     from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.spad_types import SpadConfig, SpadNoise
-    from superex_deploy.commands.recorded_config import previous_planner_options
+    from superex_deploy.commands.recorded_config import previous_planner_options, recorded_explorer_fields
 
     try:
         planner_name, predictor_name = metadata["planner"], metadata["predictor"]
@@ -87,7 +87,8 @@ def build_explorer(metadata: dict, frame, models=None):
         raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     try:
         # A recording made before the settings counted in metres carries cell counts: converted with its grid.
-        explorer_fields = from_cells(ExplorerConfig, metadata["explorer"], frame.resolution_m)
+        explorer_fields = from_cells(ExplorerConfig, recorded_explorer_fields(metadata["explorer"]),
+                                     frame.resolution_m)
         schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
         reuse = PredictionReuse(**from_cells(PredictionReuse, explorer_fields.pop("reuse", {}), frame.resolution_m))
         if isinstance(explorer_fields.get("scan_matching"), dict):

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from superex_deploy.messages.frame import MapFrame
-from superex_deploy.messages.limits import check_finite, check_map_size, check_point_xy
+from superex_deploy.messages.limits import check_finite, check_map_size, check_point_xy, check_stamp
 
 __all__ = ["OccupancyGridMessage", "PoseCovariance", "OCCUPANCY_UNKNOWN", "SYMMETRY_RTOL", "same_resolution"]
 
@@ -33,6 +34,9 @@ resolution over the distance between the origins (see :meth:`OccupancyGridMessag
 
 
 _FLOAT32_EPS = float(np.finfo(np.float32).eps)
+
+ORIGIN_YAW_TOLERANCE = 1e-6
+"""The largest origin yaw (radians) an :class:`OccupancyGridMessage` accepts as unrotated."""
 
 
 def same_resolution(a_m: float, b_m: float) -> bool:
@@ -53,6 +57,12 @@ class OccupancyGridMessage:
             rotated origin is not supported: SLAM maps are published axis-aligned).
         data: int8 ``[height * width]``, row-major from the bottom row: ``-1`` unknown, ``0..100`` occupancy
             probability in percent.
+        stamp_s: the header's stamp (seconds), or None. The explorer takes a message as a new map when it is
+            another object with another stamp than the step before's (a robot hands the latest map to every step
+            until SLAM publishes the next: a goal reached on a map that has not changed since is not yet known to be
+            resolved).
+        origin_yaw: the yaw of ``info.origin`` (radians): only 0 (within 1e-6 rad) is accepted; a rotated map is
+            refused here, so that the API, ``superex offline`` and the node refuse it alike.
     """
 
     resolution_m: float
@@ -60,8 +70,18 @@ class OccupancyGridMessage:
     height: int
     origin_xy: tuple[float, float]
     data: np.ndarray
+    stamp_s: Optional[float] = None
+    origin_yaw: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.stamp_s is not None:
+            object.__setattr__(self, "stamp_s", check_stamp("occupancy grid stamp_s", self.stamp_s))
+        yaw = check_finite("occupancy grid origin_yaw", self.origin_yaw)
+        if abs(yaw) > ORIGIN_YAW_TOLERANCE:
+            raise ValueError(f"a SLAM map with a rotated origin is not supported (nav_msgs/OccupancyGrid info.origin "
+                             f"has a yaw of {yaw:.3g} rad): SLAM packages publish axis-aligned maps; publish the "
+                             f"map unrotated and put the rotation in the map frame's transform")
+        object.__setattr__(self, "origin_yaw", 0.0)
         resolution = check_finite("occupancy grid resolution_m", self.resolution_m)
         if resolution <= 0.0:
             raise ValueError(f"occupancy grid resolution_m must be positive, got {resolution}")
@@ -83,6 +103,20 @@ class OccupancyGridMessage:
         object.__setattr__(self, "resolution_m", resolution)
         object.__setattr__(self, "origin_xy", origin)
         object.__setattr__(self, "data", data)
+
+    def known_extent_xy(self) -> Optional[tuple[float, float, float, float]]:
+        """``(x_min, y_min, x_max, y_max)`` (metres, map frame) of the message's known cells (not -1), or None when
+        every cell is unknown; computed once. A gmapping-style map of a fixed 200 m square with a few metres known
+        grows a growing explorer to its known part only."""
+        if "_known_extent" not in self.__dict__:
+            known = (self.data != OCCUPANCY_UNKNOWN).reshape(self.height, self.width)
+            rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+            extent = None
+            if rows.size:
+                (x0, y0), res = self.origin_xy, self.resolution_m
+                extent = (x0 + cols[0] * res, y0 + rows[0] * res, x0 + (cols[-1] + 1) * res, y0 + (rows[-1] + 1) * res)
+            object.__setattr__(self, "_known_extent", extent)
+        return self.__dict__["_known_extent"]
 
     @classmethod
     def from_frame_grid(cls, frame: MapFrame, grid: np.ndarray) -> "OccupancyGridMessage":

@@ -88,6 +88,14 @@ class LaserScan:
         """float64 ``[n_rays]`` ray angles in the robot's frame (radians)."""
         return self.angle_min + np.arange(self.n_rays, dtype=np.float64) * self.angle_increment
 
+    def mirrored(self) -> "LaserScan":
+        """The scan as an upright sensor would report the same rays when this one is mounted upside down (rolled by
+        pi, its z axis pointing down): a ray at angle ``theta`` of the rolled sensor points along ``-theta`` of the
+        upright one, so the angles are negated (and, stored counter-clockwise, the ranges reversed), as
+        ``laser_geometry`` projects a rolled scanner. Twice mirrored is the scan itself."""
+        return LaserScan(angle_min=-self.angle_min, angle_increment=-self.angle_increment, range_min=self.range_min,
+                         range_max=self.range_max, ranges=self.ranges)
+
 
 @dataclass(frozen=True, eq=False)
 class SpadFrame:

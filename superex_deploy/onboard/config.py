@@ -3,7 +3,7 @@ each part's own frozen config (motion, prediction schedule and reuse, occupancy,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
@@ -54,11 +54,16 @@ class ExplorerConfig:
             frame around the start, e.g. :meth:`~superex_deploy.messages.MapFrame` of 10 m). Cells in commands
             (``goal_rc``, ``path_rc``) are then the grid's of that step (:attr:`Explorer.frame`); the map-frame
             fields (``goal_xy``, ``path_xy``) never move.
-        finish_after_s: how long (seconds, on the observations' clock) no reachable frontier must be left before a
-            step says ``finished`` (explore_lite's progress timeout). 0: at the first step without one, as the
-            simulated benchmarks run it (there a map never reopens by itself). A robot whose map is built from
-            noisy scans or a SLAM map that is still being corrected should give a few seconds: a doorway closed by
-            one noisy scan then reopens before exploration is declared over.
+        finish_after_s: how long (seconds, on the observations' clock) no reachable frontier region of at least
+            ``finish_frontier_m`` must have been left before a step says ``finished`` (explore_lite's progress
+            timeout); never while one is left. The default, 5 s, is what a robot needs: a SLAM map published every
+            few seconds, or a doorway closed by one noisy scan, reopens a frontier before exploration is declared
+            over. 0: at the first step without one (the simulated benchmarks: :meth:`for_simulation`).
+        finish_frontier_m: the smallest frontier region (its cells times the cell size, metres) that keeps a run
+            alive: smaller regions are still offered as goals (the last tiers) while the finish timer runs, but a
+            wall's face cell flickering through the unknown band of the log-odds map makes a region of one cell,
+            which would otherwise restart the timer for ever. 0: any goal keeps the run alive, and a goal found
+            in any tier does (the rule of the simulated benchmarks, whose maps never flicker).
         scan_matching: the correlative scan-to-map matcher
             (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatchingConfig`, on by default; it acts only on an
             observation that carries a pose covariance and a scan: the scan, the SPAD frame and the planning then
@@ -80,7 +85,8 @@ class ExplorerConfig:
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
     scan_matching: ScanMatchingConfig = field(default_factory=ScanMatchingConfig)
-    finish_after_s: float = 0.0
+    finish_after_s: float = 5.0
+    finish_frontier_m: float = 0.5
     growth: Optional[MapGrowth] = None
     bounds: Optional[ExplorationBounds] = None
     return_to_start: bool = False
@@ -107,6 +113,34 @@ class ExplorerConfig:
             raise ValueError(f"finish_after_s must be a finite number of seconds >= 0, got {self.finish_after_s!r}")
         object.__setattr__(self, "frontier_min_m", check_real("frontier_min_m", self.frontier_min_m, 0.0,
                                                               low_open=True))
+        object.__setattr__(self, "finish_frontier_m", check_real("finish_frontier_m", self.finish_frontier_m, 0.0))
+        if self.bounds is not None:
+            self.bounds.check_holds(self.motion.robot_radius_m)
+
+    def for_simulation(self) -> "ExplorerConfig":
+        """This configuration with the rules of the simulated benchmarks (:class:`~superex_deploy.sim.episode.
+        ExplorationConfig`'s default and every profile's episode configuration): ``finished`` at the first step
+        without a goal (``finish_after_s`` and ``finish_frontier_m`` 0), a locked goal kept until it is reached
+        (``goal_policy.drop_resolved_m`` None: MapEx's locked frontier) and given up once reached
+        (``goal_policy.confirm_visit_m`` None). There the pose is exact and the map is
+        made of exact scans every step: a frontier never flickers and a map is never stale, and the paper's
+        benchmark rows were measured so."""
+        return replace(self, finish_after_s=0.0, finish_frontier_m=0.0,
+                       goal_policy=replace(self.goal_policy, drop_resolved_m=None, confirm_visit_m=None))
+
+    @property
+    def simulated_rules(self) -> bool:
+        """Whether ``finished`` follows the simulated benchmarks' rule (``finish_frontier_m`` 0: any goal keeps the
+        run alive)."""
+        return self.finish_frontier_m == 0.0
+
+    def finish_frontier_cells(self, resolution_m: float) -> int:
+        """The fewest cells of a frontier region that keeps a run alive on a grid of ``resolution_m`` metres per cell
+        (``finish_frontier_m``; 0 when that is 0: any goal keeps it alive)."""
+        if self.finish_frontier_m == 0.0:
+            return 0
+        return max(1, cells_at_least(self.finish_frontier_m, check_real("resolution_m", resolution_m, 0.0,
+                                                                        low_open=True)))
 
     def frontier_min_cells(self, resolution_m: float) -> int:
         """The fewest cells of a frontier region offered in the first tier on a grid of ``resolution_m`` metres per

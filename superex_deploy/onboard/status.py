@@ -7,7 +7,10 @@ a ``reason`` (why no goal was given, empty while one is). The phases follow one 
 the map holds a known cell; ``exploring`` (or ``no_reachable_frontier`` while no goal has been found for less than
 ``finish_after_s``); then, with ``return_to_start``, ``returning`` along a path to the start pose (the first
 observation's) until within ``goal_reached_m`` of it; ``done`` last. Once returning, new frontiers are not explored
-again. A start no path reaches ends the return at once: ``done``, reason ``"start unreachable"``.
+again. A start no path reaches is tried again at every step (a SLAM map that restarts, a doorway closed by a noisy
+scan, reopen), with reason ``"start unreachable"`` and no goal; the return ends, ``done``, only once the start has
+been unreachable for ``goal_policy.no_progress_s``, or once the path to it has not become ``progress_m`` shorter
+for that long (reason ``"no progress towards the start"``); with ``no_progress_s`` None it never gives up.
 """
 
 from __future__ import annotations
@@ -18,14 +21,14 @@ import numpy as np
 
 from superex_deploy.messages import DONE, EXPLORING, NO_REACHABLE_FRONTIER, RETURNING, MapFrame
 from superex_deploy.onboard.config import ExplorerConfig
-from superex_deploy.onboard.planning.bounds import clip_frontiers
-from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.planning.bounds import clip_frontiers, reachable_goals
+from superex_deploy.onboard.planning.frontiers import find_frontiers, open_frontiers
 from superex_deploy.onboard.planning.goal_policy import GoalTracker, path_length_m
 from superex_deploy.onboard.planning.motion import path_is_clear, planning_map
 from superex_deploy.onboard.types import Frontier
 
 __all__ = ["Mission", "NO_MEASUREMENT", "NO_FRONTIER", "OUTSIDE_BOUNDS", "ALL_BLACKLISTED", "UNREACHABLE",
-           "BACK_AT_START", "START_UNREACHABLE"]
+           "BACK_AT_START", "START_UNREACHABLE", "NO_PROGRESS_HOME"]
 
 NO_MEASUREMENT = "no valid measurement yet"
 NO_FRONTIER = "no frontier left"
@@ -34,6 +37,7 @@ ALL_BLACKLISTED = "every frontier blacklisted"
 UNREACHABLE = "no frontier reachable"
 BACK_AT_START = "back at the start"
 START_UNREACHABLE = "start unreachable"
+NO_PROGRESS_HOME = "no progress towards the start"
 
 
 class Mission:
@@ -54,7 +58,13 @@ class Mission:
         self.phase = EXPLORING
         self.reason = ""
         self.no_goal_since: Optional[float] = None
+        self.home_tracker = GoalTracker(cfg.goal_policy)  # the return's progress (never blacklists)
+        self.unreachable_since: Optional[float] = None  # when the start was last found unreachable, in a row
         self._mask: Optional[tuple[MapFrame, np.ndarray]] = None
+
+    def bounds_changed(self) -> None:
+        """``cfg.bounds`` was replaced: the mask is made again at the next step."""
+        self._mask = None
 
     def begin(self, x: float, y: float) -> None:
         """The first observation's position (metres): refused outside the bounds, else kept as the start.
@@ -85,15 +95,25 @@ class Mission:
         forbidden = self.tracker.forbidden(frame.centres_xy(np.array([f.cell_rc for f in frontiers])), stamp_s)
         return tuple(f for f, no in zip(frontiers, forbidden) if not no) if forbidden.any() else frontiers
 
-    def why_no_goal(self, planning: np.ndarray, frame: MapFrame, stamp_s: float) -> str:
-        """Why a step found no goal on the map ``planning``: no frontier at all, none inside the bounds, every one
-        blacklisted, or none the robot can reach (or every one reached already)."""
-        every = find_frontiers(planning, 1)
+    def why_no_goal(self, planning: np.ndarray, frame: MapFrame, stamp_s: float, min_cells: int = 1,
+                    travel_cost: Optional[np.ndarray] = None, pockets=None) -> str:
+        """Why a step found no goal on the map ``planning``: no frontier region of at least ``min_cells`` cells at all
+        (with ``pockets``, a :class:`~superex_deploy.onboard.planning.frontiers.Pockets` of the map: none that
+        borders unknown space a robot could enter), none inside the bounds, every one the robot can reach
+        blacklisted (float ``[H, W]`` ``travel_cost``: the step's cost-to-go, ``inf`` where unreachable; None: every
+        one), or none the robot can reach (or every one reached already)."""
+        every = tuple(f for f in find_frontiers(planning, 1) if f.size >= min_cells)
+        if pockets is not None and pockets.shape == planning.shape:
+            every = open_frontiers(every, pockets)
         if not every:
             return NO_FRONTIER
         inside = clip_frontiers(every, self.inside(frame))
         if not inside:
             return OUTSIDE_BOUNDS
+        if travel_cost is not None:
+            reachable = tuple(f for f in reachable_goals(inside, travel_cost) if np.isfinite(travel_cost[f.cell_rc]))
+            if reachable and not self.admit(reachable, frame, stamp_s):
+                return ALL_BLACKLISTED
         if not self.admit(inside, frame, stamp_s):
             return ALL_BLACKLISTED
         return UNREACHABLE
@@ -111,10 +131,11 @@ class Mission:
             return True
         return False
 
-    def settle(self, found: bool, stamp_s: float) -> bool:
-        """Whether exploration is finished: no goal found (``found`` False) for ``cfg.finish_after_s`` seconds of
-        the observations' clock."""
-        if found:
+    def settle(self, alive: bool, stamp_s: float) -> bool:
+        """Whether exploration is finished: nothing kept the run alive (``alive`` False: no reachable frontier
+        region of at least ``cfg.finish_frontier_m``, or under the simulated rule no goal) for
+        ``cfg.finish_after_s`` seconds of the observations' clock."""
+        if alive:
             self.no_goal_since = None
             return False
         if self.no_goal_since is None:
@@ -130,20 +151,30 @@ class Mission:
         return EXPLORING if has_goal else NO_REACHABLE_FRONTIER
 
     def home(self, planning: np.ndarray, pose: tuple[int, int], frame: MapFrame, path: list,
-             reach_cells: float, radius_cells: float) -> tuple[Optional[tuple[int, int]], list]:
-        """One step of the return: the start cell and the path to it from ``pose`` on the map ``planning`` (the
-        kept ``path`` while it is clear); ``(None, [])`` once within ``reach_cells`` of it or when no path reaches
-        it (``phase`` is then ``"done"`` and ``reason`` says which)."""
+             reach_cells: float, radius_cells: float, stamp_s: float) -> tuple[Optional[tuple[int, int]], list]:
+        """One step of the return at ``stamp_s``: the start cell and the path to it from ``pose`` on the map
+        ``planning`` (the kept ``path`` while it is clear); ``(None, [])`` once within ``reach_cells`` of it
+        (``phase`` is then ``"done"``), or while no path reaches it (``reason`` says so; ``"done"`` once that has
+        lasted ``goal_policy.no_progress_s``), or once the path has made no progress for that long."""
         self.phase = RETURNING
         start = frame.cell_of(*self.start_xy)
         if np.hypot(start[0] - pose[0], start[1] - pose[1]) <= reach_cells:
             self.phase, self.reason = DONE, BACK_AT_START
             return None, []
+        patience = self.cfg.goal_policy.no_progress_s
         path = path[path.index(pose):] if pose in path and path[-1] == start else []
         if not path or not path_is_clear(planning, path[1:], radius_cells):
             path = planning_map(planning, pose, frame.resolution_m, self.cfg.motion).path_to(start)
         if not path:
-            self.phase, self.reason = DONE, START_UNREACHABLE
+            if self.unreachable_since is None:
+                self.unreachable_since = stamp_s
+            self.reason = START_UNREACHABLE
+            if patience is not None and stamp_s - self.unreachable_since >= patience:
+                self.phase = DONE
+            return None, []
+        self.unreachable_since = None
+        if self.home_tracker.stalled(self.start_xy, path_length_m(path, frame.resolution_m), stamp_s):
+            self.phase, self.reason = DONE, NO_PROGRESS_HOME
             return None, []
         self.reason = ""
         return start, path

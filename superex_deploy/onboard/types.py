@@ -44,15 +44,29 @@ class Frontier:
     Attributes:
         cell_rc: (row, col) of the region's cell nearest to its centroid (the region's goal cell).
         cells: int32 ``[n, 2]`` (row, col) of every cell of the region.
+        whole_size: None, or the region's size before the exploration bounds cut it
+            (:func:`~superex_deploy.onboard.planning.bounds.clip_frontiers`: ``cells`` are those inside).
     """
 
     cell_rc: tuple[int, int]
     cells: np.ndarray
+    whole_size: Optional[int] = None
 
     @property
     def size(self) -> int:
         """Number of cells in the region."""
         return int(self.cells.shape[0])
+
+    @property
+    def clipped(self) -> bool:
+        """Whether the exploration bounds cut the region."""
+        return self.whole_size is not None
+
+    @property
+    def extent(self) -> int:
+        """The region's size before the bounds cut it (its size when they did not): what says how much lies
+        behind it, since a doorway the bounds' edge crosses leaves a few cells inside whatever the room holds."""
+        return self.size if self.whole_size is None else self.whole_size
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from superex_deploy.messages import Command, MapFrame, Observation
+from superex_deploy.messages.ros_fields import spad_fields
 from superex_deploy.recording.schemas import (COVARIANCE_INDEX, OCCUPANCY_GRID_MSG, POSE_STAMPED_MSG, SCHEMAS,
                                              TF_MESSAGE_MSG, header_message, pose_message, stamp_message)
 
@@ -137,7 +138,8 @@ def _slam_map(step: StepData) -> Optional[dict]:
     grid, stamp = step.observation.occupancy_grid, step.observation.stamp_s
     if grid is None:
         return None
-    return {"header": header_message(stamp, "map"),
+    # The map's own stamp, where it has one: a map handed to several steps is one map again in a replay.
+    return {"header": header_message(stamp if grid.stamp_s is None else grid.stamp_s, "map"),
             "info": {"map_load_time": stamp_message(0.0), "resolution": grid.resolution_m, "width": grid.width,
                      "height": grid.height, "origin": pose_message(grid.origin_xy[0], grid.origin_xy[1], 0.0)},
             "data": grid.data}
@@ -158,11 +160,7 @@ def _spad(step: StepData) -> Optional[dict]:
     spad = step.observation.spad
     if spad is None:
         return None
-    return {"header": header_message(step.observation.stamp_s, SCAN_FRAME), "bin_width_s": spad.bin_width_s,
-            "n_rays": spad.n_rays, "n_bins": spad.n_bins, "nnz": int(spad.bins.size),
-            "angles_f64le": spad.angles.astype("<f8").tobytes(),
-            "row_start_i64le": spad.row_start.astype("<i8").tobytes(),
-            "bins_i32le": spad.bins.astype("<i4").tobytes(), "counts_f32le": spad.counts.astype("<f4").tobytes()}
+    return {"header": header_message(step.observation.stamp_s, SCAN_FRAME), **spad_fields(spad)}
 
 
 def _command(step: StepData) -> dict:

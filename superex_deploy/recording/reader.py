@@ -12,8 +12,8 @@ from typing import Optional, Union
 
 import numpy as np
 
-from superex_deploy.messages import (LaserScan, MapFrame, Observation, OccupancyGridMessage, Pose2D, PoseCovariance,
-                                     SpadFrame, same_resolution)
+from superex_deploy.messages import MapFrame, Observation, Pose2D, PoseCovariance
+from superex_deploy.messages.ros_fields import laser_scan, occupancy_grid, spad_frame
 from superex_deploy.recording.schemas import (FORMAT_VERSION, METADATA_NAME, REPLAYED_TOPICS, check_metadata,
                                              stamp_seconds)
 
@@ -64,40 +64,17 @@ class Recording:
     error: Optional[str] = None
 
 
-def _spad_frame(message) -> SpadFrame:
-    return SpadFrame(angles=np.frombuffer(bytes(message.angles_f64le), "<f8"), bin_width_s=message.bin_width_s,
-                     n_bins=int(message.n_bins), row_start=np.frombuffer(bytes(message.row_start_i64le), "<i8"),
-                     bins=np.frombuffer(bytes(message.bins_i32le), "<i4"),
-                     counts=np.frombuffer(bytes(message.counts_f32le), "<f4"))
-
-
-def _slam_map(message, frame: MapFrame) -> OccupancyGridMessage:
-    """The recorded SLAM map; its float32 resolution is read as the frame's when they agree at float32 (ROS stores
-    ``info.resolution`` as float32, the explorer's frame as float64)."""
-    info = message.info
-    resolution = float(info.resolution)
-    if same_resolution(resolution, frame.resolution_m):
-        resolution = frame.resolution_m
-    return OccupancyGridMessage(resolution_m=resolution, width=int(info.width), height=int(info.height),
-                                origin_xy=(info.origin.position.x, info.origin.position.y),
-                                data=np.asarray(message.data, np.int8))
-
-
 def _observation(parts: dict, frame: MapFrame) -> Observation:
     pose_message, scan_message = parts["/pose"], parts.get("/scan")
     yaw = float(parts["/command"].robot_yaw)
     pose = Pose2D(pose_message.pose.position.x, pose_message.pose.position.y, yaw)
-    scan = None
-    if scan_message is not None:
-        scan = LaserScan(angle_min=scan_message.angle_min, angle_increment=scan_message.angle_increment,
-                         range_min=scan_message.range_min, range_max=scan_message.range_max,
-                         ranges=np.asarray(scan_message.ranges, np.float32), angle_max=scan_message.angle_max)
-    spad = _spad_frame(parts["/spad"]) if "/spad" in parts else None
-    grid = _slam_map(parts["/slam_map"], frame) if "/slam_map" in parts else None
+    scan = None if scan_message is None else laser_scan(scan_message)
+    spad = spad_frame(parts["/spad"]) if "/spad" in parts else None
+    # The SLAM map's header holds the map's own stamp: a map handed to several steps replays as one map.
+    grid = occupancy_grid(parts["/slam_map"], frame.resolution_m) if "/slam_map" in parts else None
     covariance = None
     if "/pose_covariance" in parts:
-        full = np.asarray(parts["/pose_covariance"].pose.covariance, np.float64)
-        covariance = PoseCovariance.from_ros(full)
+        covariance = PoseCovariance.from_ros(np.asarray(parts["/pose_covariance"].pose.covariance, np.float64))
     return Observation(stamp_s=stamp_seconds(pose_message.header.stamp), pose=pose, scan=scan, spad=spad,
                        pose_covariance=covariance, occupancy_grid=grid)
 

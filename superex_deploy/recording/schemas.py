@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from superex_deploy.messages.ros_fields import stamp_seconds
+
 __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata", "SPAD_FRAME_MSG",
            "EXPLORER_COMMAND_MSG", "POSE_STAMPED_MSG", "LASER_SCAN_MSG", "PATH_MSG", "OCCUPANCY_GRID_MSG",
            "POSE_WITH_COVARIANCE_STAMPED_MSG", "TF_MESSAGE_MSG", "SCHEMAS", "REPLAYED_TOPICS", "COVARIANCE_INDEX",
@@ -149,11 +151,6 @@ def stamp_message(seconds: float) -> dict:
     """A ROS 2 time ``{"sec", "nanosec"}`` (ints) of ``seconds`` (float, rounded to the nanosecond)."""
     nanoseconds = int(round(seconds * 1e9))
     return {"sec": nanoseconds // 1_000_000_000, "nanosec": nanoseconds % 1_000_000_000}
-
-
-def stamp_seconds(stamp) -> float:
-    """Seconds (float) of a decoded ROS 2 time (an object with ``sec`` and ``nanosec``)."""
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 def header_message(seconds: float, frame_id: str) -> dict:

@@ -43,7 +43,9 @@ class ExplorationConfig:
         lidar: the line-of-sight LiDAR (the world's).
         explorer: what the explorer is built with (:class:`~superex_deploy.onboard.explorer.ExplorerConfig`:
             motion, frontier size, prediction schedule and reuse); the world drives ``explorer.motion.step_m``
-            metres per step.
+            metres per step. The default is the explorer's defaults under the simulated benchmarks' rules
+            (:meth:`~superex_deploy.onboard.config.ExplorerConfig.for_simulation`: finished at the first step
+            without a goal, a locked goal kept until reached); a configuration given here is used as it is.
         iou_every: evaluate the prediction's map IoU every this many steps, and at the last step (0: never).
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
@@ -53,7 +55,7 @@ class ExplorationConfig:
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
-    explorer: ExplorerConfig = field(default_factory=ExplorerConfig)
+    explorer: ExplorerConfig = field(default_factory=lambda: ExplorerConfig().for_simulation())
     iou_every: int = 25
     iou_dense_until: float = 1.0
     pose_noise: Optional[PoseNoise] = None

@@ -269,7 +269,7 @@ class World:
         if len(path_xy) == 0:
             return 0.0
         if self.pose_error is not None:
-            return self._drive_continuously(path_xy)
+            return self.drive(path_xy, self.step_cells * self.grid.resolution_m)
         path = [self.frame.cell_of(x, y) for x, y in path_xy]
         if path[0] != self.pose_rc:
             raise ValueError(f"the commanded path starts at cell {path[0]}, the robot is at {self.pose_rc}")
@@ -286,18 +286,38 @@ class World:
         self.driven_m += metres
         return metres
 
-    def _drive_continuously(self, path_xy: np.ndarray) -> float:
+    def drive(self, path_xy, budget_m: float) -> float:
+        """Drive continuously up to ``budget_m`` metres along the float ``[N, 2]`` map-frame waypoints ``path_xy``
+        (the first one where the robot believes it is), relative to its belief as
+        :func:`~superex_deploy.sim.kinematics.drive_belief_relative` does (the truth without pose noise); the pose
+        leaves the cell centres from then on. A wall stops it and counts as a collision. Returns the metres driven.
+
+        Raises:
+            ValueError: a non-finite waypoint or budget, a negative budget.
+        """
+        path_xy = np.asarray(path_xy, np.float64).reshape(-1, 2)
         if not np.all(np.isfinite(path_xy)):
             raise ValueError("the commanded path holds a non-finite waypoint")
+        budget_m = check_real("budget_m", budget_m, 0.0)
         truth = self.pose
-        drive = drive_belief_relative(self.grid, truth, self.belief or truth, path_xy,
-                                      self.step_cells * self.grid.resolution_m)
+        drive = drive_belief_relative(self.grid, truth, self.belief or truth, path_xy, budget_m)
         self.pose_rc = self.frame.cell_of(drive.pose.x, drive.pose.y)
         self._true_pose = drive.pose
         self.collisions += int(drive.collided)
         self.driven_m += drive.metres
-        self.pose_error.drive(drive.metres)
+        if self.pose_error is not None:
+            self.pose_error.drive(drive.metres)
         return drive.metres
+
+    def believe(self) -> tuple[Pose2D, Optional[object]]:
+        """The pose the robot's localisation reports now and its covariance (the truth and None without pose
+        noise; with it a fresh draw of the error model), kept as :attr:`belief`."""
+        truth = self.pose
+        if self.pose_error is None:
+            self.belief = truth
+            return truth, None
+        self.belief = self.pose_error.believe(truth)
+        return self.belief, self.pose_error.covariance()
 
     def coverage(self, known: np.ndarray) -> float:
         """Known share of the valid area for a bool ``[H, W]`` map of known cells (the explorer's)."""

@@ -3,7 +3,8 @@ entering an unknown building needs no map size in advance (costmap_2d's static l
 given the same way).
 
 Before a step integrates anything, the explorer works out the area it may touch (:func:`reach_of`: the pose, every
-valid ray up to its range or ``range_max``, the SPAD frame's reach, a SLAM map's extent) and, when that area plus
+valid ray up to its range or ``range_max``, the SPAD frame's reach, a SLAM map's known cells: a SLAM package that
+publishes a fixed 200 m square with a few metres known, as gmapping does, grows the grid to what is known) and, when that area plus
 ``margin_m`` is not inside its grid, moves to a larger grid (:func:`grown_frame`) on the same cell lattice: the old
 cells keep their values at new indices (:func:`embed`), new cells are unknown. The margin keeps a band of unknown
 cells between everything known and the grid's edge, so a frontier is never hidden by the edge. Memory is bounded by
@@ -88,7 +89,7 @@ def embed(array: np.ndarray, shape: tuple[int, int], top: int, left: int, fill) 
 def reach_of(obs: Observation, spad_reach_m: float = 0.0) -> tuple[float, float, float, float]:
     """``(x_min, y_min, x_max, y_max)`` (metres, map frame) of what ``obs`` can change: its pose, the end of every
     valid ray of its scan (a return, or ``range_max`` for no return; invalid readings are skipped), ``spad_reach_m``
-    around the pose when it carries a SPAD frame, and its SLAM map's extent."""
+    around the pose when it carries a SPAD frame, and the extent of its SLAM map's known cells."""
     x, y = obs.pose.x, obs.pose.y
     xs, ys = [x], [y]
     if obs.scan is not None:
@@ -105,9 +106,10 @@ def reach_of(obs: Observation, spad_reach_m: float = 0.0) -> tuple[float, float,
         xs += [x - spad_reach_m, x + spad_reach_m]
         ys += [y - spad_reach_m, y + spad_reach_m]
     grid = obs.occupancy_grid
-    if grid is not None:
-        xs += [grid.origin_xy[0], grid.origin_xy[0] + grid.width * grid.resolution_m]
-        ys += [grid.origin_xy[1], grid.origin_xy[1] + grid.height * grid.resolution_m]
+    known = None if grid is None else grid.known_extent_xy()
+    if known is not None:
+        xs += [known[0], known[2]]
+        ys += [known[1], known[3]]
     return min(xs), min(ys), max(xs), max(ys)
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, UNKNOWN, Frontier, check_observed
 
-__all__ = ["frontier_cells", "find_frontiers"]
+__all__ = ["frontier_cells", "find_frontiers", "Pockets", "open_frontiers"]
 
 
 @numba.njit(cache=True)
@@ -133,3 +133,55 @@ def find_frontiers(observed: np.ndarray, min_cells: int = 10) -> tuple[Frontier,
         cells = np.stack([rows[members], cols[members]], axis=1).astype(np.int32)
         frontiers.append(Frontier(cell_rc=(int(rows[nearest[index]]), int(cols[nearest[index]])), cells=cells))
     return tuple(frontiers)
+
+
+class Pockets:
+    """The unknown regions of a map a robot could enter, for :func:`open_frontiers`: every unknown region
+    (8-connected) is *open* when it touches the map's edge or somewhere lies at least ``narrowest_m`` plus a cell
+    from every known cell (it holds a disc a robot of that radius fits in), else an **enclosed pocket too narrow to
+    enter**: the inside of a double wall or of a wall seen through a gap, a sliver between two walls no ray reaches.
+
+    The widths come from the exact Euclidean distance transform of the unknown cells, the regions from a
+    connected-component labelling (scipy): about 15 ms for a 390 x 590 map, so an explorer makes one now and then
+    (:attr:`shape` says which grid it is of).
+
+    Attributes:
+        labels: int32 ``[H, W]`` the unknown region of each cell (0: known).
+        open: bool ``[n + 1]`` per region whether it is open (index 0, the known cells: False).
+        shape: the map's shape.
+    """
+
+    def __init__(self, observed: np.ndarray, narrowest_m: float, resolution_m: float):
+        from scipy import ndimage
+
+        observed = check_observed(observed)
+        unknown = observed == UNKNOWN
+        self.shape = observed.shape
+        self.labels, count = ndimage.label(unknown, structure=np.ones((3, 3), bool))
+        self.open = np.zeros(count + 1, bool)
+        if count:
+            width = ndimage.maximum(ndimage.distance_transform_edt(unknown), self.labels, np.arange(1, count + 1))
+            self.open[1:] = np.asarray(width) * resolution_m >= narrowest_m + resolution_m
+            labels = self.labels
+            edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+            self.open[edge[edge > 0]] = True
+
+
+def open_frontiers(regions, pockets: Pockets) -> tuple[Frontier, ...]:
+    """The frontier regions of ``regions`` one of whose cells has an unknown 4-neighbour in an open unknown region
+    of ``pockets`` (:class:`Pockets` of the same map, or of one a little older: a cell that has become known since
+    counts as its old region's). The others border only enclosed pockets too narrow to enter: such a region can stay
+    for ever (a 0.1 m log-odds grid of an office floor holds dozens) and no viewpoint the robot can reach resolves
+    it, so it must not keep an exploration alive. Order is kept."""
+    rows, cols = pockets.shape
+    kept = []
+    for frontier in regions:
+        r, c = frontier.cells[:, 0], frontier.cells[:, 1]
+        touched = []
+        for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            rr, cc = r + dr, c + dc
+            inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            touched.append(pockets.labels[rr[inside], cc[inside]])
+        if pockets.open[np.concatenate(touched)].any():
+            kept.append(frontier)
+    return tuple(kept)

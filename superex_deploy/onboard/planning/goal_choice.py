@@ -12,7 +12,7 @@ from superex_deploy.geometry import line_of_sight
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.types import Frontier
 
-__all__ = ["goal_reached", "near_visited_goal", "choose_goal"]
+__all__ = ["goal_reached", "near_visited_goal", "choose_goal", "near_frontier", "frontier_left"]
 
 
 def goal_reached(not_free: np.ndarray, pose: tuple[int, int], cell: tuple[int, int], reach_cells: float) -> bool:
@@ -78,3 +78,28 @@ def choose_goal(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]
     close = tuple(f for f in unvisited + small_unvisited if goal_reached(not_free, pose, f.cell_rc, reach_cells))
     chosen = offer(close) if close else None
     return chosen, 0.0
+
+
+def near_frontier(regions: tuple[Frontier, ...], cell: tuple[int, int], radius_cells: float,
+                  min_cells: int = 1) -> bool:
+    """Whether a frontier cell of one of ``regions`` with at least ``min_cells`` cells lies within ``radius_cells``
+    of ``cell`` (a kept goal whose frontier is not gone)."""
+    for frontier in regions:
+        if frontier.extent < min_cells:
+            continue
+        d = frontier.cells - np.asarray(cell)
+        if np.any(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] <= radius_cells * radius_cells):
+            return True
+    return False
+
+
+def frontier_left(regions: tuple[Frontier, ...], min_cells: int, travel_cost: np.ndarray,
+                  visited: set[tuple[int, int]]) -> bool:
+    """Whether one of ``regions`` (already cut to the bounds, blacklisted ones dropped) keeps an exploration alive:
+    at least ``min_cells`` cells (before the bounds cut it: ``Frontier.extent``), its goal cell not a reached goal's (:func:`near_visited_goal`), and of finite cost
+    in float ``[H, W]`` ``travel_cost`` (a clipped region: any of its cells,
+    :func:`~superex_deploy.onboard.planning.bounds.reachable_goals`)."""
+    from superex_deploy.onboard.planning.bounds import reachable_goals
+
+    big = tuple(f for f in regions if f.extent >= min_cells and not near_visited_goal(f.cell_rc, visited))
+    return any(np.isfinite(travel_cost[f.cell_rc]) for f in reachable_goals(big, travel_cost))

@@ -9,8 +9,13 @@ more is blacklisted too. A blacklisted goal's position (map-frame metres, so tha
 every frontier whose goal cell lies within ``blacklist_radius_m`` of it; the entry expires after
 ``blacklist_expire_s`` seconds (None: never within the episode: a new explorer starts with none).
 
-**Commitment**. By default a goal is kept until it is reached, blocked or let go by the planner (MapEx's locked
-frontier). With ``commit_margin`` a number, the planner is asked every step; its choice replaces the locked goal only
+**A goal whose frontier is gone** is let go at once (``drop_resolved_m``): once no frontier cell lies within that
+distance of it, the robot would drive to a place that no longer shows anything new (open-loop on a bag, or a robot
+slower than the map, kept the first scan's goal for a whole recording). The simulated benchmarks keep MapEx's rule
+(None: a goal is kept until it is reached).
+
+**Commitment**. By default a goal is kept until it is reached, blocked, resolved or let go by the planner (MapEx's
+locked frontier). With ``commit_margin`` a number, the planner is asked every step; its choice replaces the locked goal only
 when the planner's score of it beats the locked goal's by the relative margin (``new > (1 + commit_margin) * old``;
 :meth:`~superex_deploy.onboard.types.Planner.goal_scores`). A planner that gives no scores keeps its goal.
 
@@ -47,6 +52,14 @@ class GoalPolicy:
         commit_margin: None (the default): keep the goal until it is reached, blocked or let go by the planner; a
             number >= 0: switch to the planner's new choice when its score beats the kept goal's by this relative
             margin.
+        drop_resolved_m: let go of the kept goal once no frontier cell (of the map the planning reads, inside the
+            bounds, not blacklisted) lies within this distance of it (metres); None: keep it until it is reached
+            (MapEx; the simulated benchmarks, :meth:`~superex_deploy.onboard.config.ExplorerConfig.for_simulation`).
+        confirm_visit_m: a goal reached within ``MotionConfig.goal_reached_m`` (and in sight) whose frontier is
+            still there is driven onto, within this distance (metres; Nav2's ``xy_goal_tolerance`` is 0.25 m),
+            before its frontier is taken as one no viewpoint resolves and is not offered again: from a metre away
+            the robot may not see into a closet through its door. None: given up at once (MapEx; the simulated
+            benchmarks).
 
     Raises:
         ValueError: a negative or non-finite setting, a ``progress_m`` or ``blacklist_radius_m`` of 0 or less.
@@ -58,6 +71,8 @@ class GoalPolicy:
     blacklist_unreachable: bool = False
     blacklist_expire_s: Optional[float] = None
     commit_margin: Optional[float] = None
+    drop_resolved_m: Optional[float] = 0.5
+    confirm_visit_m: Optional[float] = 0.3
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "no_progress_s", check_real("no_progress_s", self.no_progress_s, 0.0,
@@ -71,6 +86,10 @@ class GoalPolicy:
                                                                   low_open=True, allow_none=True))
         object.__setattr__(self, "commit_margin", check_real("commit_margin", self.commit_margin, 0.0,
                                                              allow_none=True))
+        object.__setattr__(self, "drop_resolved_m", check_real("drop_resolved_m", self.drop_resolved_m, 0.0,
+                                                               allow_none=True))
+        object.__setattr__(self, "confirm_visit_m", check_real("confirm_visit_m", self.confirm_visit_m, 0.0,
+                                                               allow_none=True))
 
 
 def path_length_m(path, resolution_m: float) -> float:
