@@ -546,20 +546,72 @@ def naive_path_gain(mean, observed, path, every, n_rays, range_cells, hit_thresh
 # --- onboard.mapper ---
 
 
+def naive_clear_limits(angles, reach, sigma_xy, sigma_yaw, sigmas, max_half=np.pi / 6.0):
+    """onboard.mapper.clear_limits by brute force: for each ray, lower ``t`` from its own reach to the nearest reach
+    among all rays within ``min(atan(u(t) / t), max_half)`` of its angle (``u(t) = sigmas sqrt(sigma_xy^2 +
+    (t sigma_yaw)^2)``) until every one of them reaches ``t`` (at most 8 times)."""
+    angles = np.mod(np.asarray(angles, np.float64), 2.0 * np.pi)
+    reach = np.asarray(reach, np.float64)
+    if sigmas == 0.0 or (sigma_xy == 0.0 and sigma_yaw == 0.0):
+        return reach.copy()
+    out = np.empty(reach.size)
+    for i in range(reach.size):
+        t = reach[i]
+        for _ in range(8):
+            half = min(np.arctan2(sigmas * np.sqrt(sigma_xy ** 2 + (t * sigma_yaw) ** 2), max(t, 1e-9)), max_half)
+            gap = np.abs(angles - angles[i])
+            nearest = reach[np.minimum(gap, 2.0 * np.pi - gap) <= half].min()
+            if nearest >= t:
+                break
+            t = nearest
+        out[i] = t
+    return out
+
+
 def naive_integrate_log_odds(log_odds, y0, x0, angles, ranges_cells, max_t, hit, miss, lowest, highest,
-                             hit_shift=0.0):
+                             hit_shift=0.0, usable_t=np.inf, stop_at=np.inf, pose_sigmas=None, sigmas=1.0):
     """onboard.mapper._integrate_log_odds one ray at a time from :func:`naive_mark_ranges`: each return placed
-    ``hit_shift`` farther (its ray walked up to it even beyond ``max_t``); every cell the scan touched gets one
-    update, ``hit`` where at least as many rays returned in it as crossed it, else ``miss``, clamped; returns a new
-    float32 grid."""
+    ``hit_shift`` farther (its ray walked up to it even beyond ``max_t``); a ray without a return walked up to
+    ``min(max_t, usable_t)`` from the sorted grid-line crossings, cut before the first cell whose log-odds is
+    ``stop_at`` or more; with ``pose_sigmas`` ``(sigma_xy cells, sigma_yaw rad)`` a ray crosses only the cells it
+    leaves by its :func:`naive_clear_limits` limit when that is short of its reach (a return's hit is placed all
+    the same); every cell the scan touched gets one update, ``hit`` where at least as many rays returned in it as
+    crossed it, else ``miss``, clamped; returns a new float32 grid."""
     crossed = np.zeros(log_odds.shape, np.int64)
     returned = np.zeros(log_odds.shape, np.int64)
-    for angle, distance in zip(angles, ranges_cells):
-        shifted = distance + hit_shift if np.isfinite(distance) else distance
-        limit = max(max_t, shifted + 1e-6) if hit_shift > 0.0 and np.isfinite(distance) else max_t
-        ray_free, ray_hit = naive_mark_ranges(log_odds.shape, y0, x0, [angle], [shifted], limit)
-        crossed += ray_free
-        returned += ray_hit
+    n_rows, n_cols = log_odds.shape
+    ranges_cells = np.asarray(ranges_cells, np.float64)
+    reach = np.where(np.isfinite(ranges_cells), ranges_cells + hit_shift + 1e-6, min(max_t, usable_t))
+    limits = np.full(reach.size, np.inf)
+    if pose_sigmas is not None:
+        found = naive_clear_limits(angles, reach, pose_sigmas[0], pose_sigmas[1], sigmas)
+        limits = np.where(found < reach, found, np.inf)
+    for angle, distance, limit in zip(angles, ranges_cells, limits):
+        cells = [(0.0, int(np.floor(y0)), int(np.floor(x0)))] + _naive_cells_along_ray(n_rows, n_cols, y0, x0, angle)
+        if not np.isfinite(distance):
+            for k, (t_in, r, c) in enumerate(cells):
+                if t_in > min(max_t, usable_t) or not (0 <= r < n_rows and 0 <= c < n_cols) or \
+                        log_odds[r, c] >= stop_at:
+                    break
+                if (cells[k + 1][0] if k + 1 < len(cells) else np.inf) > limit:
+                    break
+                crossed[r, c] += 1
+            continue
+        shifted = distance + hit_shift
+        walk = max(max_t, shifted + 1e-6) if hit_shift > 0.0 else max_t
+        if not np.isfinite(limit):
+            ray_free, ray_hit = naive_mark_ranges(log_odds.shape, y0, x0, [angle], [shifted], walk)
+            crossed += ray_free
+            returned += ray_hit
+            continue
+        for k, (t_in, r, c) in enumerate(cells):  # naive_mark_ranges, crossing only the cells left by the limit
+            if t_in > walk or not (0 <= r < n_rows and 0 <= c < n_cols):
+                break
+            t_out = cells[k + 1][0] if k + 1 < len(cells) else np.inf
+            if t_out > shifted + 1e-6:
+                returned[r, c] += 1
+                break
+            crossed[r, c] += t_out <= limit
     out = log_odds.copy()
     for r, c in np.argwhere((crossed > 0) | (returned > 0)):
         delta = hit if returned[r, c] > 0 and returned[r, c] >= crossed[r, c] else miss

@@ -1,5 +1,7 @@
 """A robot's recording as input (``superex offline``, :mod:`superex_deploy.recording.bags`): small ROS 1 and ROS 2
-bags written with ``rosbags`` itself from a simulated floor, read back into the observations the simulator made."""
+bags written with ``rosbags`` itself from a simulated floor, read back into the observations the simulator made.
+The poses are stamped at the scans' stamps (the reader interpolates between poses, so a pose stamped earlier would
+give another one); ``tests/test_bags_*.py`` use the helpers here."""
 
 import json
 import math
@@ -116,11 +118,11 @@ def _write(path, version, drive, pose="tf", slam=None, extra_scan_topic=False):
             put("/map", T0, _grid_message(T0, slam))
         for t, _, base, scan in drive:
             if pose == "tf":
-                put("/tf", t - 0.02, T["tf2_msgs/msg/TFMessage"](transforms=[
-                    _transform(t - 0.02, "map", "odom", 0.0, 0.0, 0.0),
-                    _transform(t - 0.02, "odom", "base_link", *base)]))
+                put("/tf", t, T["tf2_msgs/msg/TFMessage"](transforms=[
+                    _transform(t, "map", "odom", 0.0, 0.0, 0.0),
+                    _transform(t, "odom", "base_link", *base)]))
             else:
-                put("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02))
+                put("/amcl_pose", t, _pose_message(t, *base, sigma=0.02))
             put("/scan", t, _scan_message(t, scan))
             if extra_scan_topic:
                 put("/scan2", t, _scan_message(t, scan))
@@ -219,16 +221,32 @@ def test_an_interrupted_offline_run_writes_the_steps_it_did(tmp_path, monkeypatc
     assert not list((tmp_path / "out").glob("*.part"))
 
 
-def _write_items(path, items):
-    """A ROS 2 bag of ``(topic, stamp_s, message)`` items (types by topic name)."""
-    from rosbags.rosbag2 import Writer
+KINDS = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
+         "/tf_static": "tf2_msgs/msg/TFMessage", "/map": "nav_msgs/msg/OccupancyGrid",
+         "/amcl_pose": "geometry_msgs/msg/PoseWithCovarianceStamped", "/odom": "nav_msgs/msg/Odometry"}
 
-    kinds = {"/scan": "sensor_msgs/msg/LaserScan", "/tf": "tf2_msgs/msg/TFMessage",
-             "/tf_static": "tf2_msgs/msg/TFMessage", "/map": "nav_msgs/msg/OccupancyGrid"}
-    with Writer(path, version=9) as writer:
-        connections = {topic: writer.add_connection(topic, kind, typestore=TYPES) for topic, kind in kinds.items()}
+
+def _write_items(path, items, version=2, chunk_bytes=None):
+    """A bag of ``(topic, stamp_s, message)`` items (types by topic name, :data:`KINDS`; a message given as bytes
+    is written as it is, garbled): a ROS 2 bag (SQLite), ``version=1`` a ROS 1 bag (chunks of about
+    ``chunk_bytes``), ``"mcap"`` a ROS 2 bag stored as MCAP."""
+    if version == 1:
+        from rosbags.rosbag1 import Writer
+
+        writer, serialize = Writer(path), TYPES.serialize_ros1
+        if chunk_bytes is not None:
+            writer.chunk_threshold = chunk_bytes
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if version == "mcap" else StoragePlugin.SQLITE3
+        writer, serialize = Writer(path, version=9, storage_plugin=plugin), TYPES.serialize_cdr
+    with writer:
+        connections = {topic: writer.add_connection(topic, KINDS[topic], typestore=TYPES)
+                       for topic in dict.fromkeys(topic for topic, _, _ in items)}
         for topic, t, message in items:
-            writer.write(connections[topic], int(t * 1e9), TYPES.serialize_cdr(message, kinds[topic]))
+            raw = message if isinstance(message, bytes) else serialize(message, KINDS[topic])
+            writer.write(connections[topic], int(round(t * 1e9)), raw)
     return path
 
 
@@ -246,7 +264,7 @@ def test_a_tf_tree_with_a_loop_is_no_pose_not_a_hang(tmp_path):
     _, drive = _drive(3)
     items = [_laser_mount()]
     for t, _, base, scan in drive:
-        items += [("/tf", t - 0.02, _tf(t - 0.02, ("base_link", "odom", 0.0, 0.0, 0.0), ("odom", "base_link", *base))),
+        items += [("/tf", t, _tf(t, ("base_link", "odom", 0.0, 0.0, 0.0), ("odom", "base_link", *base))),
                   ("/scan", t, _scan_message(t, scan))]
     bag = _write_items(tmp_path / "loop", items)
     outcome = []
@@ -274,7 +292,7 @@ def test_a_malformed_scan_is_skipped_and_counted(tmp_path):
         message = _scan_message(t, scan)
         if k == 2:
             message.ranges = np.zeros(0, np.float32)
-        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, message)]
+        items += [("/tf", t, _tf(t, ("map", "base_link", *base))), ("/scan", t, message)]
     reading, observations = read_bag(_write_items(tmp_path / "glitch", items))
     stamps = [observation.stamp_s for observation in observations]
     assert reading.skipped["invalid"] == 1 and reading.scans == 4
@@ -287,7 +305,7 @@ def test_a_slam_map_the_explorer_cannot_take_is_refused_when_the_bag_opens(tmp_p
     slam = OccupancyGridMessage(0.1, 70, 40, (0.0, 0.0), np.zeros(70 * 40, np.int8))
     items = [_laser_mount()]
     for k, (t, _, base, scan) in enumerate(drive):
-        items += [("/tf", t - 0.02, _tf(t - 0.02, ("map", "base_link", *base))), ("/scan", t, _scan_message(t, scan))]
+        items += [("/tf", t, _tf(t, ("map", "base_link", *base))), ("/scan", t, _scan_message(t, scan))]
         grid = _grid_message(t, slam)
         if k == 3:
             grid.info.origin.orientation = _quaternion(0.4)
@@ -342,10 +360,10 @@ def test_auto_takes_the_odometry_when_the_tf_tree_has_no_map_frame(tmp_path):
 
         put("/tf_static", T0, _tf(T0, ("base_link", "laser", *LASER_OFFSET, 0.0)))
         for t, _, base, scan in drive:
-            put("/tf", t - 0.02, _tf(t - 0.02, ("odom", "base_link", *base)))
-            put("/odom", t - 0.02, T["nav_msgs/msg/Odometry"](
-                header=_header(t - 0.02, "odom"), child_frame_id="base_link",
-                pose=_pose_message(t - 0.02, *base).pose,
+            put("/tf", t, _tf(t, ("odom", "base_link", *base)))
+            put("/odom", t, T["nav_msgs/msg/Odometry"](
+                header=_header(t, "odom"), child_frame_id="base_link",
+                pose=_pose_message(t, *base).pose,
                 twist=T["geometry_msgs/msg/TwistWithCovariance"](
                     twist=T["geometry_msgs/msg/Twist"](linear=vector, angular=vector), covariance=np.zeros(36))))
             put("/scan", t, _scan_message(t, scan))
@@ -364,7 +382,7 @@ def test_a_pose_topics_scans_without_the_scanners_mount_have_no_pose(tmp_path):
     _, drive = _drive(3)
     items = []
     for t, _, base, scan in drive:
-        items += [("/amcl_pose", t - 0.02, _pose_message(t - 0.02, *base, sigma=0.02)),
+        items += [("/amcl_pose", t, _pose_message(t, *base, sigma=0.02)),
                   ("/scan", t, _scan_message(t, scan))]
     from rosbags.rosbag2 import Writer
 

@@ -20,6 +20,7 @@ LAYERS = (
     # anything higher, give it its own place here.
     ("base", ("superex_deploy",)),  # geometry, messages, maps, spad_types, parallel, files, ...
     ("onboard", ("superex_deploy.onboard",)),
+    ("ros 2 transforms", ("superex_deploy.ros.tf",)),  # tf2's rules in numpy: the bag reader's and the node's
     ("recording", ("superex_deploy.recording",)),
     ("ros 2 wire", ("superex_deploy.ros",)),  # messages over DDS, QoS, transforms, the node's parameters
     ("sim", ("superex_deploy.sim",)),

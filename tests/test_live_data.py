@@ -208,9 +208,9 @@ def test_stamps_that_never_advance_are_warned_about():
         for _ in range(30):
             explorer.step(Observation(12.0, pose, None, occupancy_grid=message))
     said = [w for w in caught if issubclass(w.category, RuntimeWarning) and "have not advanced" in str(w.message)]
-    assert len(said) == 1 and explorer.clock_stalled
+    assert len(said) == 1 and explorer.clock.stalled
     explorer.step(Observation(12.1, pose, None, occupancy_grid=message))
-    assert not explorer.clock_stalled
+    assert not explorer.clock.stalled
 
 
 def test_a_fixed_size_slam_map_grows_the_explorer_to_its_known_cells_only():

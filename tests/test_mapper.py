@@ -35,9 +35,11 @@ def test_the_log_odds_kernel_matches_its_naive_twin_on_random_scans():
             ranges[rng.random(40) < 0.2] = np.inf  # lost returns: free up to the range
             short = rng.random(40) < 0.1
             ranges[short] = rng.uniform(0, 3, int(short.sum()))  # spurious short returns, inside free space
+            usable = float(rng.choice([np.inf, rng.uniform(1, 40)]))  # no-return rays cut at the usable range
             expected = naive_integrate_log_odds(log_odds, y0, x0, angles, ranges, max_t, cfg.hit, cfg.miss,
-                                                cfg.lowest, cfg.highest)
-            integrate_log_odds(log_odds, (y0, x0), angles, ranges, max_t, cfg)
+                                                cfg.lowest, cfg.highest, usable_t=usable,
+                                                stop_at=cfg.occupied_threshold)
+            integrate_log_odds(log_odds, (y0, x0), angles, ranges, max_t, cfg, usable_range_cells=usable)
             np.testing.assert_array_equal(log_odds, expected)
 
 
@@ -91,10 +93,32 @@ def test_one_reading_decides_no_cell_for_good():
     # A confirmed wall (at the upper clamp) survives 8 scans through it, as documented, and no more than 10.
     _ray_east(mapper, 1, 15, reps=20)
     assert mapper.log_odds[1, 15] == np.float32(cfg.highest)
-    _ray_east(mapper, 1, None, reps=8)
+    _ray_east(mapper, 1, 25, reps=8)
     assert mapper.observed()[1, 15] == OCCUPIED
-    _ray_east(mapper, 1, None, reps=2)
+    _ray_east(mapper, 1, 25, reps=2)
     assert mapper.observed()[1, 15] == FREE
+
+
+def test_a_ray_without_a_return_never_lowers_a_wall_and_clears_only_to_the_usable_range():
+    # A reading that says "no return" (inf, range_max or above) or a return beyond the usable range clears free
+    # space up to the usable range and stops at a cell the map holds occupied (a SICK LMS's no-echo code at 81.83 m
+    # would otherwise clear 80 m through the building's walls).
+    cfg = OccupancyConfig(usable_range_m=1.5)
+    mapper = Mapper((3, 40), cfg)
+    frame = MapFrame((3, 40), 0.1, (0.0, 0.0))
+    pose = Pose2D(0.05, 0.15)
+    east = lambda r: LaserScan(0.0, 0.1, 0.0, 3.0, np.array([r], np.float32))
+    mapper.integrate_scan(frame, pose, east(1.0))  # a wall at column 10
+    for reading in (np.inf, 3.0, 81.83, 2.5):  # no return, range_max, above it, a return beyond the usable range
+        for _ in range(20):
+            mapper.integrate_scan(frame, pose, east(reading))
+        observed = mapper.observed()
+        assert observed[1, 10] == OCCUPIED and (observed[1, :10] == FREE).all() and (observed[1, 11:] == -1).all()
+    fresh = Mapper((3, 40), cfg)
+    fresh.integrate_scan(frame, pose, east(np.inf))
+    assert (fresh.observed()[1, :15] == FREE).all() and (fresh.observed()[1, 16:] == -1).all()  # 1.5 m, no more
+    with pytest.raises(ValueError, match="usable_range_m must be a positive finite number"):
+        OccupancyConfig(usable_range_m=0.0)
 
 
 def test_a_hit_wins_over_the_misses_of_the_same_scan():

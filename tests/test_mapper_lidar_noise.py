@@ -40,7 +40,7 @@ def test_the_shifted_vote_matches_its_naive_twin_on_random_noisy_scans():
             short = rng.random(60) < 0.1
             ranges[short] = rng.uniform(0, 3, int(short.sum()))
             expected = naive_integrate_log_odds(log_odds, y0, x0, angles, ranges, max_t, cfg.hit, cfg.miss,
-                                                cfg.lowest, cfg.highest, hit_shift=shift)
+                                                cfg.lowest, cfg.highest, hit_shift=shift, stop_at=cfg.occupied_threshold)
             integrate_log_odds(log_odds, (y0, x0), angles, ranges, max_t, cfg, hit_shift_cells=shift)
             np.testing.assert_array_equal(log_odds, expected)
     with pytest.raises(ValueError, match="hit_shift_cells"):

@@ -213,3 +213,90 @@ def test_the_node_and_the_simulated_robot_explore_over_dds_in_two_processes(tmp_
     assert run["frontier_gone_s"] is not None and 0.0 <= run["finished_s"] - run["frontier_gone_s"] <= 10.0
     assert summary["steps"] > 50 and summary["goals_sent"] >= 1 and summary["latency_ms"]["p99"] < 1000
     assert summary["states"][-1][1] == "done"
+
+
+@pytest.mark.slow
+def test_the_node_on_dds_answers_a_robot_and_its_operator_and_records_a_replayable_run(tmp_path):
+    pytest.importorskip("cyclonedds")
+    from superex_deploy.cli import main
+    from superex_deploy.messages import MapFrame, OccupancyGridMessage
+    from superex_deploy.ros import idl, outputs, qos
+    from superex_deploy.ros.dds import RosParticipant, loopback_config
+    from superex_deploy.ros.node import ExplorationNode
+    from superex_deploy.sim.robot import TfSample
+
+    domain = 20 + os.getpid() % 80
+    record = tmp_path / "node.mcap"
+    frame = MapFrame((80, 80), 0.1, (0.0, 0.0))
+    slam = np.full(frame.shape, -1, np.int8)
+    slam[36:45, 10:71] = 0
+    slam[35, 9:72] = slam[45, 9:72] = slam[36:45, 10] = 100  # a corridor open to the east
+    node = ExplorationNode(NodeParams(**NEAREST, record=str(record), status_period=0.2), domain_id=domain,
+                           config=loopback_config())
+    robot = RosParticipant("robot", domain_id=domain, config=loopback_config())
+    try:
+        node.start()
+        publish = {name: robot.publisher(topic, kind, profile) for name, topic, kind, profile in (
+            ("map", "/map", idl.OccupancyGrid, qos.MAP), ("scan", "/scan", idl.LaserScan, qos.SENSOR_DATA),
+            ("tf", "/tf", idl.TFMessage, qos.TF), ("static", "/tf_static", idl.TFMessage, qos.TF_STATIC),
+            ("pause", "/superex/pause", idl.Empty, qos.DEFAULT), ("resume", "/superex/resume", idl.Empty, qos.DEFAULT),
+            ("bounds", "/superex/bounds", idl.PolygonStamped, qos.DEFAULT))}
+        goals = robot.subscription("/goal_pose", idl.PoseStamped, qos.DEFAULT)
+        status = robot.subscription("/superex/status", idl.ExplorerStatus, qos.DEFAULT)
+        x, y = frame.centre_xy((40, 30))
+        t0 = time.time()
+        publish["static"].publish(outputs.tf_message([TfSample(t0, "base_link", "laser", 0.0, 0.0, 0.0)]))
+        grid = OccupancyGridMessage.from_frame_grid(frame, slam)
+        publish["map"].publish(outputs.grid_message(OccupancyGridMessage(
+            grid.resolution_m, grid.width, grid.height, grid.origin_xy, grid.data, stamp_s=t0), "map"))
+        scan = LaserScan(0.0, 2 * math.pi / 360, 0.05, 4.0, np.full(360, np.inf, np.float32))
+
+        def drive(seconds, until):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                now = time.time()
+                publish["tf"].publish(outputs.tf_message([TfSample(now, "map", "odom", 0.0, 0.0, 0.0),
+                                                          TfSample(now, "odom", "base_link", x, y, 0.0)]))
+                publish["scan"].publish(outputs.scan_message(scan, now, "laser"))
+                time.sleep(0.1)
+                got = [m for m, _ in status.take()] + [m for m, _ in goals.take()]
+                if any(until(m) for m in got):
+                    return True
+            return False
+
+        assert drive(20.0, lambda m: isinstance(m, idl.PoseStamped) and m.pose.position.x > 6.5)  # the east end
+        publish["pause"].publish(idl.Empty())
+        assert drive(10.0, lambda m: isinstance(m, idl.ExplorerStatus) and m.state == "paused")
+        publish["resume"].publish(idl.Empty())
+        assert drive(10.0, lambda m: isinstance(m, idl.ExplorerStatus) and m.state == "exploring")
+        tiny = idl.PolygonStamped(header=outputs.header(time.time(), "map"), polygon=idl.Polygon(points=[
+            idl.Point32(x=x, y=y, z=0.0), idl.Point32(x=x + 0.1, y=y, z=0.0), idl.Point32(x=x, y=y + 0.1, z=0.0)]))
+        publish["bounds"].publish(tiny)
+        assert drive(10.0, lambda m: isinstance(m, idl.ExplorerStatus) and "smaller than the robot" in m.reason)
+    finally:
+        robot.close()
+        node.close()
+    assert node.steps >= 3 and node.goals_sent >= 1 and record.exists(), node.summary()
+    assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
+
+
+def test_a_slam_map_at_a_resolution_the_models_do_not_serve_gets_the_nearest_they_do():
+    # A real SLAM map of 0.0504 m: 0.2.0's lama_bp refused it ("won't serve"); the node runs at 0.05 m and
+    # resamples the map onto its cells.
+    from superex_deploy.messages import MapFrame, OccupancyGridMessage
+    from superex_deploy.onboard.prediction.scale import servable_resolution
+
+    frame = MapFrame((100, 100), 0.0504, (-2.52, -2.52))
+    slam = np.full(frame.shape, -1, np.int8)
+    slam[30:70, 30:70] = 0
+    grid = OccupancyGridMessage.from_frame_grid(frame, slam)
+    core = ExplorationCore(NodeParams(costmap_topic="/map", planner="nearest", predictor="lama_los"))
+    core.add_transform("base_link", "laser", 0.0, Transform(), static=True)
+    core.add_transform("map", "base_link", 0.0, Transform(), static=True)
+    core.add_map(OccupancyGridMessage(grid.resolution_m, grid.width, grid.height, grid.origin_xy, grid.data,
+                                      stamp_s=1.0))
+    core.add_scan(1.0, "laser", _open_scan())
+    step = core.step(1.0)
+    assert step is not None and core.explorer.frame.resolution_m == 0.05 == servable_resolution(0.0504)
+    assert step.command.goal_xy is not None
+    core.explorer.close()

@@ -1,6 +1,8 @@
 """``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif; with ``--live``
-also served while it runs on a Foxglove WebSocket (:mod:`superex_deploy.recording.live`), stopped when the run ends
-however it ends.
+also served while it runs on a Foxglove WebSocket (:mod:`superex_deploy.recording.live`), paced for a viewer (at the
+simulated sensor's 10 Hz unless ``--live-pace`` says otherwise), its last state served ``--live-hold`` seconds more
+after the outputs are written (Ctrl-C ends that), and stopped however the run ends, without waiting for a client that
+stopped reading.
 
 Stopped by SIGINT or SIGTERM, it keeps what the steps done so far hold: ``metrics.json`` with their series, marked
 ``"interrupted": "SIGINT"`` (or ``"SIGTERM"``), and with ``--record`` a valid recording of every whole step, which
@@ -16,7 +18,7 @@ from pathlib import Path
 
 from superex_deploy.commands.options import (add_live_options, add_noise_options, add_planner_option,
                                              add_profile_option, bounds_polygon, check_output_file,
-                                             check_output_folder, folders_made,
+                                             check_output_folder, folders_made, load_floor,
                                              noise_options, noise_settings, non_negative_int, planner_options,
                                              resolve_start)
 from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
@@ -39,6 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "alone, no LaMa (needs --spad)")
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models with manifest.json (default: the repository's exported/)")
+    parser.add_argument("--resolution", type=float, default=None, metavar="METRES",
+                        help="the floor's cell size: a bundled floor (0.1 m) at 0.1 / K (K = 2..4: upsampled, a SLAM "
+                             "grid, its start cell scaled), an image at this many metres per pixel (default: the "
+                             "map's own)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--spad", action="store_true",
@@ -103,7 +109,6 @@ def summary_line(result) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.maps import load_map
     from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
     from superex_deploy.messages import MapFrame
 
@@ -114,8 +119,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     if args.record is not None:
         check_output_file(args.record, "--record", made=folders_made(args.out))
-    grid = load_map(args.map)
-    start = resolve_start(args.map, grid, args.start, args.pose, seed=args.seed, command="superex explore")
+    grid, start = load_floor(args.map, args.resolution, args.start, args.pose, seed=args.seed,
+                             command="superex explore")
     options = planner_options(args.planner_option)
     planner = make_planner(args.planner, **options)
     args.profile = resolve_profile(args.profile, planner, args.predictor)
@@ -129,7 +134,10 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None and args.predictor == "oracle":
         raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
                          "record with another predictor")
-    with live_view(args.live, args.live_every, "superex explore") as live:  # the last check: a port in use
+    # The last check (a port in use); the episode runs paced (--live-pace), and the hold (--live-hold) comes after
+    # its outputs are written.
+    with live_view(args.live, args.live_every, "superex explore", pace_hz=args.live_pace,
+                   hold_s=args.live_hold) as live:
         return _explore(args, grid, start, options, planner, sensing, cfg, noise, live)
 
 

@@ -9,6 +9,7 @@ paths by :func:`check_output_folder` and :func:`check_output_file`, start cells 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from pathlib import Path
 from typing import Iterable, Optional
@@ -18,7 +19,7 @@ from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
 __all__ = ["add_planner_option", "planner_options", "add_profile_option", "add_parallel_options", "check_jobs",
            "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps", "check_output_folder",
            "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M", "settings_differences",
-           "add_noise_options", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings",
+           "add_noise_options", "load_floor", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings",
            "add_live_options"]
 
 
@@ -179,6 +180,43 @@ def resolve_start(map_arg: str, grid, start_index: int, pose: Optional[tuple[int
     if not 0 <= start_index < len(poses):
         raise ValueError(f"--start must lie in 0..{len(poses) - 1}, got {start_index}")
     return poses[start_index]
+
+
+def load_floor(map_arg: str, resolution_m: Optional[float], start_index: int, pose: Optional[tuple[int, int]],
+               seed: int = 0, command: str = "superex"):
+    """The floor ``--map`` names at ``--resolution`` metres per cell and the start cell on it: a bundled floor
+    (0.1 m) at ``0.1 / K`` for an integer ``K`` up to 4 is upsampled (every cell ``K x K``: the same building on a
+    SLAM grid), its start pose (``--start``) scaled to the block's centre cell; an image file is read at that
+    resolution; None: the map's own. ``--pose`` is a cell of the floor as run.
+
+    Raises:
+        ValueError: a resolution that is not positive, a bundled floor at another resolution than 0.1 m / K, a
+            ROS map_server YAML at another than its own, what :func:`resolve_start` refuses.
+    """
+    from pathlib import Path as _Path
+
+    from superex_deploy.maps import list_maps, load_map
+    from superex_deploy.sim.generated_floors import upsampled
+
+    if resolution_m is not None and not (math.isfinite(resolution_m) and resolution_m > 0):
+        raise ValueError(f"--resolution must be a positive number of metres, got {resolution_m}")
+    bundled = str(map_arg) in set(list_maps("eval")) | set(list_maps("train"))
+    if not bundled and resolution_m is not None and _Path(map_arg).suffix.lower() not in (".yaml", ".yml"):
+        grid = load_map(map_arg, resolution_m)
+        return grid, resolve_start(map_arg, grid, start_index, pose, seed=seed, command=command)
+    grid = load_map(map_arg)
+    factor = 1
+    if resolution_m is not None and abs(resolution_m - grid.resolution_m) > 1e-9:
+        ratio = grid.resolution_m / resolution_m
+        factor = int(round(ratio))
+        if not bundled or abs(ratio - factor) > 1e-6 or not 1 <= factor <= 4:
+            raise ValueError(f"--resolution {resolution_m:g}: {map_arg} is a {grid.resolution_m:g} m map, which runs "
+                             f"at {grid.resolution_m:g} m / K for K = 1..4 (bundled floors only; a file: its own)")
+    if pose is not None or factor == 1:
+        fine = upsampled(grid, factor) if factor > 1 else grid
+        return fine, resolve_start(map_arg, fine, start_index, pose, seed=seed, command=command)
+    start = resolve_start(map_arg, grid, start_index, None, seed=seed, command=command)
+    return upsampled(grid, factor), (start[0] * factor + factor // 2, start[1] * factor + factor // 2)
 
 
 def settings_differences(recorded, new, prefix: str = "") -> list[str]:
@@ -403,10 +441,23 @@ def _seconds(text: str) -> float:
     return value
 
 
+def _hertz(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (value >= 0.0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a rate in Hz >= 0 (0: as fast as possible), got {text!r}")
+    return value
+
+
 def add_live_options(parser: argparse.ArgumentParser) -> None:
     """``--live [HOST:PORT]`` (a Foxglove WebSocket of the episode's topics while it runs; default address
-    127.0.0.1:8765) and ``--live-every SECONDS`` (the maps' rate on it, in the observations' seconds)."""
-    from superex_deploy.recording.live import DEFAULT_ADDRESS
+    127.0.0.1:8765), ``--live-every SECONDS`` (the maps' rate on it, in the observations' seconds), ``--live-pace
+    HZ`` (how fast the steps go while served; default None: at the observations' stamps in real time) and
+    ``--live-hold SECONDS`` (how long the last state stays served after the run; default
+    :data:`~superex_deploy.recording.live.DEFAULT_HOLD_S`)."""
+    from superex_deploy.recording.live import DEFAULT_ADDRESS, DEFAULT_HOLD_S
 
     parser.add_argument("--live", nargs="?", const=DEFAULT_ADDRESS, default=None, type=_live_address,
                         metavar="HOST:PORT",
@@ -419,3 +470,13 @@ def add_live_options(parser: argparse.ArgumentParser) -> None:
                         help="with --live: publish the maps, the prediction, the evidence and the SPAD frame at most "
                              "once per this many seconds of simulated time (and at the last step; 0: every step); "
                              "the small topics go out every step (default 0.5)")
+    parser.add_argument("--live-pace", type=_hertz, default=None, metavar="HZ",
+                        help="with --live: run at most this many steps a second, so that a viewer can follow (0: as "
+                             "fast as possible, as without --live); default: the observations' clock in real time: a "
+                             "simulated episode at its sensor's rate (one step per 0.1 s of simulated time: 10 Hz), "
+                             "a replay at its recording's stamps")
+    parser.add_argument("--live-hold", type=_seconds, default=DEFAULT_HOLD_S, metavar="SECONDS",
+                        help="with --live: once the run is over (its outputs written), serve its last state this many "
+                             "seconds more, also to a client that connects meanwhile; Ctrl-C ends it at once (0: stop "
+                             f"with the run; default {DEFAULT_HOLD_S:g}). No client holds the command: one that stops "
+                             "reading loses messages, and is not waited for at the end")

@@ -8,7 +8,8 @@ step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the compari
 reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
 ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's first). A recording
 without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed steps are served
-on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`).
+on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`), at the recording's stamps unless
+``--live-pace`` says otherwise, and the last one ``--live-hold`` seconds more.
 """
 
 from __future__ import annotations
@@ -154,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
     explorer = build_explorer(recording.metadata, recording.frame, args.models)
-    with explorer, live_view(args.live, args.live_every, "superex replay") as live:
+    with explorer, live_view(args.live, args.live_every, "superex replay", pace_hz=args.live_pace,
+                             hold_s=args.live_hold) as live:
         if explorer.scheduled is not None:
             # The predictions land where they landed in the recorded run (a never-waiting run: when its CPU had
             # finished them), computed inline, so that the replay is exact on any machine.

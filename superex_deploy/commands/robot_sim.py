@@ -23,8 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", required=True, help="bundled map name or an image / ROS YAML path")
     parser.add_argument("--start", type=non_negative_int, default=0, help="index of the map's start pose (0-3)")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
-    parser.add_argument("--upsample", type=int, default=1, metavar="K",
-                        help="the floor at 1/K of its resolution, every cell K x K (0.05 m for K = 2: a SLAM grid)")
+    parser.add_argument("--resolution", type=float, default=None, metavar="METRES",
+                        help="the floor's cell size: a bundled floor (0.1 m) at 0.1 / K (K = 2..4: upsampled, a SLAM "
+                             "grid), an image at this many metres per pixel (default: the map's own)")
     parser.add_argument("--duration", type=float, default=600.0, metavar="SECONDS",
                         help="seconds of simulated time to run (default: 600)")
     parser.add_argument("--rate", type=float, default=1.0,
@@ -53,22 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.commands.options import check_output_folder, noise_options, resolve_start
-    from superex_deploy.maps import load_map
+    from superex_deploy.commands.options import check_output_folder, load_floor, noise_options
     from superex_deploy.sim.noise.lidar import LidarNoise
     from superex_deploy.sim.noise.pose import PoseNoise
     from superex_deploy.sim.robot import RobotSimConfig
     from superex_deploy.spad_types import SpadConfig
 
-    from superex_deploy.sim.generated_floors import upsampled
-
-    grid = load_map(args.map)
-    start = resolve_start(args.map, grid, args.start, args.pose)
-    if args.upsample < 1:
-        raise ValueError(f"--upsample must be an integer >= 1, got {args.upsample}")
-    if args.upsample > 1:
-        grid, k = upsampled(grid, args.upsample), args.upsample
-        start = (start[0] * k + k // 2, start[1] * k + k // 2)
+    grid, start = load_floor(args.map, args.resolution, args.start, args.pose, seed=args.seed,
+                             command="superex robot-sim")
     noise = noise_options(args)
     pose, lidar = noise["pose_noise"], noise["lidar_noise"]
     cfg = RobotSimConfig(scan_hz=args.scan_rate, tf_hz=args.tf_rate, map_period_s=args.map_period,

@@ -104,6 +104,12 @@ class OccupancyGridMessage:
         object.__setattr__(self, "origin_xy", origin)
         object.__setattr__(self, "data", data)
 
+    def same_map(self, previous: Optional["OccupancyGridMessage"]) -> bool:
+        """Whether this message is the map ``previous`` was (the same object, or both stamped alike): a robot hands
+        the latest map to every step until SLAM publishes the next."""
+        return previous is not None and (self is previous or (self.stamp_s is not None
+                                                              and self.stamp_s == previous.stamp_s))
+
     def known_extent_xy(self) -> Optional[tuple[float, float, float, float]]:
         """``(x_min, y_min, x_max, y_max)`` (metres, map frame) of the message's known cells (not -1), or None when
         every cell is unknown; computed once. A gmapping-style map of a fixed 200 m square with a few metres known

@@ -2,7 +2,7 @@
 comes from (a bag read with ``rosbags``, a recording decoded by ``mcap_ros2``, a live topic deserialised by Cyclone
 DDS), since all three give objects with the ROS fields.
 
-* :func:`stamp_seconds` of a ``builtin_interfaces/Time``; :func:`yaw_of` of a ``geometry_msgs/Quaternion`` (the
+* :func:`stamp_seconds` of a ``builtin_interfaces/Time`` (and :func:`stamp_message` back); :func:`yaw_of` of a ``geometry_msgs/Quaternion`` (the
   rotation about ``z`` of its planar part);
 * :func:`laser_scan`: ``sensor_msgs/LaserScan`` -> :class:`~superex_deploy.messages.LaserScan` (float32 ranges,
   ``angle_max`` checked against the ranges' count);
@@ -27,13 +27,19 @@ from superex_deploy.messages.frame import Pose2D
 from superex_deploy.messages.occupancy import OccupancyGridMessage, PoseCovariance
 from superex_deploy.messages.sensors import LaserScan, SpadFrame
 
-__all__ = ["stamp_seconds", "yaw_of", "planar_pose", "laser_scan", "occupancy_grid", "pose_covariance",
+__all__ = ["stamp_seconds", "stamp_message", "yaw_of", "planar_pose", "laser_scan", "occupancy_grid", "pose_covariance",
            "spad_frame", "spad_fields"]
 
 
 def stamp_seconds(stamp) -> float:
     """Seconds (float) of a ROS time (an object with ``sec`` and ``nanosec``)."""
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def stamp_message(seconds: float) -> dict:
+    """A ROS 2 time ``{"sec", "nanosec"}`` (ints) of ``seconds`` (float, rounded to the nanosecond)."""
+    nanoseconds = int(round(seconds * 1e9))
+    return {"sec": nanoseconds // 1_000_000_000, "nanosec": nanoseconds % 1_000_000_000}
 
 
 def yaw_of(q) -> float:

@@ -23,9 +23,9 @@ on a small CPU; the numba threads follow the cores given
 (:class:`~superex_deploy.onboard.prediction.inference.ThreadBudget`).
 
 The :class:`~superex_deploy.messages.Command` holds the goal, the path and a status (:mod:`.status`: bounds,
-blacklist, return to the start). Exploration is **finished** when the map holds known cells and no goal has been
-found in any tier for ``finish_after_s`` seconds (with ``return_to_start``, once back at the start); while the map
-is empty a step answers no goal and not finished. A seed makes it deterministic (it feeds the planner's generator).
+blacklist, return to the start). Exploration is **finished** when the map holds known cells and nothing has kept it
+alive for ``finish_after_s`` seconds (:mod:`.finishing`: a reachable frontier worth the name; with
+``return_to_start``, once back at the start); while the map is empty a step answers no goal and not finished. A seed makes it deterministic (it feeds the planner's generator).
 """
 
 from __future__ import annotations
@@ -33,22 +33,21 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-import warnings
 import weakref
 from typing import Optional
 
 import numpy as np
 
 from superex_deploy.onboard.config import ExplorerConfig, check_parts
-from superex_deploy.onboard.planning.frontiers import Pockets, find_frontiers, open_frontiers
+from superex_deploy.onboard.planning.frontiers import find_frontiers
+from superex_deploy.onboard.finishing import ClockWatch, FinishRule
 from superex_deploy.onboard.mapping.growth import Regrid, regrid_for
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.planning.coarse import CoarsePrediction, PlanningGrid
 from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, path_is_clear, planning_map
 from superex_deploy.onboard.planning.bounds import reachable_goals
-from superex_deploy.onboard.planning.goal_choice import (choose_goal, frontier_left, goal_reached, near_frontier,
-                                                         near_visited_goal)
+from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_frontier, unreached
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
 from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
@@ -65,11 +64,7 @@ __all__ = ["STAGES", "ExplorerConfig", "Explorer", "PredictionSchedule", "Predic
 
 STAGES = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
 """The stages of a step whose wall-clock time :attr:`Command.timings_s` reports (seconds)."""
-POCKETS_EVERY_S = 1.0
-"""How often (seconds of stamps) the explorer finds the enclosed unknown pockets again for its finish rule."""
-STALLED_CLOCK_STEPS = 20
-"""Steps in a row with one stamp after which :attr:`Explorer.clock_stalled` holds and a warning is given (2 s of
-scans at 10 Hz)."""
+
 
 
 class Explorer:
@@ -158,6 +153,8 @@ class Explorer:
         self._rng = np.random.default_rng(seed)
         self.frontier_min_cells = cfg.frontier_min_cells(block_m)
         self.finish_cells = cfg.finish_frontier_cells(block_m)  # 0: the simulated rule (any goal keeps it alive)
+        self.finish_rule = FinishRule(self.finish_cells, cfg.motion.robot_radius_m, block_m)
+        self.clock = ClockWatch(cfg.finish_after_s > 0 or cfg.goal_policy.no_progress_s is not None)
         resolved = cfg.goal_policy.drop_resolved_m
         self._resolved_cells = None if resolved is None else resolved / block_m
         self._robot_rules = resolved is not None or cfg.goal_policy.confirm_visit_m is not None or bool(
@@ -166,9 +163,6 @@ class Explorer:
         self._plan_map: Optional[PlanningMap] = None  # the step's cost-to-go, where the step computed one
         self._last_grid = None  # the SLAM map of the step before: a step whose map is the same one is not fresh
         self._fresh = True  # the step's map holds a measurement of this step (its scan, or a new SLAM map)
-        self._same_stamps = 0  # steps in a row whose stamp equals the one before
-        self._pockets: Optional[tuple[float, Pockets]] = None  # (stamp, the enclosed pockets of that step's map)
-        self.clock_stalled = False
         self._reach_cells = cfg.motion.goal_reached_m / block_m
         self._radius_cells = cfg.motion.robot_radius_m / block_m
         self._goal_tolerance = self._reach_cells
@@ -210,37 +204,26 @@ class Explorer:
         pose = (int(pose_rc[0]), int(pose_rc[1]))
         if not (0 <= pose[0] < self.frame.shape[0] and 0 <= pose[1] < self.frame.shape[1]):
             raise ValueError(f"robot cell {pose} lies outside the map of shape {self.frame.shape}")
-        pose = self.planning_grid.block(pose)
-        not_free = self.planning_observed != FREE
         regions = self.mission.admit(find_frontiers(self.planning_observed, 1), self._blocks_frame,
                                      self._stamps[-1] if self._stamps else 0.0)
-        return tuple(f for f in regions if not near_visited_goal(f.cell_rc, self._visited)
-                     and not goal_reached(not_free, pose, f.cell_rc, self._reach_cells))
+        return unreached(regions, self.planning_observed != FREE, self.planning_grid.block(pose), self._reach_cells,
+                         self._visited)
 
     def return_to_start(self) -> None:
-        """Stop exploring and drive back to the first observation's position from the next step on (an operator's
-        command; as ``cfg.return_to_start`` does once exploration is finished): commands say ``"returning"``, then
-        ``"done"`` once back. Harmless when already returning or done; before the first step it returns at once to
-        where the first step stands."""
-        if self.mission.phase == EXPLORING:
-            self.mission.phase = RETURNING
+        """Stop exploring and drive back to the start from the next step on (an operator's command:
+        :meth:`~superex_deploy.onboard.status.Mission.go_home`)."""
+        if self.mission.go_home():
             self.goal, self.path, self.finished = None, [], False
 
     def set_bounds(self, bounds) -> None:
-        """Bound the exploration from the next step on (an operator's polygon, as ``cfg.bounds`` takes it:
-        an :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds`, a sequence of ``(x, y)`` metres),
-        or None for none; the locked goal is let go when it lies outside.
+        """Bound the exploration from the next step on (an operator's polygon, or None:
+        :meth:`~superex_deploy.onboard.status.Mission.set_bounds`); the locked goal is let go when outside.
 
         Raises:
-            ValueError: a polygon :class:`ExplorerConfig` refuses (too small for the robot, crossing itself, ...),
-                or one that does not hold the robot's latest position.
+            ValueError: a polygon :class:`ExplorerConfig` refuses, or one that does not hold the robot.
         """
-        cfg = dataclasses.replace(self.cfg, bounds=bounds)
-        if cfg.bounds is not None and self.pose_estimate is not None:
-            cfg.bounds.check_contains(self.pose_estimate.x, self.pose_estimate.y)
-        self.cfg = self.mission.cfg = cfg
-        self.mission.bounds_changed()
-        if self.goal is not None and cfg.bounds is not None and not cfg.bounds.contains_xy(
+        self.cfg = self.mission.set_bounds(bounds, self.pose_estimate)
+        if self.goal is not None and self.cfg.bounds is not None and not self.cfg.bounds.contains_xy(
                 [self._blocks_frame.centre_xy(self.goal)])[0]:
             self.goal, self.path = None, []
 
@@ -361,12 +344,9 @@ class Explorer:
             pose = self._pose_cell(obs)
             regrid_wait = 0.0 if self.scheduled is None else self.scheduled.last_regrid_wait_s
         self._pose_exact = obs.pose_covariance is None
-        self._watch_clock(obs.stamp_s)
-        grid_message = obs.occupancy_grid
-        self._fresh = grid_message is None or not (grid_message is self._last_grid or (
-            self._last_grid is not None and grid_message.stamp_s is not None
-            and grid_message.stamp_s == self._last_grid.stamp_s))
-        self._last_grid = grid_message
+        self.clock.watch(obs.stamp_s, self.cfg.finish_after_s)
+        self._fresh = obs.occupancy_grid is None or not obs.occupancy_grid.same_map(self._last_grid)
+        self._last_grid = obs.occupancy_grid
         timings = dict.fromkeys(STAGES, 0.0)
         t = self.steps
 
@@ -477,13 +457,16 @@ class Explorer:
             new_goal = self._plan(planning, frontiers, pose, prediction, t, timings, stamp_s)
             if new_goal:  # its progress is timed from now
                 mission.tracker.chosen(self._blocks_frame.centre_xy(self.goal), stamp_s)
-            self.finished = mission.settle(self._alive(planning, pose, stamp_s), stamp_s)
+            alive = self.finish_rule.alive(self.mission.admit(self._regions, self._blocks_frame, stamp_s), planning,
+                                           self.goal, self._reach_cells, self._visited,
+                                           lambda: self._travel_cost(planning, pose), stamp_s)
+            self.finished = mission.settle(alive, stamp_s)
             if self.finished:  # a goal on a region too small to keep the run alive is let go with it
                 self.goal, self.path = None, []
             mission.reason = "" if self.goal is not None else mission.why_no_goal(
                 planning, self._blocks_frame, stamp_s, max(self.finish_cells, 1),
                 None if self._plan_map is None else self._plan_map.travel_cost,
-                None if self._pockets is None or not self.finish_cells else self._pockets[1])
+                self.finish_rule.pockets if self.finish_cells else None)
             if self.finished and self.cfg.return_to_start:
                 self.goal, self.path, self.finished = None, [], False
                 mission.phase = RETURNING
@@ -497,39 +480,11 @@ class Explorer:
         self.status = mission.status(self.goal is not None, self.finished)
         return new_goal
 
-    def _alive(self, planning: np.ndarray, pose: tuple[int, int], stamp_s: float) -> bool:
-        """Whether this step keeps the exploration alive (the finish timer restarts): under the simulated rule
-        (``finish_cells`` 0) a goal; otherwise a reachable frontier region of at least ``finish_cells`` blocks, not
-        at a reached goal nor blacklisted (this step's blacklisting included), that borders unknown space a robot
-        could enter (:func:`~.planning.frontiers.open_frontiers`; the goal's own region, near it, needs no
-        search)."""
-        if self.finish_cells == 0:
-            return self.goal is not None
-        regions = tuple(f for f in self.mission.admit(self._regions, self._blocks_frame, stamp_s)
-                        if f.extent >= self.finish_cells)
-        if self._pockets is None or self._pockets[1].shape != planning.shape or \
-                stamp_s - self._pockets[0] >= POCKETS_EVERY_S:  # a second old at most: the finish timer is longer
-            self._pockets = (stamp_s, Pockets(planning, self.cfg.motion.robot_radius_m, self.planning_grid.block_m))
-        regions = open_frontiers(regions, self._pockets[1])
-        if self.goal is not None and near_frontier(regions, self.goal, self._reach_cells):
-            return True
+    def _travel_cost(self, planning: np.ndarray, pose: tuple[int, int]) -> np.ndarray:
+        """The step's cost-to-go from the robot (the one the planning computed, else computed now)."""
         if self._plan_map is None:
             self._plan_map = planning_map(planning, pose, self.planning_grid.block_m, self.cfg.motion)
-        return frontier_left(regions, self.finish_cells, self._plan_map.travel_cost, self._visited)
-
-    def _watch_clock(self, stamp_s: float) -> None:
-        """Warn once (:class:`RuntimeWarning`) when the stamps stop advancing while a setting counts seconds (the
-        finish delay, blacklisting): a robot on simulated time before ``/clock`` runs, or a driver without a clock,
-        would otherwise wait for ever without a word; :attr:`clock_stalled` says so while it lasts."""
-        self._same_stamps = self._same_stamps + 1 if self._stamps and stamp_s == self._stamps[-1] else 0
-        timed = self.cfg.finish_after_s > 0 or self.cfg.goal_policy.no_progress_s is not None
-        stalled = timed and self._same_stamps >= STALLED_CLOCK_STEPS
-        if stalled and not self.clock_stalled:
-            warnings.warn(f"the observations' stamps have not advanced for {self._same_stamps} steps (all "
-                          f"{stamp_s} s): the finish delay ({self.cfg.finish_after_s} s) and the progress timeout "
-                          f"never elapse on a clock that stands still (simulated time before /clock runs, or a "
-                          f"sensor driver without a clock?)", RuntimeWarning, stacklevel=4)
-        self.clock_stalled = stalled
+        return self._plan_map.travel_cost
 
     def _plan(self, observed: np.ndarray, frontiers: tuple[Frontier, ...], pose: tuple[int, int],
               prediction: LazyPrediction, t: int, timings: dict, stamp_s: float) -> bool:

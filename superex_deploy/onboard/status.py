@@ -15,6 +15,7 @@ for that long (reason ``"no progress towards the start"``); with ``no_progress_s
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Optional
 
 import numpy as np
@@ -62,9 +63,27 @@ class Mission:
         self.unreachable_since: Optional[float] = None  # when the start was last found unreachable, in a row
         self._mask: Optional[tuple[MapFrame, np.ndarray]] = None
 
-    def bounds_changed(self) -> None:
-        """``cfg.bounds`` was replaced: the mask is made again at the next step."""
-        self._mask = None
+    def go_home(self) -> bool:
+        """Return to the start from the next step on, whatever is left to explore (an operator's command); False
+        when already returning or done."""
+        if self.phase != EXPLORING:
+            return False
+        self.phase = RETURNING
+        return True
+
+    def set_bounds(self, bounds, pose=None) -> ExplorerConfig:
+        """Replace the bounds (an :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds`, a sequence of
+        ``(x, y)`` metres, or None) from the next step on; returns the new configuration.
+
+        Raises:
+            ValueError: a polygon :class:`ExplorerConfig` refuses (too small for the robot, crossing itself, ...),
+                or one that does not hold ``pose`` (the robot's latest, a Pose2D; None: not checked).
+        """
+        cfg = replace(self.cfg, bounds=bounds)
+        if cfg.bounds is not None and pose is not None:
+            cfg.bounds.check_contains(pose.x, pose.y)
+        self.cfg, self._mask = cfg, None
+        return cfg
 
     def begin(self, x: float, y: float) -> None:
         """The first observation's position (metres): refused outside the bounds, else kept as the start.

@@ -16,6 +16,20 @@ Publishing costs the episode little:
 * sending runs on the server's own threads: a slow client loses its oldest queued messages (``backlog`` per client),
   the episode never waits for it.
 
+A client that stops reading (a laptop gone to sleep) never holds the run or its end: publishing only queues (the
+SDK drops a slow client's oldest messages, and gives up on a client whose control messages pile up), and
+:meth:`LiveServer.close` waits at most :data:`CLIENT_WAIT_S` for the clients to take the server's goodbye. The SDK's
+``stop()`` waits for every client's connection to end, and a connection to a client that does not read never ends
+(its last write, the close frame, waits for room in a socket that never drains): so the stop runs on a daemon thread
+and the command goes on without it once the listener is closed; that connection closes when the client goes away or
+the process exits.
+
+A simulated episode runs far faster than real time (hundreds of steps a second); a viewer would see it over before
+it had connected. So the live view can pace the episode (``pace_hz``: by default, in the commands, at the
+observations' clock: the simulated sensor's 10 Hz, or a recording's stamps) and serve its last state for a while
+after the run (:meth:`LiveServer.hold`, ``--live-hold``): a client that subscribes then gets the final map, pose,
+path and prediction.
+
 The server needs the ``foxglove-sdk`` package (the ``live`` extra), imported only when a server starts.
 """
 
@@ -27,6 +41,7 @@ import math
 import socket
 import struct
 import sys
+import threading
 import time
 from typing import Iterator, Optional
 
@@ -36,13 +51,15 @@ from superex_deploy.messages import Command, Observation
 from superex_deploy.recording.channels import (CHANNELS, MESSAGE_ENCODING, SCHEMA_ENCODING, ChannelSpec, StepData,
                                                plain_values)
 
-__all__ = ["DEFAULT_ADDRESS", "MISSING_EXTRA", "STOP_WAIT_S", "LiveServer", "busy_port_message", "encode", "live_view",
-           "parse_address"]
+__all__ = ["CLIENT_WAIT_S", "DEFAULT_ADDRESS", "DEFAULT_HOLD_S", "MISSING_EXTRA", "STOP_WAIT_S", "LiveServer",
+           "busy_port_message", "encode", "live_view", "parse_address"]
 
 DEFAULT_ADDRESS = ("127.0.0.1", 8765)
 """Where ``--live`` serves without an address: this machine only, Foxglove's default port."""
 MISSING_EXTRA = "--live needs the foxglove-sdk package, which is not installed: pip install 'superex[live]'"
 """The error of ``--live`` without the ``live`` extra."""
+DEFAULT_HOLD_S = 10.0
+"""How long ``--live`` serves the last state after the run, without ``--live-hold``."""
 
 
 def busy_port_message(host: str, port: int) -> str:
@@ -71,6 +88,54 @@ def parse_address(text: str) -> tuple[str, int]:
 STOP_WAIT_S = 5.0
 """How long :meth:`LiveServer.close` waits at most for the server's listener to let its port go (it takes about a
 millisecond)."""
+CLIENT_WAIT_S = 2.0
+"""How long :meth:`LiveServer.close` waits at most for the clients to take the server's goodbye (what was queued for
+them, then a close frame: milliseconds for a client that reads); a client that stopped reading never does, and the
+stop goes on without it (:attr:`LiveServer.stopping`)."""
+_SETTLE_S = (0.05, 0.5)
+"""When :meth:`LiveServer.hold` sends the last state again after a client subscribes (seconds after the SDK reports
+it: the SDK tells the listener just before the subscription takes effect, so once soon and once more later)."""
+
+
+def _check_number(option: str, value, what: str) -> float:
+    """``value`` as a float, or one clear ValueError naming ``option`` (not a finite number >= 0)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{option} must be {what} >= 0, got {value!r}")
+    return float(value)
+
+
+_LONGEST_GAP_S = 1.0
+"""Pacing at the stamps, the longest wait for one step: a longer gap in a recording's stamps is cut to this."""
+
+
+class _Pacer:
+    """Holds a loop to a rate: :meth:`wait` returns once the step's time has come, at ``hz`` steps a second, or
+    (``hz`` None) at the steps' stamps in real time (a gap longer than :data:`_LONGEST_GAP_S` cut to it); ``hz`` 0:
+    at once. A step that comes late (a slow step) is not made up for by hurrying the next ones: the schedule starts
+    again from it."""
+
+    def __init__(self, hz: Optional[float]):
+        self.hz = hz
+        self._steps = 0
+        self._anchor: Optional[tuple[float, float]] = None  # (wall clock, step time) the schedule counts from
+
+    def wait(self, stamp_s: float) -> None:
+        if self.hz == 0:
+            return
+        at = stamp_s if self.hz is None else self._steps / self.hz
+        self._steps += 1
+        now = time.monotonic()
+        if self._anchor is None or at < self._anchor[1]:  # the first step, or a clock that went back
+            self._anchor = (now, at)
+            return
+        due = self._anchor[0] + (at - self._anchor[1])
+        if due <= now:
+            self._anchor = (now, at)  # late: go on from here
+            return
+        if self.hz is None and due - now > _LONGEST_GAP_S:
+            due = now + _LONGEST_GAP_S
+            self._anchor = (due, at)
+        time.sleep(due - now)
 
 
 def _wait_until_free(host: str, port: int, timeout_s: float = STOP_WAIT_S) -> None:
@@ -167,27 +232,36 @@ class LiveServer:
         every_s: publish the ``grid`` channels (maps, prediction, evidence, SPAD frame) at most once per this many
             seconds of the observations' clock, and at the last step (0: every step).
         backlog: messages queued per client; a client that falls further behind loses the oldest.
+        pace_hz: how fast :meth:`publish` lets the steps go: at most this many a second (it waits before a step
+            that comes early); None: at the observations' stamps, in real time (a simulated episode at its
+            sensor's rate, one step per ``WorldConfig.step_s``; a replay as recorded); 0: as fast as they come.
 
     Attributes:
-        host, every_s: as given.
+        host, every_s, pace_hz: as given.
         port: the port it listens on.
         published: topic -> messages published so far.
 
     Raises:
         ValueError: the ``foxglove-sdk`` package is missing (:data:`MISSING_EXTRA`), the port is in use
-            (:func:`busy_port_message`), a bad ``every_s`` or ``backlog``, or the server cannot start otherwise.
+            (:func:`busy_port_message`), a bad ``every_s``, ``backlog`` or ``pace_hz``, or the server cannot start
+            otherwise.
     """
 
     def __init__(self, host: str = DEFAULT_ADDRESS[0], port: int = DEFAULT_ADDRESS[1], every_s: float = 0.5,
-                 backlog: int = 256):
+                 backlog: int = 256, pace_hz: Optional[float] = 0.0):
         foxglove = _foxglove()
         from mcap_ros2._dynamic import serialize_dynamic  # the encoder of mcap_ros2's Writer: the MCAP's bytes
 
-        if not (isinstance(every_s, (int, float)) and math.isfinite(every_s) and every_s >= 0):
-            raise ValueError(f"--live-every must be a number of seconds >= 0, got {every_s!r}")
+        every_s = _check_number("--live-every", every_s, "a number of seconds")
+        if pace_hz is not None:
+            pace_hz = _check_number("--live-pace", pace_hz, "a rate in Hz")
         if int(backlog) < 1:
             raise ValueError(f"backlog must be >= 1, got {backlog!r}")
-        self.host, self.every_s = host, float(every_s)
+        self.host, self.every_s, self.pace_hz = host, every_s, pace_hz
+        self._pacer = _Pacer(pace_hz)
+        self._last: Optional[tuple] = None  # the last step published: (observation, command, explorer)
+        self._subscribed = threading.Event()  # set by the server's thread when a client subscribes
+        self._stopper: Optional[threading.Thread] = None
         self._server = None
         self._context = foxglove.Context()  # its own: the channels reach this server alone
         self._channels, self._encoders = {}, {}
@@ -199,6 +273,7 @@ class LiveServer:
         try:
             self._server = foxglove.start_server(name="superex", host=host, port=int(port), context=self._context,
                                                  capabilities=[foxglove.Capability.Time],
+                                                 server_listener=_listener(self._subscribed),
                                                  message_backlog_size=int(backlog))
         except RuntimeError as error:
             self._close_channels()
@@ -217,8 +292,15 @@ class LiveServer:
 
     @property
     def closed(self) -> bool:
-        """Whether the server has stopped."""
+        """Whether the server has stopped (its listener closed)."""
         return self._server is None
+
+    @property
+    def stopping(self) -> Optional[threading.Thread]:
+        """After :meth:`close`: the daemon thread still stopping the server, waiting for a client that stopped
+        reading to let its connection go; None once every connection has ended (and before :meth:`close`)."""
+        stopper = self._stopper
+        return stopper if stopper is not None and stopper.is_alive() else None
 
     def channel_ids(self) -> dict:
         """Topic -> the id its channel is advertised with."""
@@ -230,12 +312,13 @@ class LiveServer:
 
     def publish(self, observation: Observation, command: Command, explorer) -> None:
         """Publish one step (the ``on_observation`` callback of :func:`superex_deploy.sim.episode.run_episode`):
-        each subscribed topic's message, stamped with the observation's time, and that time as the server's clock.
+        each subscribed topic's message, stamped with the observation's time, and that time as the server's clock;
+        first, wait until the step's time has come (``pace_hz``). Never waits for a client.
 
         Args:
             observation, command: the step's.
             explorer: the :class:`~superex_deploy.onboard.explorer.Explorer` after the step (its ``frame``,
-                ``observed`` and ``evidence`` are read, on the steps the grids go out).
+                ``observed`` and ``evidence`` are read, on the steps the grids go out, and by :meth:`hold`).
 
         Raises:
             RuntimeError: after :meth:`close`.
@@ -243,6 +326,8 @@ class LiveServer:
         if self._server is None:
             raise RuntimeError("the live view was closed")
         stamp = observation.stamp_s
+        self._pacer.wait(stamp)
+        self._last = (observation, command, explorer)
         last = self._last_grid_s
         grids = last is None or stamp < last or stamp - last >= self.every_s or bool(command.finished)
         if grids:
@@ -250,9 +335,7 @@ class LiveServer:
         wanted = [spec for spec in CHANNELS if (grids or not spec.grid) and self._channels[spec.topic].has_sinks()]
         nanoseconds = int(round(stamp * 1e9))
         if wanted:
-            prediction = getattr(command.prediction, "mean", None) if grids else None
-            data = StepData(observation, command, explorer.frame, observed=explorer.observed if grids else None,
-                            prediction=prediction, evidence=getattr(explorer, "evidence", None) if grids else None)
+            data = self._step_data(grids)
             for spec in wanted:
                 message = spec.build(data)
                 if message is not None:
@@ -261,13 +344,84 @@ class LiveServer:
                     self.published[spec.topic] += 1
         self._server.broadcast_time(nanoseconds)
 
-    def close(self) -> None:
+    def _step_data(self, grids: bool) -> StepData:
+        """What the channels build the last step published from (without the grids' arrays: ``grids`` False)."""
+        observation, command, explorer = self._last
+        prediction = getattr(command.prediction, "mean", None) if grids else None
+        return StepData(observation, command, explorer.frame, observed=explorer.observed if grids else None,
+                        prediction=prediction, evidence=getattr(explorer, "evidence", None) if grids else None)
+
+    def hold(self, seconds: float) -> bool:
+        """Serve the last step published, all of it (the maps too, whatever ``every_s``), for ``seconds`` more:
+        to the clients subscribed now, and to every client that subscribes meanwhile (sent again to each
+        channel's subscribers when one subscribes). A KeyboardInterrupt (Ctrl-C; the commands' SIGINT or SIGTERM)
+        ends the hold at once.
+
+        Returns:
+            True after the whole hold, False when it was interrupted.
+
+        Raises:
+            ValueError: ``seconds`` not a number >= 0.
+            RuntimeError: after :meth:`close`.
+        """
+        seconds = _check_number("--live-hold", seconds, "a number of seconds")
+        if self._server is None:
+            raise RuntimeError("the live view was closed")
+        deadline = time.monotonic() + seconds
+        try:
+            final = self._final_messages()
+            due = [time.monotonic()]  # when to send the last state again: now, to the clients subscribed already
+            while True:
+                now = time.monotonic()
+                if self._subscribed.is_set():
+                    self._subscribed.clear()
+                    due += [now + settle for settle in _SETTLE_S]
+                if due and min(due) <= now:
+                    due = [at for at in due if at > now]
+                    self._send(final)
+                    continue
+                if now >= deadline:
+                    return True
+                self._subscribed.wait(min([deadline] + due) - now)
+        except KeyboardInterrupt:
+            return False
+
+    def _final_messages(self) -> tuple[list, int]:
+        """Every channel's message of the last step published, encoded, and its stamp (ns); none before a step."""
+        if self._last is None:
+            return [], 0
+        data = self._step_data(grids=True)
+        messages = []
+        for spec in CHANNELS:
+            message = spec.build(data)
+            if message is not None:
+                messages.append((spec.topic, encode(spec, message, self._encoders[spec.topic])))
+        return messages, int(round(data.observation.stamp_s * 1e9))
+
+    def _send(self, final: tuple[list, int]) -> None:
+        messages, nanoseconds = final
+        if not messages:
+            return
+        for topic, data in messages:
+            if self._channels[topic].has_sinks():
+                self._channels[topic].log(data, log_time=nanoseconds)
+                self.published[topic] += 1
+        self._server.broadcast_time(nanoseconds)
+
+    def close(self, wait_s: float = CLIENT_WAIT_S) -> None:
         """Stop the server and close the channels; when this returns the port is free (the server stops its
-        listener on its own thread: this waits for it, up to ``STOP_WAIT_S``). Idempotent."""
+        listener on its own thread: this waits for it, up to :data:`STOP_WAIT_S`). Idempotent.
+
+        The SDK's stop also waits for every client's connection to end, which a client that stopped reading never
+        lets happen: it runs on a daemon thread, waited for ``wait_s`` seconds at most (:data:`CLIENT_WAIT_S`);
+        then :attr:`stopping` is that thread, and the connection ends when the client goes away or the process
+        exits."""
         server, self._server = self._server, None
         try:
             if server is not None:
-                server.stop()
+                self._stopper = threading.Thread(target=server.stop, name="superex-live-stop", daemon=True)
+                self._stopper.start()
+                self._stopper.join(wait_s)
                 _wait_until_free(self.host, self.port)
         finally:
             self._close_channels()
@@ -284,18 +438,43 @@ class LiveServer:
         self.close()
 
 
+def _listener(subscribed: threading.Event):
+    """A foxglove ``ServerListener`` that sets ``subscribed`` when a client subscribes (on the server's thread)."""
+    from foxglove.websocket import ServerListener
+
+    class Subscriptions(ServerListener):
+        def on_subscribe(self, client, channel) -> None:
+            subscribed.set()
+
+    return Subscriptions()
+
+
 @contextlib.contextmanager
-def live_view(address: Optional[tuple], every_s: float, command: str = "superex") -> Iterator[Optional[LiveServer]]:
-    """A :class:`LiveServer` on ``address`` (``(host, port)``) for the ``with`` block, said on stderr, stopped when
-    the block ends however it ends (an exception, a signal); None (no server) when ``address`` is None.
+def live_view(address: Optional[tuple], every_s: float, command: str = "superex", pace_hz: Optional[float] = 0.0,
+              hold_s: float = 0.0) -> Iterator[Optional[LiveServer]]:
+    """A :class:`LiveServer` on ``address`` (``(host, port)``) for the ``with`` block, said on stderr; when the
+    block ends normally, it serves the last state for ``hold_s`` seconds more (:meth:`LiveServer.hold`, said on
+    stderr; Ctrl-C ends it); then, or at once when the block ends otherwise (an exception, a signal), it is stopped
+    (a client that stopped reading is not waited for: said on stderr). None (no server) when ``address`` is None.
 
     Raises:
-        ValueError: as :class:`LiveServer`.
+        ValueError: as :class:`LiveServer`, or a bad ``hold_s``.
     """
     if address is None:
         yield None
         return
-    with LiveServer(address[0], address[1], every_s=every_s) as server:
+    hold_s = _check_number("--live-hold", hold_s, "a number of seconds")
+    server = LiveServer(address[0], address[1], every_s=every_s, pace_hz=pace_hz)
+    try:
         print(f"{command}: live view on {server.url} (Foxglove: Open connection -> Foxglove WebSocket)",
               file=sys.stderr, flush=True)
         yield server
+        if hold_s > 0:
+            print(f"{command}: the run is over; its last state stays on {server.url} for {hold_s:g} s more "
+                  f"(--live-hold; Ctrl-C ends it now)", file=sys.stderr, flush=True)
+            server.hold(hold_s)
+    finally:
+        server.close()
+        if server.stopping is not None:
+            print(f"{command}: live view stopped without waiting for a client that stopped reading (its connection "
+                  f"closes when it goes away or this command exits)", file=sys.stderr, flush=True)

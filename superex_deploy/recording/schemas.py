@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from superex_deploy.messages.ros_fields import stamp_seconds
+from superex_deploy.messages.ros_fields import stamp_message, stamp_seconds
 
 __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata", "SPAD_FRAME_MSG",
            "EXPLORER_COMMAND_MSG", "POSE_STAMPED_MSG", "LASER_SCAN_MSG", "PATH_MSG", "OCCUPANCY_GRID_MSG",
@@ -145,12 +145,6 @@ REPLAYED_TOPICS = ("/pose", "/scan", "/spad", "/slam_map", "/pose_covariance", "
 """The topics the reader gathers into recorded steps (``/plan`` and ``/map`` are written for viewers)."""
 COVARIANCE_INDEX = (0, 1, 5)  # x, y and yaw among the 6 x 6 covariance's x, y, z, roll, pitch, yaw
 """Rows and columns of x, y and yaw in a ROS 2 pose's 6 x 6 covariance."""
-
-
-def stamp_message(seconds: float) -> dict:
-    """A ROS 2 time ``{"sec", "nanosec"}`` (ints) of ``seconds`` (float, rounded to the nanosecond)."""
-    nanoseconds = int(round(seconds * 1e9))
-    return {"sec": nanoseconds // 1_000_000_000, "nanosec": nanoseconds % 1_000_000_000}
 
 
 def header_message(seconds: float, frame_id: str) -> dict:

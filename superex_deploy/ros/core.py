@@ -177,6 +177,8 @@ class ExplorationCore:
         self._home_pending = False
         self.scans_received = self.scans_dropped = self.steps_skipped = 0
         self.refused: dict[str, int] = {}
+        self._predictor_made = None
+        self._notice: Optional[tuple] = None  # (reason, seconds, the node's clock when first said)
 
     # -- inputs --------------------------------------------------------------------------------------------------
 
@@ -239,12 +241,17 @@ class ExplorationCore:
         self.scans_dropped += 1
         return False
 
-    def refuse(self, kind: str, reason: str) -> None:
-        """An input was refused (a malformed scan, a bad map or pose): counted under ``kind`` in :attr:`refused`,
-        and ``reason`` is the status's until a step succeeds."""
+    def refuse(self, kind: str, reason: str, lasting_s: float = 0.0) -> None:
+        """An input was refused (a malformed scan, a bad map or pose, an operator's polygon): counted under
+        ``kind`` in :attr:`refused`; ``reason`` is the status's until a step succeeds, or with ``lasting_s`` added
+        to the status's reason for that long (seconds of the node's clock from the latest status: an operator's
+        refused command must be seen)."""
         with self._lock:
             self.refused[kind] = self.refused.get(kind, 0) + 1
-            self._problem = reason
+            if lasting_s > 0.0:
+                self._notice = (reason, lasting_s, None)
+            else:
+                self._problem = reason
 
     # -- operator ------------------------------------------------------------------------------------------------
 
@@ -350,18 +357,63 @@ class ExplorationCore:
         self._spads = [(s, f) for s, f in self._spads if s > best[0]]
         return best[1]
 
-    def _build(self, pose: Pose2D) -> None:
+    def _predictor(self):
+        """The node's predictor, made once (loading the models): the warm-up's explorer and the real one use it in
+        turn."""
+        if self._predictor_made is None:
+            from superex_deploy.onboard.prediction.inference import available_cores
+            from superex_deploy.pipeline import PROFILES, make_predictor
+
+            self._predictor_made = make_predictor(self.params.predictor_name, models=self.models,
+                                                  profile=PROFILES[self.params.profile],
+                                                  cores=self.params.cores or available_cores())
+        return self._predictor_made
+
+    def _new_explorer(self, frame: MapFrame):
         from superex_deploy.onboard.prediction.inference import available_cores
         from superex_deploy.pipeline import build_explorer
 
         params = self.params
-        resolution = params.resolution or (self._map.resolution_m if self._map is not None else 0.1)
+        return build_explorer(frame, self._planner, self._predictor(), profile=params.profile,
+                              cores=params.cores or available_cores(), spad=bool(params.spad_topic) and (
+                                  self._processing(params.predictor_name)), models=self.models, seed=params.seed,
+                              cfg=self._cfg)
+
+    def _processing(self, name: str):
+        from superex_deploy.pipeline import PROFILES, make_processing
+
+        return make_processing(name, models=self.models, skips=PROFILES[self.params.profile].nlos_skips)
+
+    def warm_up(self) -> float:
+        """Load the models and compile the numba kernels the steps run (cached on disk after the first time) by
+        two steps of an explorer of the node's pipeline on a small synthetic map, before the robot's first scan
+        waits for them; returns the seconds it took."""
+        clock = time.perf_counter()
+        frame = MapFrame((60, 60), 0.1, (0.0, 0.0))
+        grid = np.full(frame.shape, -1, np.int8)
+        grid[10:50, 10:50] = 0
+        grid[9, 9:51] = grid[50, 9:51] = grid[9:51, 9] = 100
+        message = OccupancyGridMessage.from_frame_grid(frame, grid)
+        scan = LaserScan(0.0, 2 * math.pi / 360, 0.05, 4.0, np.full(360, 3.0, np.float32))
+        explorer = self._new_explorer(frame)
+        try:
+            for t in (0.0, 0.1):
+                explorer.step(Observation(t, Pose2D(3.0, 3.0), scan, occupancy_grid=message if t == 0.0 else None))
+        finally:
+            explorer.close()
+        return time.perf_counter() - clock
+
+    def _build(self, pose: Pose2D) -> None:
+        from superex_deploy.onboard.prediction.scale import servable_resolution
+
+        params = self.params
+        # The SLAM map's resolution where the models serve it, else the nearest they do (0.05 m for a 0.0504 m map,
+        # resampled onto the explorer's cells).
+        resolution = params.resolution or (servable_resolution(self._map.resolution_m) if self._map is not None
+                                           else 0.1)
         lattice = self._map.origin_xy if self._map is not None else (0.0, 0.0)
         frame = MapFrame.around(pose.x, pose.y, resolution, params.initial_size, lattice_xy=lattice)
-        cores = params.cores or available_cores()
-        self.explorer = build_explorer(frame, self._planner, params.predictor_name, profile=params.profile,
-                                       cores=cores, spad=bool(params.spad_topic), models=self.models,
-                                       seed=params.seed, cfg=self._cfg)
+        self.explorer = self._new_explorer(frame)
         if self._bounds_pending is not None:
             self.explorer.set_bounds(self._bounds_pending[0])
         if self._home_pending:
@@ -389,7 +441,7 @@ class ExplorationCore:
             return None
         self._map_new = False
         self._last_stamp = pending.stamp_s
-        self._problem = "clock not advancing: the scans' stamps stand still" if self.explorer.clock_stalled else ""
+        self._problem = "clock not advancing: the scans' stamps stand still" if self.explorer.clock.stalled else ""
         goal = command.goal_xy
         changed = goal is not None and (self._sent_goal is None or math.hypot(goal[0] - self._sent_goal[0],
                                                                              goal[1] - self._sent_goal[1]) > 1e-9)
@@ -423,6 +475,12 @@ class ExplorationCore:
                     now_s - self._map_stamp > self.params.map_timeout and latest is not None:
                 reason = (reason + "; " if reason else "") + (f"no new map on {self.params.costmap_topic} for "
                                                              f"more than {self.params.map_timeout:g} s")
+            if self._notice is not None:
+                notice, lasting, since = self._notice
+                since = now_s if since is None else since
+                self._notice = (notice, lasting, since) if now_s - since < lasting else None
+                if self._notice is not None:
+                    reason = f"{reason}; {notice}" if reason else notice
             status = NodeStatus(stamp_s=now_s, state=state, reason=reason, scans_received=self.scans_received,
                                 scans_dropped=self.scans_dropped, steps_skipped=self.steps_skipped,
                                 latency_s=self.latency_s, scan_age_s=scan_age,

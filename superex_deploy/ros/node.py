@@ -67,7 +67,9 @@ class ExplorationNode:
         models: folder of exported models (default: the installed ones).
 
     Attributes:
-        core: the :class:`~superex_deploy.ros.core.ExplorationCore`.
+        core: the :class:`~superex_deploy.ros.core.ExplorationCore`, warmed up (:meth:`~superex_deploy.ros.core.
+            ExplorationCore.warm_up`: the models loaded, the kernels compiled) before the node subscribes.
+        warm_up_s: the seconds that took.
         latencies_s: every step's latency (scan received -> its outputs published), seconds.
         steps: steps run; ``goals_sent``: goals published.
 
@@ -79,6 +81,7 @@ class ExplorationNode:
                  domain_id: Optional[int] = None, config: Optional[str] = None, models=None):
         self.params = params
         self.core = ExplorationCore(params, models)
+        self.warm_up_s = self.core.warm_up()  # models loaded, kernels compiled: before the robot's first scan
         self.participant = RosParticipant(node_name, namespace, domain_id, config=config)
         part, p = self.participant, params
         self._scan = part.subscription(p.scan_topic, idl.LaserScan, qos.SENSOR_DATA)
@@ -239,7 +242,7 @@ class ExplorationNode:
                                      f"{self.params.global_frame!r}")
                 self.core.set_bounds(points or None)
             except ValueError as error:
-                self.core.refuse("bad bounds", f"the bounds on superex/bounds are refused: {error}")
+                self.core.refuse("bad bounds", f"the bounds on superex/bounds are refused: {error}", lasting_s=10.0)
 
     # -- publishing ------------------------------------------------------------------------------------------------
 

@@ -20,9 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Optional
 
 from superex_deploy.onboard.checks import check_int, check_real
 
@@ -44,8 +43,12 @@ PARAM_DOCS = {
     "planner": "the planner (superex, mapex, nearest, hector, upen)",
     "predictor": "the map predictor (lama_bp needs spad_topic; auto: lama_bp with a SPAD topic, else lama_los)",
     "profile": "the real-time profile (realtime, full)",
-    "resolution": "the explorer's cell size in metres; 0: the SLAM map's (else 0.1)",
+    "resolution": "the explorer's cell size in metres; 0: the SLAM map's where the models serve it, else the nearest "
+                  "they do (0.05 for a 0.0504 m map, resampled onto the explorer's cells; 0.1 without a map)",
     "initial_size": "the side in metres of the explorer's first grid around the robot; the grid grows as it needs",
+    "usable_range": "metres: returns beyond it and no-return readings (inf, range_max and above) clear free space only "
+                    "up to it and never lower a wall (GMapping's maxUrange, slam_toolbox's max_laser_range)",
+    "range_sigma": "metres: the LiDAR's range noise (its calibration; 0: exact), which places each return's wall",
     "integrate_scans": "between two SLAM maps the explorer also integrates the scans itself (a fresher map), else it "
                        "reads the SLAM map alone",
     "progress_timeout": "seconds without progress toward a goal before it is blacklisted (explore_lite's name); "
@@ -92,6 +95,8 @@ class NodeParams:
     profile: str = "realtime"
     resolution: float = 0.0
     initial_size: float = 20.0
+    usable_range: float = 20.0
+    range_sigma: float = 0.0
     integrate_scans: bool = True
     progress_timeout: float = 30.0
     min_frontier_size: float = 0.5
@@ -118,9 +123,9 @@ class NodeParams:
             if f.type == "bool" and not isinstance(value, bool):
                 raise ValueError(f"parameter {f.name} must be true or false, got {value!r}")
         for name in ("resolution", "progress_timeout", "min_frontier_size", "finish_after", "transform_tolerance",
-                     "prediction_period", "spad_sync"):
+                     "prediction_period", "spad_sync", "range_sigma"):
             object.__setattr__(self, name, check_real(f"parameter {name}", getattr(self, name), 0.0))
-        for name in ("initial_size", "scan_timeout", "map_timeout", "status_period"):
+        for name in ("initial_size", "scan_timeout", "map_timeout", "status_period", "usable_range"):
             object.__setattr__(self, name, check_real(f"parameter {name}", getattr(self, name), 0.0, low_open=True))
         object.__setattr__(self, "cores", check_int("parameter cores", self.cores, 0))
         object.__setattr__(self, "seed", check_int("parameter seed", self.seed, 0))
@@ -149,15 +154,18 @@ class NodeParams:
 
     def exploration_config(self, base=None):
         """The explorer's :class:`~superex_deploy.onboard.config.ExplorerConfig`: ``base`` (the profile's; default
-        the explorer's defaults) with the node's motion (:meth:`motion`), the grid growing, the finish rule, the
-        progress timeout, the return and the bounds of these parameters."""
+        the explorer's defaults) with the node's motion (:meth:`motion`), the LiDAR's usable range and range
+        sigma, the grid growing, the finish rule, the progress timeout, the return and the bounds of these
+        parameters."""
         from superex_deploy.onboard.config import ExplorerConfig
         from superex_deploy.onboard.mapping.growth import MapGrowth
 
         base = base or ExplorerConfig()
         policy = dataclasses.replace(base.goal_policy, no_progress_s=self.progress_timeout or None)
         motion = dataclasses.replace(base.motion, drive_carved=False)
-        return dataclasses.replace(base, motion=motion, growth=MapGrowth(), finish_after_s=self.finish_after,
+        occupancy = dataclasses.replace(base.occupancy, usable_range_m=self.usable_range, range_sigma_m=self.range_sigma)
+        return dataclasses.replace(base, motion=motion, occupancy=occupancy, growth=MapGrowth(),
+                                   finish_after_s=self.finish_after,
                                    finish_frontier_m=self.min_frontier_size, return_to_start=self.return_to_init,
                                    bounds=self.bounds or None, goal_policy=policy)
 
@@ -249,7 +257,8 @@ def load_params(path, node_name: str = "superex_node", **overrides) -> NodeParam
         raise ValueError(f"unknown parameter{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; the node takes "
                          f"{', '.join(sorted(known))}")
     for name in ("resolution", "progress_timeout", "min_frontier_size", "finish_after", "transform_tolerance",
-                 "initial_size", "scan_timeout", "map_timeout", "status_period", "prediction_period", "spad_sync"):
+                 "initial_size", "scan_timeout", "map_timeout", "status_period", "prediction_period", "spad_sync",
+                 "usable_range", "range_sigma"):
         if isinstance(values.get(name), int) and not isinstance(values.get(name), bool):
             values[name] = float(values[name])  # YAML's 30 for 30.0, as ROS 2 would refuse but users write
     return NodeParams(**values)

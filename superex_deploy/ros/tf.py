@@ -50,7 +50,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from superex_deploy.recording.schemas import stamp_message, stamp_seconds
+from superex_deploy.messages.ros_fields import stamp_message, stamp_seconds
 
 __all__ = ["Transform", "TfBuffer", "planar", "stamp_seconds", "stamp_of", "TransformError", "UnknownFrameError",
            "ConnectivityError", "ExtrapolationError", "LoopError", "QUATERNION_TOLERANCE"]

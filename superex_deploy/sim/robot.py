@@ -37,6 +37,7 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import LaserScan, MapFrame, OccupancyGridMessage, Pose2D, PoseCovariance, SpadFrame
 from superex_deploy.onboard.checks import check_real
 from superex_deploy.onboard.mapping.mapper import Mapper
+from superex_deploy.onboard.planning.frontiers import Pockets, find_frontiers, open_frontiers
 from superex_deploy.onboard.planning.motion import MotionConfig, path_is_clear, planning_map
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.sim.metrics import coverage as coverage_of
@@ -238,6 +239,7 @@ class SimulatedRobot:
         self.map_stamps: list[float] = []
         self._next_map_s = 0.0
         self._reachable: Optional[np.ndarray] = None
+        self._stood = np.zeros(grid.shape, bool)  # the cells the robot has stood in (the truth)
 
     @property
     def frame(self) -> MapFrame:
@@ -261,6 +263,7 @@ class SimulatedRobot:
             path = self.follower.path(slam_codes(self.slam), belief, self.stamp_s)
             if len(path):
                 self.world.drive(path, cfg.speed_m_s / cfg.tf_hz)
+        self._stood[self.world.pose_rc] = True
         belief, covariance = self.world.believe()
         transforms = (TfSample(self.stamp_s, MAP_FRAME, ODOM_FRAME, 0.0, 0.0, 0.0),
                       TfSample(self.stamp_s, ODOM_FRAME, BASE_FRAME, belief.x, belief.y, belief.yaw))
@@ -299,10 +302,31 @@ class SimulatedRobot:
         return OccupancyGridMessage(message.resolution_m, message.width, message.height, message.origin_xy,
                                     message.data, stamp_s=stamp_s)
 
+    def frontier_left(self, min_m: float, visit_m: float = 0.4) -> bool:
+        """Whether the SLAM stand-in's current map (every scan, exact: no staleness) holds a frontier the node's
+        finish rule counts (:mod:`superex_deploy.onboard.finishing`): a region of at least ``min_m`` metres that
+        borders unknown space a robot could enter and has a cell a path reaches from the robot's true cell (the
+        explorer's planning rules), and whose goal cell the robot has not stood within ``visit_m`` of (a frontier
+        still there after that, the node gives up as one no viewpoint resolves). The truth against which the node's
+        ``finished`` is judged."""
+        from scipy import ndimage
+
+        codes, res = slam_codes(self.slam), self.frame.resolution_m
+        regions = [f for f in find_frontiers(codes, 1) if f.size * res >= min_m - 1e-9]
+        if not regions:
+            return False
+        stood = ndimage.distance_transform_edt(~self._stood) * res <= visit_m
+        regions = [f for f in regions if not stood[f.cell_rc]]
+        regions = open_frontiers(tuple(regions), Pockets(codes, self.follower.motion.robot_radius_m, res))
+        if not regions:
+            return False
+        plan = planning_map(codes, self.world.pose_rc, res, self.follower.motion)
+        return any(np.isfinite(plan.travel_cost[f.cells[:, 0], f.cells[:, 1]]).any() for f in regions)
+
     def unseen_reachable_m2(self) -> float:
         """The area (square metres) of the largest connected part (8-connected) of the floor that the robot could
         drive into from its start (the truth, walls grown by the robot's radius) and that its SLAM map has not seen:
-        the truth against which ``finished`` is judged (something is left to explore while it is large)."""
+        what was really left to explore (the node cannot know a passage is too narrow before it sees it)."""
         from scipy import ndimage
 
         if self._reachable is None:
@@ -324,8 +348,10 @@ class RobotRun:
         stamps_s: float64 ``[T]`` the scans' stamps (seconds of simulated time).
         coverage: float64 ``[T]`` the share of the valid area seen after each scan.
         finished_s: the stamp at which the node first said ``finished``, or None.
-        frontier_gone_s: the stamp from which on nothing reachable and unseen of the finish size was left
-            (:class:`RunLog`; None: something was left at the end).
+        frontier_gone_s: the stamp from which on the SLAM stand-in's map held no frontier the node's finish rule
+            counts (:class:`RunLog`; None: one was left at the end).
+        unseen_at_finish_m2: the largest part of the floor the robot could drive into and had not seen when the
+            node said ``finished`` (square metres), or None.
         goals: ``[(stamp_s, x, y), ...]`` the goals the node sent.
         goals_in_walls: goals sent on a true wall cell (or off the floor).
         follower: the follower's counters (goals, reached, aborted).
@@ -337,6 +363,7 @@ class RobotRun:
     coverage: np.ndarray
     finished_s: Optional[float]
     frontier_gone_s: Optional[float]
+    unseen_at_finish_m2: Optional[float]
     goals: list
     goals_in_walls: int
     follower: dict
@@ -347,6 +374,7 @@ class RobotRun:
         """JSON values of every field."""
         return {"stamps_s": np.round(self.stamps_s, 6).tolist(), "coverage": np.round(self.coverage, 6).tolist(),
                 "finished_s": self.finished_s, "frontier_gone_s": self.frontier_gone_s,
+                "unseen_at_finish_m2": self.unseen_at_finish_m2,
                 "goals": [list(g) for g in self.goals], "goals_in_walls": self.goals_in_walls,
                 "follower": self.follower, "collisions": self.collisions,
                 "statuses": [list(s) for s in self.statuses]}
@@ -355,17 +383,18 @@ class RobotRun:
 class RunLog:
     """What a run of the simulated robot records as it goes (shared by :func:`run_in_process` and the robot-sim
     over DDS): coverage per scan, the goals and whether they lie in walls, the node's status changes, when the node
-    said ``finished``, and when the last reachable frontier went: from when on, checked every ``check_every_s``, no
-    part of the floor the robot could drive into and has not seen (:meth:`SimulatedRobot.unseen_reachable_m2`) is as
-    large as a square of ``finish_frontier_m`` (the node's ``min_frontier_size``)."""
+    said ``finished``, and when the last reachable frontier went: from when on, checked every ``check_every_s``,
+    the SLAM stand-in's map held no frontier the node's finish rule counts (:meth:`SimulatedRobot.frontier_left`,
+    regions of ``finish_frontier_m``, the node's ``min_frontier_size``); with the largest part of the floor the
+    robot could drive into and had not seen, when ``finished`` came (:meth:`SimulatedRobot.unseen_reachable_m2`)."""
 
     def __init__(self, robot: SimulatedRobot, finish_frontier_m: float, check_every_s: float = 0.5):
-        self.robot, self.check_every_s = robot, check_every_s
-        self.left_m2 = max(finish_frontier_m, robot.frame.resolution_m) ** 2  # a square of the finish size
+        self.robot, self.check_every_s, self.finish_frontier_m = robot, check_every_s, finish_frontier_m
         self.stamps, self.coverage, self.goals, self.statuses = [], [], [], []
         self.in_walls = 0
         self.finished_s: Optional[float] = None
         self.gone_s: Optional[float] = None
+        self.unseen_at_finish_m2: Optional[float] = None
         self._checked_s = -math.inf
 
     def scanned(self, stamp_s: float) -> None:
@@ -376,7 +405,7 @@ class RunLog:
         if stamp_s - self._checked_s < self.check_every_s - 1e-9:
             return
         self._checked_s = stamp_s
-        if self.robot.unseen_reachable_m2() >= self.left_m2:
+        if self.robot.frontier_left(self.finish_frontier_m):
             self.gone_s = None
         elif self.gone_s is None:
             self.gone_s = stamp_s
@@ -395,12 +424,14 @@ class RunLog:
             self.statuses.append((stamp_s, status, reason))
         if finished and self.finished_s is None:
             self.finished_s = stamp_s
+            self.unseen_at_finish_m2 = self.robot.unseen_reachable_m2()
 
     def result(self) -> RobotRun:
         """The :class:`RobotRun` so far."""
         follower = self.robot.follower
         return RobotRun(stamps_s=np.asarray(self.stamps, np.float64), coverage=np.asarray(self.coverage, np.float64),
-                        finished_s=self.finished_s, frontier_gone_s=self.gone_s, goals=list(self.goals),
+                        finished_s=self.finished_s, frontier_gone_s=self.gone_s,
+                        unseen_at_finish_m2=self.unseen_at_finish_m2, goals=list(self.goals),
                         goals_in_walls=self.in_walls,
                         follower={"goals": follower.goals, "reached": follower.reached, "aborted": follower.aborted},
                         collisions=self.robot.world.collisions, statuses=list(self.statuses))

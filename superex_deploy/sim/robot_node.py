@@ -74,10 +74,11 @@ class SimulatedRobotNode:
         self.participant.close()
 
     def wait_for_node(self, timeout_s: float = 30.0) -> bool:
-        """Wait (wall time) until a reader of ``/scan`` and a writer of the goals have matched: the node is up."""
+        """Wait (wall time) until a reader of ``/scan`` and a writer of the goals have matched and the node has said
+        its status once: it is up, its models loaded (as a robot's launch waits for its nodes to be ready)."""
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            if self._scan.matched_subscriptions() and self._goals.matched_publishers():
+            if self._scan.matched_subscriptions() and self._goals.matched_publishers() and self._status.take():
                 return True
             time.sleep(0.05)
         return False

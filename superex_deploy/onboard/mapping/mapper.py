@@ -54,11 +54,11 @@ import numba
 import numpy as np
 
 from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, check_measured_rays, dda_start, dda_step
-from superex_deploy.messages import LaserScan, MapFrame, Pose2D, grid_angles
+from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance, grid_angles
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 
-__all__ = ["OccupancyConfig", "Mapper", "integrate_log_odds"]
+__all__ = ["OccupancyConfig", "Mapper", "integrate_log_odds", "clear_limits"]
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,16 @@ class OccupancyConfig:
             sensor's ``--lidar-noise`` sigma). 0: the ranges are taken as exact (the noise-free protocol).
         range_hit_sigmas: with ``range_sigma_m > 0`` each return's hit is placed this many sigmas beyond the
             measured range, and the misses stop before that cell (see the module docstring).
+        usable_range_m: the usable range (metres; GMapping's ``maxUrange``, slam_toolbox's ``max_laser_range``,
+            costmap_2d's ``raytrace_range``): a return beyond it, and a reading that says "no return" (``+inf``,
+            ``range_max`` and above, as REP 117 and the drivers code it), clears free space only up to it (and up
+            to ``range_max``), stopping at the first cell the map holds occupied: such a ray never lowers a wall.
+            A SICK LMS codes no echo as 81.83 m with ``range_max`` 80 m: taken as 80 m of free space, every one
+            cleared the building's walls behind a glass door. The default, 20 m, is slam_toolbox's and the
+            simulated LiDAR's range (the benchmarks are unchanged); indoors 2D LiDARs (Hokuyo UST-20, SICK TiM,
+            RPLIDAR) measure walls reliably to 10-25 m.
+        pose_clearing_sigmas: with a pose covariance, a ray clears only as far as every ray within this many
+            lateral sigmas of the pose error around it reaches (see the module docstring); 0: as far as it reaches.
         footprint_clearing: each step, the cells under the robot's body become free (:meth:`Mapper.clear_footprint`).
         footprint_margin_sigmas: the footprint disc is the robot radius less this many position sigmas of the
             pose covariance (an exact pose: the whole radius).
@@ -100,15 +110,22 @@ class OccupancyConfig:
     slam_free_percent: int = 25
     range_sigma_m: float = 0.0
     range_hit_sigmas: float = 2.0
+    usable_range_m: float = 20.0
+    pose_clearing_sigmas: float = 1.0
     footprint_clearing: bool = True
     footprint_margin_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("range_sigma_m", "range_hit_sigmas", "footprint_margin_sigmas"):
+        for name in ("range_sigma_m", "range_hit_sigmas", "footprint_margin_sigmas", "pose_clearing_sigmas"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)) \
                     or not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"OccupancyConfig.{name} must be a finite number >= 0, got {value!r}")
+        usable = self.usable_range_m
+        if isinstance(usable, (bool, np.bool_)) or not isinstance(usable, (int, float, np.number)) \
+                or not (np.isfinite(usable) and usable > 0.0):
+            raise ValueError(f"OccupancyConfig.usable_range_m must be a positive finite number of metres, got "
+                             f"{usable!r}")
         if not isinstance(self.footprint_clearing, (bool, np.bool_)):
             raise ValueError(f"OccupancyConfig.footprint_clearing must be a bool, got {self.footprint_clearing!r}")
         values = [getattr(self, name) for name in ("hit", "miss", "lowest", "highest", "occupied_threshold",
@@ -134,28 +151,38 @@ class OccupancyConfig:
 
 @numba.njit(cache=True)
 def _integrate_log_odds(y0, x0, angles, ranges, max_t, tolerance, hit_shift, log_odds, touched, hit, miss, lowest,
-                        highest):
+                        highest, weak_t, weak_stop, clear_t):
     """One scan's log-odds update: walk every ray as :func:`superex_deploy.geometry._mark_ranges` does, its return
     moved ``hit_shift`` cells farther (walked past ``max_t`` if need be), counting in ``touched`` (int32
     ``[H, W, 2]``, zero on entry and on return) the rays that crossed each cell (``[..., 0]``) and that returned in
     it (``[..., 1]``), then give each touched cell one update: ``hit`` where at least as many rays returned in it
-    as crossed it, else ``miss``; clamped to ``[lowest, highest]``. ``ranges[i] < 0``: no return."""
+    as crossed it, else ``miss``; clamped to ``[lowest, highest]``. ``ranges[i] < 0``: no return, walked only up
+    to ``weak_t`` and stopped before the first cell whose log-odds (before this scan) is ``weak_stop`` or more.
+    Ray ``i`` crosses only the cells it leaves by ``clear_t[i]`` (a return's hit is placed all the same)."""
     n_rows, n_cols = log_odds.shape
     top, left, bottom, right = n_rows, n_cols, -1, -1
     for i in range(angles.shape[0]):
         r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
             y0, x0, np.sin(angles[i]), np.cos(angles[i]))
-        hit_at = ranges[i] + hit_shift + tolerance if ranges[i] >= 0.0 else -1.0
+        weak = ranges[i] < 0.0
+        hit_at = ranges[i] + hit_shift + tolerance if not weak else -1.0
         # Without a shift the walk stops at max_t exactly as geometry.mark_ranges does (the noise-free map).
         stop_t = max(max_t, hit_at) if hit_shift > 0.0 else max_t
+        if weak:
+            stop_t = min(max_t, weak_t)
         while True:
+            if weak and log_odds[r, c] >= weak_stop:
+                break
             top, bottom = min(top, r), max(bottom, r)
             left, right = min(left, c), max(right, c)
             t_exit = min(t_next_c, t_next_r)
             if hit_at >= 0.0 and t_exit > hit_at:
                 touched[r, c, 1] += 1
                 break
-            touched[r, c, 0] += 1
+            if t_exit <= clear_t[i]:
+                touched[r, c, 0] += 1
+            elif weak:
+                break
             r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
                                                       t_delta_c)
             if t > stop_t or r < 0 or r >= n_rows or c < 0 or c >= n_cols:
@@ -171,9 +198,62 @@ def _integrate_log_odds(y0, x0, angles, ranges, max_t, tolerance, hit_shift, log
             touched[r, c, 1] = 0
 
 
+_MAX_HALF_WINDOW = np.pi / 6.0
+"""The angular half-window of :func:`_clear_limits` at most (radians): near the robot a position sigma spans wide
+angles, and 30 degrees either side is already more than a ray's neighbourhood."""
+
+
+@numba.njit(cache=True)
+def _clear_limits(angles, reach, sigma_xy, sigma_yaw, sigmas, limits):
+    """Per ray ``i`` (``angles`` sorted, radians in ``[0, 2 pi)``): the largest ``t <= reach[i]`` that every ray
+    within the angular half-window ``atan(u(t) / t)`` of it reaches, ``u(t) = sigmas sqrt(sigma_xy^2 + (t
+    sigma_yaw)^2)`` (cells) the lateral uncertainty at ``t``; the window widens as ``t`` shrinks, so ``t`` is
+    lowered to the nearest reach in it until it holds (at most 8 times). Written to ``limits``."""
+    n = angles.shape[0]
+    two_pi = 2.0 * np.pi
+    for i in range(n):
+        t = reach[i]
+        for _ in range(8):
+            u = sigmas * np.sqrt(sigma_xy * sigma_xy + t * t * sigma_yaw * sigma_yaw)
+            half = min(np.arctan2(u, max(t, 1e-9)), _MAX_HALF_WINDOW)
+            nearest = reach[i]
+            for step in (1, -1):
+                j = i
+                for _k in range(n - 1):
+                    j = (j + step) % n
+                    gap = (angles[j] - angles[i]) % two_pi
+                    if min(gap, two_pi - gap) > half:
+                        break
+                    nearest = min(nearest, reach[j])
+            if nearest >= t:
+                break
+            t = nearest
+        limits[i] = t
+
+
+def clear_limits(angles: np.ndarray, reach: np.ndarray, sigma_xy_cells: float, sigma_yaw_rad: float,
+                 sigmas: float) -> np.ndarray:
+    """float64 ``[N]``: how far each ray of a scan may clear under a pose error of ``sigma_xy_cells`` /
+    ``sigma_yaw_rad`` (see the module docstring and :func:`_clear_limits`), from the rays' grid angles and the
+    distances ``reach`` (cells) they walk to (their shifted returns, or their clearing range); ``reach`` itself
+    when ``sigmas`` or both sigmas are 0."""
+    angles, reach = np.asarray(angles, np.float64), np.asarray(reach, np.float64)
+    if sigmas == 0.0 or (sigma_xy_cells == 0.0 and sigma_yaw_rad == 0.0) or reach.size == 0:
+        return reach.copy()
+    wrapped = np.mod(angles, 2.0 * np.pi)
+    order = np.argsort(wrapped, kind="stable")
+    limits = np.empty(reach.size, np.float64)
+    _clear_limits(np.ascontiguousarray(wrapped[order]), np.ascontiguousarray(reach[order]), float(sigma_xy_cells),
+                  float(sigma_yaw_rad), float(sigmas), limits)
+    out = np.empty_like(limits)
+    out[order] = limits
+    return out
+
+
 def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, max_range_cells: float,
                        cfg: OccupancyConfig = OccupancyConfig(), touched: np.ndarray = None,
-                       hit_shift_cells: float = 0.0) -> None:
+                       hit_shift_cells: float = 0.0, usable_range_cells: float = np.inf,
+                       pose_sigmas: Optional[tuple[float, float]] = None) -> None:
     """Update a log-odds grid with one measured scan (see the module docstring), in grid units.
 
     Args:
@@ -187,6 +267,11 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
         hit_shift_cells: how much farther than measured each return is placed (cells, >= 0; the calibrated
             sensor model's ``range_hit_sigmas * range_sigma_m``, see :class:`OccupancyConfig`): the misses stop
             before the shifted return's cell. 0: the measured range as it is.
+        usable_range_cells: a ray without a return (``inf``) clears only up to this (cells, > 0; and up to
+            ``max_range_cells``) and stops before the first cell at or above ``cfg.occupied_threshold``: such a ray
+            never lowers a wall (:class:`OccupancyConfig` ``usable_range_m``).
+        pose_sigmas: ``(sigma_xy cells, sigma_yaw radians)`` of the pose the scan is placed at, or None (exact):
+            each ray clears only as far as :func:`clear_limits` allows (``cfg.pose_clearing_sigmas``).
 
     Raises:
         ValueError: a grid that is not float32 ``[H, W]`` C-contiguous and writeable, a bad scratch grid, an origin
@@ -204,10 +289,24 @@ def integrate_log_odds(log_odds: np.ndarray, origin_yx, angles, ranges_cells, ma
     if isinstance(hit_shift_cells, (bool, np.bool_)) or not isinstance(hit_shift_cells, (int, float, np.number)) \
             or not (np.isfinite(hit_shift_cells) and hit_shift_cells >= 0.0):
         raise ValueError(f"hit_shift_cells must be a finite number >= 0, got {hit_shift_cells!r}")
+    if isinstance(usable_range_cells, (bool, np.bool_)) or not isinstance(usable_range_cells, (int, float, np.number)) \
+            or not usable_range_cells > 0.0:
+        raise ValueError(f"usable_range_cells must be a number > 0, got {usable_range_cells!r}")
     y0, x0, angles, ranges, max_t = check_measured_rays(log_odds.shape, origin_yx, angles, ranges_cells,
                                                         max_range_cells)
+    weak_t = float(usable_range_cells)
+    if pose_sigmas is None:
+        clear_t = np.full(ranges.shape, np.inf)
+    else:
+        sigma_xy, sigma_yaw = (float(v) for v in pose_sigmas)
+        if not (np.isfinite(sigma_xy) and np.isfinite(sigma_yaw) and sigma_xy >= 0.0 and sigma_yaw >= 0.0):
+            raise ValueError(f"pose_sigmas must be two finite numbers >= 0, got {pose_sigmas!r}")
+        reach = np.where(ranges >= 0.0, ranges + float(hit_shift_cells) + RETURN_TOLERANCE_CELLS, min(max_t, weak_t))
+        limits = clear_limits(angles, reach, sigma_xy, sigma_yaw, float(cfg.pose_clearing_sigmas))
+        clear_t = np.where(limits < reach, limits, np.inf)  # unlimited rays walk exactly as without pose_sigmas
     _integrate_log_odds(y0, x0, angles, ranges, max_t, RETURN_TOLERANCE_CELLS, float(hit_shift_cells), log_odds,
-                        touched, float(cfg.hit), float(cfg.miss), float(cfg.lowest), float(cfg.highest))
+                        touched, float(cfg.hit), float(cfg.miss), float(cfg.lowest), float(cfg.highest),
+                        weak_t, float(cfg.occupied_threshold), clear_t)
 
 
 class Mapper:
@@ -326,16 +425,22 @@ class Mapper:
         return (self._carve_log_odds < 0.0) & (self._derived(True) == FREE)
 
     def integrate_scan(self, frame: MapFrame, pose: Pose2D, scan: LaserScan,
-                       footprint_radius_cells: Optional[float] = None) -> int:
+                       footprint_radius_cells: Optional[float] = None,
+                       pose_covariance: Optional[PoseCovariance] = None) -> int:
         """Update the map with a measured scan taken at ``pose``; with ``footprint_radius_cells``, then clear the
         robot's footprint there (:meth:`clear_footprint`), judging which cells are confirmed walls by their values
         *before* this scan: the scan's own misses start in the robot's cells, and a scan given at a wrong pose
         (inside a wall) must not first lower a confirmed wall below the clamp and then let the clearing free it.
-        Returns how many occupied cells the clearing freed (0 without a footprint).
+        Returns how many occupied cells the clearing freed (0 without a footprint). With ``pose_covariance`` (the
+        observation's: the pose is uncertain) each ray clears only as far as its neighbours within
+        ``cfg.pose_clearing_sigmas`` lateral sigmas reach (:func:`clear_limits`).
 
-        A range in ``[range_min, range_max)`` is a return; ``+inf`` or a range at or above ``range_max`` is no
-        return (free up to ``range_max``: drivers and Gazebo report no return as exactly ``range_max``); NaN, ``-inf`` and ranges below ``range_min`` are invalid readings (REP 117: too
-        close, or a dropout) and the ray is skipped, so a scan without a valid reading leaves the map as it was.
+        A range in ``[range_min, range_max)`` up to ``cfg.usable_range_m`` is a return; ``+inf``, a range at or
+        above ``range_max`` (drivers and Gazebo report no return as exactly ``range_max``, a SICK LMS above it)
+        or beyond the usable range says only that nothing was met: free up to the usable range and ``range_max``,
+        stopping at a cell the map holds occupied. NaN, ``-inf`` and ranges below ``range_min`` are invalid
+        readings (REP 117: too close, or a dropout) and the ray is skipped, so a scan without a valid reading
+        leaves the map as it was.
         Angles are turned from the robot's frame (counter-clockwise from its heading) into grid angles.
 
         Raises:
@@ -351,17 +456,21 @@ class Mapper:
         resolution = frame.resolution_m
         ranges = scan.ranges.astype(np.float64)
         valid = ~np.isnan(ranges) & (ranges >= scan.range_min)
-        returned = valid & (ranges < scan.range_max)
+        returned = valid & (ranges < scan.range_max) & (ranges <= self.cfg.usable_range_m)
         angles = grid_angles(pose.yaw, scan.angles())
         self.integrate_ranges(origin, angles[valid], np.where(returned, ranges / resolution, np.inf)[valid],
                               scan.range_max / resolution,
-                              hit_shift_cells=self.cfg.range_hit_sigmas * self.cfg.range_sigma_m / resolution)
+                              hit_shift_cells=self.cfg.range_hit_sigmas * self.cfg.range_sigma_m / resolution,
+                              usable_range_cells=self.cfg.usable_range_m / resolution,
+                              pose_sigmas=None if pose_covariance is None else (
+                                  pose_covariance.sigma_xy_m / resolution, pose_covariance.sigma_yaw_rad))
         if footprint_radius_cells is None:
             return 0
         return self.clear_footprint(origin, footprint_radius_cells, keep=confirmed)
 
     def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float,
-                         hit_shift_cells: float = 0.0) -> None:
+                         hit_shift_cells: float = 0.0, usable_range_cells: float = np.inf,
+                         pose_sigmas: Optional[tuple[float, float]] = None) -> None:
         """Update the map with a measured scan, in grid units: see :func:`integrate_log_odds`.
 
         Args:
@@ -371,9 +480,12 @@ class Mapper:
             max_range_cells: the sensor's maximum range (cells).
             hit_shift_cells: how much farther each return's hit is placed (cells; :meth:`integrate_scan` passes
                 ``range_hit_sigmas * range_sigma_m`` over the resolution).
+            usable_range_cells: how far a ray without a return clears (cells; :meth:`integrate_scan` passes
+                ``usable_range_m`` over the resolution).
+            pose_sigmas: ``(sigma_xy cells, sigma_yaw radians)`` of the pose's error, or None (exact).
         """
         integrate_log_odds(self._log_odds, origin_yx, angles, ranges_cells, max_range_cells, self.cfg, self._touched,
-                           hit_shift_cells)
+                           hit_shift_cells, usable_range_cells, pose_sigmas)
         # Every cell a ray touched lies within its range or its return (shifted), and a cell further.
         ranges = np.asarray(ranges_cells, np.float64)
         longest = max(float(max_range_cells), float(ranges[np.isfinite(ranges)].max(initial=0.0)))

@@ -12,7 +12,7 @@ from superex_deploy.geometry import line_of_sight
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.types import Frontier
 
-__all__ = ["goal_reached", "near_visited_goal", "choose_goal", "near_frontier", "frontier_left"]
+__all__ = ["goal_reached", "near_visited_goal", "unreached", "choose_goal", "near_frontier", "frontier_left"]
 
 
 def goal_reached(not_free: np.ndarray, pose: tuple[int, int], cell: tuple[int, int], reach_cells: float) -> bool:
@@ -33,6 +33,14 @@ def near_visited_goal(cell: tuple[int, int], visited: set[tuple[int, int]]) -> b
     and that is still there cannot be resolved from where the robot can stand (unknown cells seen only edge-on,
     the inside of a thick wall), and would be offered again as soon as the robot left."""
     return any((cell[0] + dr, cell[1] + dc) in visited for dr in (-1, 0, 1) for dc in (-1, 0, 1))
+
+
+def unreached(regions: tuple[Frontier, ...], not_free: np.ndarray, pose: tuple[int, int], reach_cells: float,
+              visited: set[tuple[int, int]]) -> tuple[Frontier, ...]:
+    """The regions a planner may be offered with the robot at ``pose``: their goal not reached from there
+    (:func:`goal_reached`) nor a reached goal or next to one (:func:`near_visited_goal`). Order is kept."""
+    return tuple(f for f in regions if not near_visited_goal(f.cell_rc, visited)
+                 and not goal_reached(not_free, pose, f.cell_rc, reach_cells))
 
 
 def choose_goal(offer: Callable[[tuple[Frontier, ...]], Optional[tuple[int, int]]], observed: np.ndarray,

@@ -15,7 +15,9 @@ twice the size they learned. :func:`at_resolution` wraps a model for a grid of `
 * a grid ``u`` times coarser (``u`` an integer up to :data:`MAX_UPSAMPLE`: 0.2 m for a 0.1 m model): every cell is
   repeated ``u x u`` times (:func:`repeat_cells`) and the answer of a block is its cells' mean (the variance that of
   the block's cells taken as one mixture, :func:`pool_prediction`);
-* any other ratio (not an integer either way, or beyond those limits): one ValueError when the wrapper is made.
+* any other ratio (not an integer either way, or beyond those limits): one ValueError when the wrapper is made,
+  naming the nearest resolution served (:func:`servable_resolution`): an explorer for a SLAM map of 0.0504 m runs
+  at 0.05 m and resamples the map onto its cells, which costs the map nothing the models would see.
 
 Maps whose sides are not multiples of ``k`` are padded at the bottom and right (unknown, no evidence) and the
 answer cropped back. :class:`NativeScalePredictor` wraps a map predictor, :class:`NativeScaleFilter` a
@@ -32,7 +34,7 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, MapPredictor, Prediction, check_observed
 
-__all__ = ["MAX_POOL", "MAX_UPSAMPLE", "scale_factors", "model_resolution", "pool_observed", "pool_mean",
+__all__ = ["MAX_POOL", "MAX_UPSAMPLE", "scale_factors", "servable_resolution", "model_resolution", "pool_observed", "pool_mean",
            "repeat_cells", "upsample_linear", "pool_prediction", "NativeScalePredictor", "NativeScaleFilter",
            "at_resolution", "model_window_cells", "filter_area"]
 
@@ -65,10 +67,31 @@ def scale_factors(resolution_m: float, model_resolution_m: float) -> tuple[int, 
     limit = MAX_POOL if finer else MAX_UPSAMPLE
     if abs(factor - whole) > _RATIO_TOLERANCE * factor or whole > limit:
         low, high = model_resolution_m / MAX_POOL, model_resolution_m * MAX_UPSAMPLE
-        raise ValueError(f"a {resolution_m} m grid cannot be served by a model trained at {model_resolution_m} m/cell: "
-                         f"the grid must be an integer fraction (1/2, 1/3, 1/4) of the model's resolution or twice "
-                         f"it, within [{low:g}, {high:g}] m")
+        raise ValueError(f"a {resolution_m:g} m grid cannot be served by a model trained at {model_resolution_m:g} "
+                         f"m/cell: the grid must be an integer fraction (1/2, 1/3, 1/4) of the model's resolution or "
+                         f"twice it, within [{low:g}, {high:g}] m; give the explorer "
+                         f"{servable_resolution(resolution_m, model_resolution_m):g} m (a SLAM map of any resolution "
+                         f"is resampled onto its cells)")
     return (whole, 1) if finer else (1, whole)
+
+
+def servable_resolution(resolution_m: float, model_resolution_m: float = 0.1) -> float:
+    """The grid resolution (metres per cell) a model trained at ``model_resolution_m`` serves that lies nearest to
+    ``resolution_m`` (in ratio): ``model / k`` for ``k`` up to :data:`MAX_POOL`, or ``model * u`` for ``u`` up to
+    :data:`MAX_UPSAMPLE`. A SLAM map of 0.0504 m (a real one) gets an explorer at 0.05 m, onto whose cells it is
+    resampled (:meth:`~superex_deploy.messages.OccupancyGridMessage.in_frame`); one the models serve gets itself.
+
+    Raises:
+        ValueError: a resolution that is not a positive number of metres.
+    """
+    for name, value in (("resolution_m", resolution_m), ("model_resolution_m", model_resolution_m)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number of metres, got {value!r}")
+    options = [model_resolution_m / k for k in range(1, MAX_POOL + 1)]
+    options += [model_resolution_m * u for u in range(2, MAX_UPSAMPLE + 1)]
+    best = min(options, key=lambda option: abs(np.log(option / resolution_m)))
+    return float(resolution_m) if abs(best - resolution_m) <= _RATIO_TOLERANCE * best else float(best)
 
 
 def model_resolution(model) -> Optional[float]:
