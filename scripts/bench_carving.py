@@ -1,4 +1,4 @@
-"""Carving nearer its bound (issue #26 item 3): what each carving option adds to coverage on fixed MapEx
+"""Carving nearer its bound: what each carving option adds to coverage on fixed MapEx
 trajectories, and whether it stays sound there.
 
 Each scenario runs MapEx on the observed map (no SPAD: the trajectory does not depend on any variant). At every

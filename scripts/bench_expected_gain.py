@@ -1,8 +1,8 @@
-"""Do no harm (issue #26, item 1): the expected-visibility gain and the wall support, decided on held-out train floors.
+"""Do no harm: the expected-visibility gain and the wall support, decided on held-out train floors.
 
 Each planner variant runs with the predictors ``observed`` (unknown = free), ``lama_los``, ``lama_bp`` with the SPAD
 (carving and Pix2Pix evidence, the SuperEx pipeline) and ``oracle`` (the true map), and every run is paired by
-scenario against **the same planner, as it ships, on the observed map** (the issue's target: no learned row slower
+scenario against **the same planner, as it ships, on the observed map** (the target: no learned row slower
 than that, paired mean >= -0.3 points). The variants (:data:`VARIANTS`):
 
 * ``superex`` / ``mapex``: the planners as they ship (thresholded gains);
@@ -40,6 +40,7 @@ import numpy as np
 
 from superex_deploy.evaluation import (bootstrap_interval, first_half_auc, markdown_table, run_benchmark_episode,
                                        train_scenarios, write_json, write_text)
+from superex_deploy.pipeline import ENSEMBLE_PREDICTORS, EVIDENCE_PREDICTORS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,7 +56,8 @@ VARIANTS = {
 }
 """Name -> (planner, config overrides); ``"MIN_SCALE"`` stands for ``--min-scale``."""
 PREDICTORS = ("observed", "lama_los", "lama_bp", "oracle")
-SPAD = {"lama_bp"}
+"""The predictors this study runs, in the order of its table."""
+SPAD = set(EVIDENCE_PREDICTORS)
 """Predictors run with the SPAD (carving and the evidence lama_bp reads)."""
 
 
@@ -138,7 +140,7 @@ def _episode(task: tuple) -> dict:
             for key, value in sums.items():
                 total[key] += value
 
-    learned = predictor in ("lama_los", "lama_bp") and not options
+    learned = predictor in ENSEMBLE_PREDICTORS and not options
     clock = time.perf_counter()
     result = run_benchmark_episode(grid, start, planner_name, predictor, planner_options=options, steps=steps,
                                    cfg=profile.episode_config(iou_every=0), profile=profile,
@@ -193,7 +195,7 @@ def calibration_rows(episodes: list[dict]) -> list[dict]:
     """The shipped planners' learned runs' :func:`support_calibration` sums, per predictor and support group: cells,
     mean predicted wall probability and the share of true walls."""
     rows = []
-    for predictor in ("lama_los", "lama_bp"):
+    for predictor in ENSEMBLE_PREDICTORS:
         for group in ("none", "partial", "full"):
             sums = [e["support_calibration"][group] for e in episodes if e["predictor"] == predictor
                     and e.get("support_calibration") and group in e["support_calibration"]]
@@ -220,7 +222,7 @@ def table(rows: list[dict], setting: dict) -> str:
              "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", ""]
     cells = []
     for r in rows:
-        learned = r["predictor"] in ("lama_los", "lama_bp")
+        learned = r["predictor"] in ENSEMBLE_PREDICTORS
         ok = "" if not learned else ("met" if r["vs_observed"]["mean"] >= -0.003 else "**missed**")
         same = f" (= {r['same_run_as']})" if r["same_run_as"] else ""
         cells.append([r["variant"], f"{r['predictor']}{same}", f"{100 * r['auc_first_half']:.1f}",

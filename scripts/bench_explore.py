@@ -21,6 +21,7 @@ from superex_deploy.sim.episode import STAGES
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.maps import load_map, start_poses
+from superex_deploy.pipeline import PROFILES
 
 WINDOW = 100
 
@@ -43,14 +44,16 @@ def main() -> None:
     # Load every compiled kernel once, so the first timed episode does not pay for it.
     warm = load_map("50052749")
     for name in planners:
-        run_benchmark_episode(warm, start_poses(warm.name)[0], name, ObservedAsPrediction(), steps=3)
+        run_benchmark_episode(warm, start_poses(warm.name)[0], name, ObservedAsPrediction(), steps=3,
+                              profile=PROFILES["full"])
 
     rows = []
     for map_name in maps:
         grid = load_map(map_name)
         for name in planners:
             result, _, wall = run_benchmark_episode(grid, start_poses(map_name)[0], planner_objects[name],
-                                                    ObservedAsPrediction(), steps=args.steps, seed=0)
+                                                    ObservedAsPrediction(), steps=args.steps, seed=0,
+                                                    profile=PROFILES["full"])
             per_step = sum(result.timings_s[s] for s in STAGES)
             rows.append({
                 "map": map_name, "shape": list(grid.shape), "planner": name, "steps": result.steps,

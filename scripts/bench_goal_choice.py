@@ -1,4 +1,7 @@
-"""What a goal choice costs, per planner, before and after the exact speed-ups of issue #25 item 3.
+"""What a goal choice costs, per planner, before and after the exact speed-ups of its scoring.
+
+The speed-ups (the superex planner's frontiers scored in one compiled pass) are described in
+docs/benchmarks/realtime.md, "Goal choices".
 
 Two stages:
 
@@ -37,8 +40,9 @@ from superex_deploy.evaluation import write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
-PLANNERS = {"superex": ("lama_bp", True, "realtime"), "mapex": ("lama_los", False, "full"),
-            "nearest": ("observed", False, "realtime")}
+PIPELINE_OF = {"superex": "superex", "mapex": "mapex_lama_los", "nearest": "nearest"}
+"""Planner -> the named pipeline (``superex_deploy.pipeline.PIPELINES``) whose predictor, SPAD sensing and profile
+its goal choices are recorded under."""
 
 
 class _Recorder:
@@ -85,12 +89,12 @@ def record(planners: list[str], n_maps: int, steps: int, folder: Path) -> None:
     from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.types import Planner
-    from superex_deploy.pipeline import PROFILES
+    from superex_deploy.pipeline import PIPELINES, PROFILES
 
     Planner.register(_Recorder)
     for name in planners:
-        predictor_name, spad, profile_name = PLANNERS[name]
-        profile = PROFILES[profile_name]
+        pipeline = PIPELINES[PIPELINE_OF[name]]
+        predictor_name, spad, profile = pipeline.predictor, pipeline.spad, PROFILES[pipeline.profile]
         out = folder / name
         out.mkdir(parents=True, exist_ok=True)
         for map_name, start in train_scenarios(n_maps, 1, 40000, heldout=True):
@@ -276,9 +280,9 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "goal_choice")
     args = parser.parse_args()
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
-    unknown = [p for p in planners if p not in PLANNERS]
+    unknown = [p for p in planners if p not in PIPELINE_OF]
     if unknown:
-        raise SystemExit(f"unknown planner(s) {unknown}; choose from {', '.join(PLANNERS)}")
+        raise SystemExit(f"unknown planner(s) {unknown}; choose from {', '.join(PIPELINE_OF)}")
     if args.record:
         record(planners, args.maps, args.steps, args.contexts)
     else:

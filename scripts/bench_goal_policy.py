@@ -25,7 +25,8 @@ from typing import Optional
 import numpy as np
 
 MARGINS = (None, 0.0, 0.1, 0.25)
-PLANNER, PREDICTOR = "superex", "lama_bp"
+PIPELINE = "superex"
+"""The named pipeline every episode runs (``superex_deploy.pipeline.PIPELINES``), its goal policy's margin varied."""
 
 
 def run_one(task: tuple) -> dict:
@@ -36,19 +37,19 @@ def run_one(task: tuple) -> dict:
     from superex_deploy.messages import MapFrame
     from superex_deploy.onboard.planning.goal_policy import GoalPolicy
     from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import build_explorer, check_profile, make_sensing, resolve_profile
+    from superex_deploy.pipeline import PIPELINES, build_explorer, check_profile, make_sensing
     from superex_deploy.sim.episode import run_episode
 
     name, start_index, start, margin, steps = task
     grid = load_map(name)
-    planner = make_planner(PLANNER)
-    profile_name = resolve_profile(None, planner, PREDICTOR)
-    profile = check_profile(profile_name, planner, PREDICTOR)
+    pipeline = PIPELINES[PIPELINE]
+    planner = make_planner(pipeline.planner)
+    profile = check_profile(pipeline.profile, planner, pipeline.predictor)
     cfg = profile.episode_config(iou_every=0)
     cfg = replace(cfg, explorer=replace(cfg.explorer, goal_policy=GoalPolicy(commit_margin=margin)))
-    sensing = make_sensing(PREDICTOR, True, 0, profile=profile)
-    explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, PREDICTOR, profile=profile_name,
-                              spad=sensing.processing(), seed=0, cfg=cfg.explorer, grid=grid)
+    sensing = make_sensing(pipeline.predictor, pipeline.spad, 0, profile=profile)
+    explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, pipeline.predictor,
+                              profile=pipeline.profile, spad=sensing.processing(), seed=0, cfg=cfg.explorer, grid=grid)
     result = run_episode(grid, tuple(start), explorer=explorer, steps=steps, seed=0, cfg=cfg, sensing=sensing)
     return {"map": name, "start_index": start_index, "margin": margin, "steps": steps,
             "episode_steps": result.steps, "finished": result.finished,
@@ -63,14 +64,16 @@ def _label(margin: Optional[float]) -> str:
 
 def report(out: Path, episodes: list[dict], steps: int) -> dict:
     from superex_deploy.evaluation import bootstrap_interval, first_half_auc, markdown_table
+    from superex_deploy.pipeline import PIPELINES
 
+    pipeline = PIPELINES[PIPELINE]
     by = {}
     for e in episodes:
         by.setdefault((e["map"], e["start_index"]), {})[e["margin"]] = e
     pairs = [v for v in by.values() if all(m in v for m in MARGINS)]
     auc = {m: np.array([100 * first_half_auc(p[m]["coverage_with_carving"], steps) for p in pairs]) for m in MARGINS}
-    rows, result = [], {"scenarios": len(pairs), "steps": steps, "planner": PLANNER, "predictor": PREDICTOR,
-                        "spad": True, "settings": {}}
+    rows, result = [], {"scenarios": len(pairs), "steps": steps, "planner": pipeline.planner,
+                        "predictor": pipeline.predictor, "spad": pipeline.spad, "settings": {}}
     for m in MARGINS:
         diff = auc[m] - auc[None]
         low, high = bootstrap_interval(diff) if m is not None else (0.0, 0.0)
@@ -88,8 +91,9 @@ def report(out: Path, episodes: list[dict], steps: int) -> dict:
                                          "goals": float(goals), "step_ms": float(step_ms),
                                          "per_scenario_auc": auc[m].round(4).tolist()}
     lines = ["# Goal commitment: `GoalPolicy.commit_margin`", "",
-             f"{len(pairs)} held-out train scenarios (`heldout_scenarios`), {steps} steps, the `{PLANNER}` planner on "
-             f"`{PREDICTOR}` with SPAD sensing, the default profile on the simulated clock. First-half AUC: mean "
+             f"{len(pairs)} held-out train scenarios (`heldout_scenarios`), {steps} steps, the "
+             f"`{pipeline.planner}` planner on `{pipeline.predictor}` with SPAD sensing, the default profile on the "
+             "simulated clock. First-half AUC: mean "
              "coverage with carving over the first half of the steps (%); paired difference to the default with a 95 % "
              "bootstrap interval; better / worse: scenarios whose AUC rose / fell. Step time: mean explorer step "
              "on this project's 2-core sandbox (read it relatively).", "",

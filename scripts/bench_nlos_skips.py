@@ -1,4 +1,4 @@
-"""The SPAD processing's skips on real episodes (issue #25, item 2): how often each fires, what it saves, what it
+"""The SPAD processing's skips on real episodes: how often each fires, what it saves, what it
 costs.
 
 Pipeline: the paper's, as ``superex benchmark`` builds it (the superex planner, the LaMa-BP predictor, SPAD sensing
@@ -112,17 +112,18 @@ def _episode(task: tuple) -> dict:
 
     from superex_deploy.evaluation import run_benchmark_episode
     from superex_deploy.maps import load_map
-    from superex_deploy.pipeline import PROFILES, make_sensing
+    from superex_deploy.pipeline import PIPELINES, PROFILES, make_sensing
 
     map_name, start_index, start, setting, steps = task
     grid = load_map(map_name)
-    profile = PROFILES[PROFILE]
+    pipeline, profile = PIPELINES["superex"], PROFILES[PROFILE]
     if setting == "shadow":
-        sensing = _shadow_sensing(0, make_sensing("lama_bp", True, 0, profile=profile).bp_filter)
+        sensing = _shadow_sensing(0, make_sensing(pipeline.predictor, pipeline.spad, 0, profile=profile).bp_filter)
     else:
-        sensing = make_sensing("lama_bp", True, 0, profile=replace(profile, nlos_skips=INEXACT[setting]))
+        sensing = make_sensing(pipeline.predictor, pipeline.spad, 0,
+                               profile=replace(profile, nlos_skips=INEXACT[setting]))
     clock = time.perf_counter()
-    result = run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
+    result = run_benchmark_episode(grid, start, pipeline.planner, pipeline.predictor, steps=steps, seed=0,
                                    cfg=profile.episode_config(iou_every=0), profile=profile, sensing=sensing).result
     processing = sensing.current_processing
     out = {"map": map_name, "start_index": start_index, "setting": setting, "wall_s": time.perf_counter() - clock,

@@ -1,4 +1,4 @@
-"""The exploration node over DDS against the same pipeline in one process (issue 41), and the node's latency.
+"""The exploration node over DDS against the same pipeline in one process, and the node's latency.
 
 * ``--loop``: eval floors x starts, each explored twice by the node's defaults (``superex`` planner, LaMa-LOS, the
   realtime profile) on the simulated robot (``superex_deploy.sim.robot``: SLAM map every 5 s, tf at 20 Hz, scans at
@@ -61,7 +61,7 @@ def _summary(run: dict, duration_s: float) -> dict:
 
 
 def in_process(map_name: str, start: int, duration_s: float, speed: float, upsample: int = 1,
-               pace_hz: float = 0.0) -> dict:
+               pace_hz: float = 0.0, judge: bool = True) -> dict:
     """One run of the node's core and the simulated robot in this process; its :class:`RobotRun` as JSON plus the
     core's step times (ms)."""
     from superex_deploy.maps import load_map, start_poses
@@ -84,13 +84,14 @@ def in_process(map_name: str, start: int, duration_s: float, speed: float, upsam
             time.sleep(max(0.0, clock[0] - time.perf_counter()))
 
     wall = time.perf_counter()
-    run = run_in_process(grid, cell, core, RobotSimConfig(speed_m_s=speed), duration_s=duration_s, on_tick=on_tick)
+    run = run_in_process(grid, cell, core, RobotSimConfig(speed_m_s=speed), duration_s=duration_s, on_tick=on_tick,
+                         judge_every_s=0.5 if judge else 0.0)
     core.explorer.close()
     return {**run.to_json(), "step_ms": steps, "wall_s": time.perf_counter() - wall}
 
 
 def over_dds(map_name: str, start: int, duration_s: float, speed: float, rate: float, upsample: int = 1,
-             stop_when_finished: bool = True) -> dict:
+             stop_when_finished: bool = True, judge: bool = True) -> dict:
     """One run of ``superex robot-sim`` and ``superex node`` as two processes on the loopback; the robot's run JSON
     plus the node's summary (latency, steps, states)."""
     superex = [sys.executable, "-m", "superex_deploy.cli"]
@@ -100,7 +101,8 @@ def over_dds(map_name: str, start: int, duration_s: float, speed: float, rate: f
         robot = subprocess.Popen(
             superex + ["robot-sim", "--map", map_name, "--start", str(start), "--loopback", "--duration",
                        str(duration_s), "--rate", str(rate), "--speed", str(speed), "--resolution", str(0.1 / upsample),
-                       "--out", str(folder / "robot")] + ([] if stop_when_finished else ["--keep-running"]),
+                       "--out", str(folder / "robot"), "--judge-every", "0.5" if judge else "0"]
+            + ([] if stop_when_finished else ["--keep-running"]),
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         wall = time.perf_counter()
         node = subprocess.run(
@@ -158,10 +160,11 @@ def loop_part(out: Path, duration_s: float, speed: float, rate: float, floors) -
 def latency_part(out: Path, seconds: float, speed: float) -> dict:
     print("latency: in process at 0.05 m", flush=True)
     local = _cached(out / "runs" / "latency_inprocess.json",
-                    lambda: in_process(LATENCY_MAP, 0, seconds, speed, upsample=2, pace_hz=10.0))
+                    lambda: in_process(LATENCY_MAP, 0, seconds, speed, upsample=2, pace_hz=10.0, judge=False))
     print("latency: over DDS at 0.05 m", flush=True)
     remote = _cached(out / "runs" / "latency_dds.json",
-                     lambda: over_dds(LATENCY_MAP, 0, seconds, speed, 1.0, upsample=2, stop_when_finished=False))
+                     lambda: over_dds(LATENCY_MAP, 0, seconds, speed, 1.0, upsample=2, stop_when_finished=False,
+                                      judge=False))
     return {"map": f"{LATENCY_MAP}@x2 (0.05 m)", "seconds": seconds, "in_process_step_ms": _percentiles(
         local["step_ms"]), "dds_latency_ms": remote["latency_ms"], "dds_node": remote["node"],
         "coverage": {"in_process": local["coverage"][-1], "dds": remote["coverage"][-1]}}
@@ -184,16 +187,18 @@ def _report(result: dict) -> list[str]:
         for row in loop["rows"]:
             a, b = row["in_process"], row["dds"]
             lag = lambda s: "-" if s["finish_lag_s"] is None else f"{s['finish_lag_s']:+.1f}"
+            when = lambda s: "-" if s["finished_s"] is None else f"{s['finished_s']:.1f}"
             table.append([row["scenario"], f"{a['first_half']:.3f}", f"{b['first_half']:.3f}",
                           f"{100 * (b['first_half'] - a['first_half']) / a['first_half']:+.1f}%",
                           f"{a['final']:.3f} / {b['final']:.3f}",
-                          f"{a['finished_s'] or '-'} / {b['finished_s'] or '-'}", f"{lag(a)} / {lag(b)}",
+                          f"{when(a)} / {when(b)}", f"{lag(a)} / {lag(b)}",
                           f"{_area(a)} / {_area(b)}", f"{a['goals_in_walls']} / {b['goals_in_walls']}",
-                          f"{row['dds_latency_ms'].get('p99', float('nan')):.1f}"])
+                          f"{row['dds_latency_ms'].get('p99', float('nan')):.1f}",
+                          f"{row['dds_node']['scans_dropped'] / max(row['dds_node']['scans_received'], 1):.0%}"])
         lines += markdown_table(["scenario", "first half, in process", "over DDS", "DDS - in process",
                                  "final coverage", "finished (s)", "finished - no frontier left (s)",
                                  "unseen reachable at finish (m2)", "goals in walls",
-                                 "node latency p99 (ms)"], table)
+                                 "node latency p99 (ms)", "scans the node dropped (busy)"], table)
         low, high = loop["first_half_difference_interval"]
         lines += ["", f"DDS - in process, first half: {loop['first_half_difference']:+.4f} [{low:+.4f}, {high:+.4f}] "
                       f"({100 * loop['first_half_relative']:+.1f} % on average, worst {100 * loop['worst_relative']:+.1f} %)",

@@ -39,20 +39,27 @@ def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
 
     # Decide by the files: an editable install's import hook would otherwise fill the legacy tree's gaps from this one.
     if (Path(superex_deploy.__file__).parent / "sim").is_dir():
+        from functools import partial
+
+        from superex_deploy import pipeline
         from superex_deploy.onboard.planning.planners import make_planner
         from superex_deploy.sim.episode import ExplorationConfig, run_episode
+
+        # The unskipped pipeline (the full profile), as the legacy loop ran it.
+        make_predictor = partial(pipeline.make_predictor, profile=pipeline.PROFILES["full"])
+        make_sensing = partial(pipeline.make_sensing, profile=pipeline.PROFILES["full"])
     else:  # the legacy layout of commit 4253e2c
         legacy = "superex_deploy.explore"
         episode_module = __import__(f"{legacy}.episode", fromlist=["run_episode"])
         ExplorationConfig, run_episode = episode_module.ExplorationConfig, episode_module.run_episode
         make_planner = __import__(f"{legacy}.planners", fromlist=["make_planner"]).make_planner
-    from superex_deploy.commands.explore import make_predictor, make_sensing
+        from superex_deploy.commands.explore import make_predictor, make_sensing
     from superex_deploy.maps import load_map, start_poses
 
     planner, predictor, spad = SETTINGS[setting]
     grid = load_map(map_name)
     start = start_poses(map_name)[start_index]
-    # The SPAD sensing's keyword: ``sensing``, ``nlos`` in trees before #22.
+    # The SPAD sensing's keyword: ``sensing``, ``nlos`` in trees before the package was regrouped.
     keyword = "sensing" if "sensing" in inspect.signature(run_episode).parameters else "nlos"
     warm = run_episode(grid, start, make_planner(planner), make_predictor(predictor, grid), steps=3,
                        cfg=ExplorationConfig(iou_every=0), **{keyword: make_sensing(predictor, spad, 0)})

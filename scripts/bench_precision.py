@@ -1,4 +1,4 @@
-"""Lower precision for the LaMa members (issue #16): int8 (ONNX Runtime dynamic quantisation of the Conv and MatMul
+"""Lower precision for the LaMa members: int8 (ONNX Runtime dynamic quantisation of the Conv and MatMul
 weights) and fp16 (weights and activations, fp32 inputs and outputs) against the exported fp32 member.
 
 Inputs are real partial maps: 200-step episodes (nearest-frontier planner, observed map) on four held-out train

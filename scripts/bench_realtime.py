@@ -1,4 +1,4 @@
-"""Run time against error of the SuperEx pipeline, one row per real-time setting (issue #16).
+"""Run time against error of the SuperEx pipeline, one row per real-time setting.
 
 Two measurements, each against the unskipped pipeline (``full``):
 
@@ -56,7 +56,7 @@ from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
 from superex_deploy.onboard.prediction.inference import SessionConfig  # noqa: E402
 from superex_deploy.onboard.prediction.reuse import PredictionReuse  # noqa: E402
 from superex_deploy.onboard.nlos.processing import NlosSkips  # noqa: E402
-from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, RealtimeProfile  # noqa: E402
+from superex_deploy.pipeline import DEFAULT_PROFILE, PIPELINES, PROFILES, RealtimeProfile  # noqa: E402
 
 TIMING_MAP, TIMING_START, TIMING_STEPS, PACE_HZ = "50015847", 0, 500, 10.0
 ASYNC_SESSION = SessionConfig(intra_op_threads=1, allow_spinning=False)
@@ -149,7 +149,8 @@ def _episode(task: tuple) -> dict:
     if setting == MAPEX:
         planner, predictor_name, spad, profile = "mapex", "observed", False, PROFILES["full"]
     else:
-        planner, predictor_name, spad, profile = "superex", "lama_bp", True, SETTINGS[setting]
+        pipeline = PIPELINES["superex"]
+        planner, predictor_name, spad, profile = pipeline.planner, pipeline.predictor, pipeline.spad, SETTINGS[setting]
     iou = {"iou_every": 10, "iou_dense_until": 0.35} if mode == "error" else {"iou_every": 0}
     robot = mode != "error" or free
     cfg = profile.episode_config(clock="robot" if robot else "simulated", **iou)

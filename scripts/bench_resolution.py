@@ -27,12 +27,14 @@ import numpy as np
 from superex_deploy.evaluation import (bootstrap_interval, eval_scenarios, first_half_auc, iou_at_coverage,
                                        markdown_table, run_benchmark_episode, write_json, write_text)
 from superex_deploy.maps import load_map
-from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
+from superex_deploy.pipeline import DEFAULT_PROFILE, PIPELINES, PROFILES
 from superex_deploy.sim.generated_floors import upsampled
 
 PACE_HZ = 10.0
 TIMING_MAP, TIMING_START = "50015847", 0
 LEVELS = (0.1, 0.2, 0.3)
+PIPELINE = PIPELINES["superex"]
+"""The pipeline every episode runs (its planner, predictor and SPAD sensing; the profile as each mode says)."""
 
 
 def _episode(map_name: str, start, factor: int, steps: int, mode: str) -> dict:
@@ -54,8 +56,8 @@ def _episode(map_name: str, start, factor: int, steps: int, mode: str) -> dict:
 
     def run(n):
         tick[0] = time.perf_counter()
-        return run_benchmark_episode(grid, start, "superex", "lama_bp", steps=n, seed=0, cfg=cfg, profile=profile,
-                                     spad=True, cores=available_cores() if robot else None,
+        return run_benchmark_episode(grid, start, PIPELINE.planner, PIPELINE.predictor, steps=n, seed=0, cfg=cfg,
+                                     profile=profile, spad=PIPELINE.spad, cores=available_cores() if robot else None,
                                      on_observation=paced if robot else None)
 
     if robot:
@@ -86,8 +88,9 @@ def _interpolation(task: tuple) -> dict:
             grabbed[explorer.steps] = explorer.predict().mean.copy()
 
     profile = PROFILES["full"]
-    run_benchmark_episode(grid, tuple(start), "superex", "lama_bp", steps=max(steps) + 1, seed=0, profile=profile,
-                          cfg=profile.episode_config(clock="simulated", iou_every=0), spad=True, on_observation=grab)
+    run_benchmark_episode(grid, tuple(start), PIPELINE.planner, PIPELINE.predictor, steps=max(steps) + 1, seed=0,
+                          profile=profile, cfg=profile.episode_config(clock="simulated", iou_every=0),
+                          spad=PIPELINE.spad, on_observation=grab)
     fine = upsampled(grid, 2)
     return {"mode": "interpolation", "map": map_name, "iou": {
         str(step): {"0.1m": map_iou(mean, grid), "bilinear": map_iou(upsample_linear(mean, 2, fine.shape), fine),

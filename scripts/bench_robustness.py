@@ -1,4 +1,6 @@
-"""How the onboard explorer holds up on a robot's data: localisation error, LiDAR noise, SPAD photon budgets (#24).
+"""How the onboard explorer holds up on a robot's data: localisation error, LiDAR noise, SPAD photon budgets.
+
+The results and their reading: docs/on-a-robot.md, "What it tolerates, and where it breaks".
 
 Every setting is a point of the grid pose noise x SPAD preset x LiDAR noise:
 
@@ -20,10 +22,11 @@ Per setting: collisions, true wall cells held free per 1,000 true wall cells see
 part of them with no wall of the map within one cell ("missing": walls the map lacks, not walls it holds a cell
 off), true wall cells carved, the explorer map's wall IoU as a fraction of the same scenario's noise-free run
 (median; also the IoU that forgives a wall held one cell off), and the first-half coverage AUC paired with the
-noise-free run (the mean relative difference, which #24's target reads, and the mean difference in coverage
+noise-free run (the mean relative difference, which the AUC target reads, and the mean difference in coverage
 points, each with a bootstrap 95 % interval seeded per row). SuperEx's gain is paired per scenario
-(bootstrap 95 % interval) and set against its noise-free gain (#24: at least half of it kept at 10 % coverage).
-The targets of #24 are checked per setting and the table says where each breaks.
+(bootstrap 95 % interval) and set against its noise-free gain (target: at least half of it kept at 10 % coverage).
+The targets (no collision, no true wall carved, at most 1 true wall held free per 1,000 seen, map IoU at least 0.9x
+and first-half AUC within 3 % of noise-free) are checked per setting and the table says where each breaks.
 
 Every episode is journaled (``OUT/episodes.jsonl``): an interrupted run resumes where it stopped, and a second run
 with more scenarios adds only the missing episodes. Writes ``OUT/robustness.json``, ``OUT/robustness.md`` and one
@@ -124,7 +127,7 @@ def summarise_setting(episodes: list[dict], baseline: dict, steps: int, rng) -> 
 
 
 def targets_met(row: dict) -> dict:
-    """#24's targets for one setting (each True / False)."""
+    """The robustness targets for one setting (each True / False)."""
     return {"no collisions": row["collisions"] == 0, "no carved walls": row["true_walls_carved"] == 0,
             "held free <= 1 per 1000": row["held_free_per_1000_seen"] <= 1.0,
             "map IoU >= 0.9 x noise-free": row["map_iou_vs_noise_free"] >= 0.9,
@@ -191,7 +194,7 @@ def report(out: Path, results: dict, steps: int, superex_settings: list, before:
             gains[name]["true_walls_carved"] = int(sum(e["true_walls_carved"] for e in pipeline))
     noise_free_gain = gains.get(base_name, {}).get("iou_gain@10%", [float("nan")])[0]
     for name, gain in gains.items():
-        # #24's target: at least half of the noise-free gain at 10 % coverage kept under noise.
+        # The target: at least half of the noise-free gain at 10 % coverage kept under noise.
         gain["kept@10%"] = gain["iou_gain@10%"][0] / noise_free_gain if noise_free_gain > 0 else float("nan")
     summary = {"steps": steps, "settings": rows, "superex": gains, "first_half": FIRST_HALF}
     evaluation.write_json(out / "robustness.json", summary)

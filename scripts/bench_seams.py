@@ -1,4 +1,4 @@
-"""Seams of the cropped predictions (issue #25, item 5): the real-time profile's crops, written back with hard
+"""Seams of the cropped predictions: the real-time profile's crops, written back with hard
 edges or feathered, against a whole-map prediction of the same map and evidence.
 
 Every scenario is one episode of the ``lama_bp`` pipeline with the SPAD (``superex`` planner) under the chosen
@@ -100,9 +100,10 @@ def _episode(task: tuple) -> dict:
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.prediction.reuse import ReusingPredictor
     from superex_deploy.onboard.types import UNKNOWN
-    from superex_deploy.pipeline import PROFILES, make_predictor
+    from superex_deploy.pipeline import PIPELINES, PROFILES, make_predictor
 
     map_name, start_index, start, profile_name, steps, samples, feathers, ramps, band_m = task
+    pipeline = PIPELINES["superex"]
     grid = load_map(map_name)
     profile = PROFILES[profile_name]
     if profile.reuse.crop_margin_m is None:
@@ -111,7 +112,7 @@ def _episode(task: tuple) -> dict:
     resolution = grid.resolution_m
     margin = int(np.ceil(profile.reuse.crop_margin_m / resolution - 1e-9))
     band_cells = int(round((margin - margin // 2) if band_m is None else band_m / resolution))
-    network = SharedAnswer(make_predictor("lama_bp", grid, profile=profile))
+    network = SharedAnswer(make_predictor(pipeline.predictor, grid, profile=profile))
     configs = {config_name(ramp, f): replace(profile.reuse, feather_m=f, feather_ramp=ramp)
                for f in feathers for ramp in (ramps if f else ramps[:1])}
     # The primer runs the network (its time is not a shadow's) and keeps the hard edges' labels.
@@ -176,8 +177,8 @@ def _episode(task: tuple) -> dict:
         per_sample.append(row)
 
     clock = time.perf_counter()
-    run_benchmark_episode(grid, start, "superex", "lama_bp", steps=steps, seed=0,
-                          cfg=profile.episode_config(iou_every=0), profile=profile, spad=True,
+    run_benchmark_episode(grid, start, pipeline.planner, pipeline.predictor, steps=steps, seed=0,
+                          cfg=profile.episode_config(iou_every=0), profile=profile, spad=pipeline.spad,
                           on_observation=on_observation)
     return {"map": map_name, "start_index": start_index, "start": list(start), "profile": profile_name,
             "band_cells": band_cells, "counts": counts, "sums": sums,

@@ -38,6 +38,7 @@ from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN
 from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angles
 from superex_deploy.maps import list_maps, load_map, start_poses
+from superex_deploy.pipeline import PROFILES
 from superex_deploy.onboard.nlos import NlosConfig, process_scan
 from superex_deploy.sim.metrics import wall_iou
 from superex_deploy.sim.spad import nlos_ground_truth
@@ -129,7 +130,7 @@ def part_episodes(grids, steps):
             per_step.append((t_los * 1e3, t_spad * 1e3, t_proc * 1e3))
 
         run_benchmark_episode(grid, start_poses(grid.name)[0], "nearest", ObservedAsPrediction(), steps=steps,
-                              on_step=on_step)
+                              on_step=on_step, profile=PROFILES["full"])
         cache = scene.fan_cache(DEFAULT.n_secondary, DEFAULT.range_m / grid.resolution_m)
         los, spad, proc = np.median(np.array(per_step), axis=0)
         rows.append({"map": grid.name, "steps": len(per_step), "los_ms": los, "spad_ms": spad, "nlos_ms": proc,

@@ -1,4 +1,4 @@
-"""Oracle ceiling on altered train floors (issue #26, items 2 and 4): does knowing the true map pay where an
+"""Oracle ceiling on altered train floors: does knowing the true map pay where an
 obstruction hidden behind a turn turns a corridor or a room into a dead end?
 
 Scenarios: the train floors of at least ``--min-area`` valid cells, every k-th of them to take ``--maps``, and
@@ -121,6 +121,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
 
 
 def _episode(task: dict) -> dict:
+    from superex_deploy.pipeline import PROFILES
     from superex_deploy.sim.dead_ends import dead_end_entries
     from superex_deploy.sim.episode import ExplorationConfig
 
@@ -128,7 +129,7 @@ def _episode(task: dict) -> dict:
     planner, predictor = RUNS[task["run"]]
     clock = time.perf_counter()
     result = run_benchmark_episode(grid, task["start"], planner, predictor, steps=task["steps"],
-                                   cfg=ExplorationConfig(iou_every=0)).result
+                                   cfg=ExplorationConfig(iou_every=0), profile=PROFILES["full"]).result
     at = coverage_curve(list(result.coverage), task["steps"])
     summary = {key: task[key] for key in ("map", "start", "variant", "run")}
     summary.update(auc_first_half=first_half_auc(at, task["steps"]), auc=coverage_auc(at, 1, task["steps"]),

@@ -23,6 +23,7 @@ from superex_deploy.evaluation import HELDOUT_BUILDINGS  # noqa: F401 (tests/tes
 from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverage_curve, first_half_auc,
                                        markdown_table, run_benchmark_episode, train_scenarios, write_json)
 from superex_deploy.parallel import process_pool
+from superex_deploy.pipeline import PROFILES
 from superex_deploy.sim.episode import ExplorationConfig
 
 IDEAS = {
@@ -47,7 +48,7 @@ def _episode(task: tuple) -> dict:
     name, start, idea, planner, options, predictor, steps = task
     clock = time.perf_counter()
     result = run_benchmark_episode(name, start, planner, predictor, planner_options=options, steps=steps,
-                                   cfg=ExplorationConfig(iou_every=0)).result
+                                   cfg=ExplorationConfig(iou_every=0), profile=PROFILES["full"]).result
     at = coverage_curve(list(result.coverage), steps)
     return {"map": name, "start": list(start), "idea": idea, "predictor": predictor,
             "auc_first_half": first_half_auc(at, steps), "auc": coverage_auc(at, 1, steps),

@@ -1,4 +1,4 @@
-"""The standard and the altered suite side by side (issue #26, item 5): the same rows, scenarios and step budget.
+"""The standard and the altered suite side by side: the same rows, scenarios and step budget.
 
 The standard suite's rows (``benchmarks/eval_paper/rows``, 1000 steps) are cut to the altered run's budget: its
 episodes are deterministic, so the first N steps of a 1000-step episode are the N-step episode. For each row and
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy.evaluation import bootstrap_interval, markdown_table, scenario_metrics, write_json, write_text
-from superex_deploy.sim.suite import PAPER_ROWS
+from superex_deploy.pipeline import PIPELINES
 
 BASELINES = ("mapex_lama_los", "mapex_observed")
 
@@ -94,7 +94,7 @@ def markdown(entries: list[dict], steps: int) -> str:
             cells.append([e["row"], f"{e['scenarios']} ({e['with_dead_ends']})", f"{100 * e['standard_auc']:.1f}",
                           f"{100 * e['altered_auc']:.1f}", _cell(e["standard_paired"]), _cell(e["altered_paired"]),
                           _cell(e["change"]), _cell(dead) if dead else "-", _cell(metres, 1.0, 1) if metres else "-"])
-        lines += [f"Against {baseline} ({PAPER_ROWS[baseline].label}):", ""] + markdown_table(
+        lines += [f"Against {baseline} ({PIPELINES[baseline].label}):", ""] + markdown_table(
             ["row", "scenarios (with dead ends)", "standard AUC", "altered AUC", "standard: row - baseline",
              "altered: row - baseline", "change (altered - standard)", "change, scenarios with dead ends",
              "m inside dead ends, row - baseline"], cells, ["-"] + ["---:"] * 8)

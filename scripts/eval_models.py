@@ -58,6 +58,7 @@ from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, Lama
 from superex_deploy.maps import list_maps, load_map, map_building
 from superex_deploy.onboard.nlos import laplacian_filter
 from superex_deploy.parallel import process_pool
+from superex_deploy.pipeline import PROFILES
 from superex_train.datasets import ShardDataset
 from superex_train.generate import GenerationConfig, generate_pix2pix, heldout_buildings, random_start
 
@@ -191,7 +192,7 @@ def _episode(args: tuple[str, int, str, bool]) -> list[dict]:
 
     try:
         run_benchmark_episode(grid, start, PLANNERS[index % len(PLANNERS)], ObservedAsPrediction(), steps=400,
-                              seed=index, sensing=sensing, on_step=on_step)
+                              seed=index, sensing=sensing, on_step=on_step, profile=PROFILES["full"])
     except _Done:
         pass
     return records

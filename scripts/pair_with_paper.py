@@ -1,4 +1,4 @@
-"""One new row paired by scenario with the committed paper rows (issue #26: a planner variant decided on train floors,
+"""One new row paired by scenario with the committed paper rows (a planner variant decided on train floors,
 reported on the eval floors without re-running the paper table).
 
 The paper rows (``benchmarks/eval_paper/rows``, 1000 steps) are deterministic, so their first N steps are the N-step

@@ -23,7 +23,8 @@ import numpy as np
 
 from superex_deploy.evaluation import markdown_table, read_json, save_figure, write_json, write_text
 from superex_deploy.evaluation.reports import pyplot
-from superex_deploy.sim.suite import PAPER_ROWS, paired_summary, row_summary
+from superex_deploy.pipeline import PIPELINES
+from superex_deploy.sim.suite import paired_summary, row_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 MEASURES = {"auc_first_half": ("first-half AUC, carved cells counted (points)", 100.0),
@@ -120,9 +121,9 @@ def main(argv=None) -> int:
              f"against the full pipeline (`{FULL}`) and against MapEx on LaMa-LOS (`{REFERENCE}`).", ""]
     for measure, (label, scale) in MEASURES.items():
         lines += [f"**{label}**", ""]
-        rows = [[f"{FULL}: {PAPER_ROWS[FULL].label}", f"{result[FULL][measure]['vs_reference']['mean']:.3f}", "-",
+        rows = [[f"{FULL}: {PIPELINES[FULL].label}", f"{result[FULL][measure]['vs_reference']['mean']:.3f}", "-",
                  _cell(result[FULL][measure]["vs_reference"])]]
-        rows += [[f"{n}: {PAPER_ROWS[n].label}", f"{result[n][measure]['vs_full']['mean']:.3f}",
+        rows += [[f"{n}: {PIPELINES[n].label}", f"{result[n][measure]['vs_full']['mean']:.3f}",
                   _cell(result[n][measure]["vs_full"]), _cell(result[n][measure]["vs_reference"])] for n in names]
         lines += markdown_table(["row", "mean", f"vs {FULL}", f"vs {REFERENCE}"], rows, ["-", "---:", "-", "-"]) + [""]
         plt = pyplot()

@@ -53,6 +53,7 @@ from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, LamaEnsemble, ModelKind, Pix2PixFilter,
                                                          SessionConfig)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
+from superex_deploy.pipeline import PROFILES
 from superex_deploy.sim.metrics import evaluation_area
 from superex_deploy.sim.sensing import SpadSensing
 from superex_train.generate import heldout_buildings, random_start
@@ -200,7 +201,7 @@ def _observation(name: str, index: int, model_dir: Path, coverage: float) -> dic
 
     try:
         run_benchmark_episode(grid, start, "nearest", ObservedAsPrediction(), steps=600, seed=index,
-                              sensing=sensing, on_step=on_step)
+                              sensing=sensing, on_step=on_step, profile=PROFILES["full"])
     except _Done:
         pass
     return kept

@@ -1,4 +1,4 @@
-"""Fix the scan matcher's parameters on TRAIN floors (issue #24; the eval floors only report).
+"""Fix the scan matcher's parameters on TRAIN floors (the eval floors only report).
 
 Runs the robustness protocol's episode (nearest frontier, SPAD carving with the realistic photon budget, LiDAR 2 cm
 with dropouts and spurious returns) on train floors from random starts, at the given pose noise, with each named

@@ -67,8 +67,9 @@ class ExplorationEnv(gym.Env):
         max_frontiers: size of the Discrete action space; frontier regions beyond it (farthest first) are dropped.
         steps_per_action: simulator steps per action at most.
         max_steps: simulator steps per episode (truncation).
-        profile: the pipeline's profile (:data:`superex_deploy.pipeline.PROFILES`; None:
-            :data:`~superex_deploy.pipeline.DEFAULT_PROFILE`), on the simulated clock (reproducible for a seed).
+        profile: the pipeline's profile (:data:`superex_deploy.pipeline.PROFILES`; None: the default pipeline's,
+            ``PIPELINES[DEFAULT_PIPELINE].profile``: :data:`~superex_deploy.pipeline.DEFAULT_PROFILE`), on the
+            simulated clock (reproducible for a seed).
 
     Spaces:
         observation: float32 ``[C, crop, crop]`` in [0, 1]: free, occupied, unknown (+ predicted wall probability).
@@ -88,18 +89,20 @@ class ExplorationEnv(gym.Env):
     def __init__(self, map: str = "50052750", predictor: Optional[str] = None, crop_cells: int = 64,
                  max_frontiers: int = 16, steps_per_action: int = 40, max_steps: int = 500,
                  profile: Optional[str] = None):
-        from superex_deploy.pipeline import EVIDENCE_PREDICTORS, check_profile, make_predictor, resolve_profile
+        from superex_deploy.onboard.prediction.registry import kind_of
+        from superex_deploy.pipeline import DEFAULT_PIPELINE, PIPELINES, PREDICTORS, check_profile, make_predictor
 
-        if predictor == "oracle":
-            raise ValueError("the oracle predictor shows the agent the ground truth; choose another")
-        if predictor in EVIDENCE_PREDICTORS:
+        if kind_of(predictor).reads_truth:
+            raise ValueError(f"the {predictor} predictor shows the agent the ground truth; choose another")
+        if kind_of(predictor).reads_evidence:
+            usable = [name for name, kind in PREDICTORS.items() if not kind.reads_evidence and not kind.reads_truth]
             raise ValueError(f"predictor {predictor!r} reads SPAD evidence, which this environment does not simulate; "
-                             f"choose observed or lama_los")
+                             f"choose {' or '.join(usable)}")
         for name, value in (("crop_cells", crop_cells), ("max_frontiers", max_frontiers),
                             ("steps_per_action", steps_per_action), ("max_steps", max_steps)):
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        self.profile = resolve_profile(profile, _AgentGoal(), predictor or "observed")
+        self.profile = PIPELINES[DEFAULT_PIPELINE].profile if profile is None else profile
         chosen = check_profile(self.profile, _AgentGoal(), predictor or "observed")
         self.grid = load_map(map)
         self._predictor = make_predictor(predictor, profile=chosen) if predictor is not None else None

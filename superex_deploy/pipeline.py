@@ -14,20 +14,22 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Optional
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import MapFrame
 from superex_deploy.onboard.explorer import Explorer, ExplorerConfig, PredictionSchedule
 from superex_deploy.onboard.prediction.inference import SessionConfig, ThreadBudget, check_member_options
-from superex_deploy.onboard.prediction.registry import (EVIDENCE_PREDICTORS, PREDICTORS, load_model, make_onboard_predictor,
-                                               models_dir)
+from superex_deploy.onboard.prediction.registry import (ENSEMBLE_PREDICTORS, EVIDENCE_MODEL, EVIDENCE_PREDICTORS,
+                                                        PREDICTORS, TRUTH_PREDICTORS, exported_model, kind_of,
+                                                        make_onboard_predictor, models_dir)
 from superex_deploy.onboard.prediction.reuse import PredictionReuse
 from superex_deploy.onboard.nlos.processing import NlosSkips
 
-__all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "RealtimeProfile", "PROFILES", "DEFAULT_PROFILE", "resolve_profile",
-           "check_profile",
-           "build_explorer", "make_predictor", "make_sensing", "make_processing"]
+__all__ = ["PREDICTORS", "EVIDENCE_PREDICTORS", "ENSEMBLE_PREDICTORS", "TRUTH_PREDICTORS", "RealtimeProfile",
+           "PROFILES", "DEFAULT_PROFILE", "resolve_profile", "check_profile", "Pipeline", "PIPELINES",
+           "DEFAULT_PIPELINE", "build_explorer", "make_predictor", "make_sensing", "make_processing"]
 
 @dataclass(frozen=True)
-class RealtimeProfile:
+class RealtimeProfile(JsonConfig):
     """How the onboard pipeline trades accuracy for run time (``scripts/bench_realtime.py`` measures each knob:
     docs/benchmarks/realtime.md). The default instance is the unskipped pipeline: the whole ensemble on the whole
     map, inside the step whose planner asks, every SPAD frame processed in full.
@@ -126,17 +128,21 @@ latency as 2 steps, as the deterministic thread mode the profile was measured in
 
 DEFAULT_PROFILE = "realtime"
 """The profile every entry point uses unless told otherwise: :func:`build_explorer`, ``superex explore`` and
-``superex benchmark``, :class:`~superex_deploy.evaluation.tasks.ScenarioTask` and the Gymnasium environment (each
-through :func:`resolve_profile`). The paper suite names ``full``, the pipeline its table measured."""
+``superex benchmark``, :class:`~superex_deploy.evaluation.tasks.ScenarioTask`,
+:func:`~superex_deploy.evaluation.run_benchmark_episode` and the Gymnasium environment (each through
+:func:`resolve_profile`), :func:`make_predictor` and :func:`make_sensing`; the profile of every named pipeline of
+:data:`PIPELINES` but those whose planner reads the ensemble's variance. The paper suite names ``full``, the
+pipeline its table measured."""
 
 
 def resolve_profile(profile_name: Optional[str], planner, predictor: str) -> str:
     """The profile a run uses: ``profile_name`` if given, else :data:`DEFAULT_PROFILE` where the planner can use it
-    and ``full`` where it cannot (a planner that reads the ensemble's variance with a one-member default)."""
+    and ``full`` where it cannot (a planner that reads the ensemble's variance with a one-member default): the
+    profile :data:`PIPELINES` names for each of its planner and predictor pairs."""
     if profile_name is not None:
         return profile_name
     default = PROFILES[DEFAULT_PROFILE]
-    if default.max_members == 1 and predictor in ("lama_los", "lama_bp") and planner.reads_variance:
+    if default.max_members == 1 and kind_of(predictor).ensemble and planner.reads_variance:
         return "full"
     return DEFAULT_PROFILE
 
@@ -151,52 +157,130 @@ def check_profile(profile_name: str, planner, predictor: str) -> RealtimeProfile
     if profile_name not in PROFILES:
         raise ValueError(f"unknown profile {profile_name!r}; choose one of {', '.join(PROFILES)}")
     profile = PROFILES[profile_name]
-    if profile.max_members == 1 and predictor in ("lama_los", "lama_bp") and planner.reads_variance:
+    if profile.max_members == 1 and kind_of(predictor).ensemble and planner.reads_variance:
         raise ValueError(f"the {profile_name} profile runs one LaMa member, so the variance the {planner.name} planner "
                          f"reads would be zero everywhere: use --profile full")
     return profile
 
 
+@dataclass(frozen=True)
+class Pipeline(JsonConfig):
+    """A named pipeline: a planner, a map predictor, the SPAD sensing and the profile it runs under, one entry of
+    :data:`PIPELINES`.
+
+    Attributes:
+        name: its key in :data:`PIPELINES` (``superex explore --pipeline NAME``, a row of the paper's table).
+        planner: planner name (``planners.make_planner``).
+        predictor: predictor name (:data:`PREDICTORS`).
+        spad: a SPAD scan every step (carving, and the Pix2Pix evidence for the predictors of
+            :data:`EVIDENCE_PREDICTORS`, which need it).
+        profile: the :data:`PROFILES` name it runs under (``superex explore``, ``superex benchmark``, the
+            Gymnasium environment): :data:`DEFAULT_PROFILE`, or ``full`` where the planner reads the ensemble's
+            variance with a LaMa predictor (:func:`check_profile` refuses one member there). The paper's table
+            measures every pipeline under ``full`` (``superex benchmark --suite paper``).
+        label: what it is, for tables.
+        carving: with ``spad``, the carved cells join the map (False: the ablation without carving; the evidence is
+            made as with carving on).
+
+    Raises:
+        ValueError: an unknown predictor or profile, an evidence predictor without ``spad``, ``carving`` off without
+            ``spad``.
+    """
+
+    name: str
+    planner: str
+    predictor: str
+    spad: bool
+    profile: str
+    label: str
+    carving: bool = True
+
+    def __post_init__(self) -> None:
+        if self.predictor not in PREDICTORS:
+            raise ValueError(f"pipeline {self.name}: unknown predictor {self.predictor!r}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"pipeline {self.name}: unknown profile {self.profile!r}")
+        if kind_of(self.predictor).reads_evidence and not self.spad:
+            raise ValueError(f"pipeline {self.name}: the {self.predictor} predictor reads the SPAD evidence: spad=True")
+        if not self.carving and not self.spad:
+            raise ValueError(f"pipeline {self.name}: carving=False turns off the SPAD's carving: spad=True")
+
+
+PIPELINES: dict[str, Pipeline] = {p.name: p for p in (
+    Pipeline("nearest", "nearest", "observed", False, DEFAULT_PROFILE, "nearest frontier"),
+    Pipeline("hector_lama_los", "hector", "lama_los", False, DEFAULT_PROFILE, "IG-Hector on LaMa-LOS"),
+    # MapEx and UPEN read the ensemble's variance: every member, so the full profile.
+    Pipeline("upen_lama_los", "upen", "lama_los", False, "full", "UPEN on LaMa-LOS"),
+    Pipeline("mapex_lama_los", "mapex", "lama_los", False, "full", "MapEx on LaMa-LOS"),
+    Pipeline("mapex_observed", "mapex", "observed", False, DEFAULT_PROFILE, "MapEx, observed map"),
+    Pipeline("superex_observed", "superex", "observed", False, DEFAULT_PROFILE, "superex planner, observed map"),
+    Pipeline("superex_lama_los", "superex", "lama_los", False, DEFAULT_PROFILE, "superex planner on LaMa-LOS"),
+    Pipeline("superex", "superex", "lama_bp", True, DEFAULT_PROFILE, "SuperEx: superex planner, LaMa-BP + SPAD"),
+    Pipeline("superex_oracle", "superex", "oracle", False, DEFAULT_PROFILE, "superex planner, true map (ceiling)"),
+    Pipeline("no_pix2pix", "superex", "lama_los", True, DEFAULT_PROFILE,
+             "ablation no Pix2Pix: LaMa-LOS + SPAD carving"),
+    Pipeline("no_lama", "superex", "evidence", True, DEFAULT_PROFILE,
+             "ablation no LaMa: SPAD carving + Pix2Pix evidence"),
+    Pipeline("no_carving", "superex", "lama_bp", True, DEFAULT_PROFILE,
+             "ablation no carving: LaMa-BP + Pix2Pix evidence", carving=False),
+    Pipeline("carving_only", "superex", "observed", True, DEFAULT_PROFILE,
+             "ablation carving only: observed map + SPAD carving"),
+)}
+"""The named pipelines, the one list of them: ``superex explore --pipeline NAME`` (default
+:data:`DEFAULT_PIPELINE`), the rows of the paper's table (``superex benchmark --suite paper``, in this order), the
+Gymnasium environment's default profile and the scripts that run a named pipeline read it. ``superex`` is the
+project's own (the superex planner on the LaMa-BP ensemble with the SPAD's carving and Pix2Pix evidence);
+``mapex_lama_los`` is MapEx as published (the paper table's reference); ``nearest`` the nearest frontier on the
+observed map."""
+
+DEFAULT_PIPELINE = "superex"
+"""The pipeline ``superex explore`` runs without ``--pipeline``; its profile is :data:`DEFAULT_PROFILE`."""
+
+
 def _pix2pix_filter(models=None):
-    return load_model("pix2pix", models_dir(models)).filter_map
+    return exported_model(EVIDENCE_MODEL.value, models_dir(models)).filter_map
 
 
-def make_predictor(name: str, grid=None, models=None, profile: RealtimeProfile = RealtimeProfile(),
+def make_predictor(name: str, grid=None, models=None, profile: Optional[RealtimeProfile] = None,
                    cores: Optional[int] = None):
     """The map predictor called ``name`` (one of :data:`PREDICTORS`); ``grid`` is read by ``oracle`` only;
     ``profile`` sets the ensemble's members and sessions (:meth:`RealtimeProfile.session_config` of ``cores``: on
-    the robot, give the cores the explorer gets). Every predictor but ``oracle`` is the robot's own
-    (:func:`~superex_deploy.onboard.prediction.registry.make_onboard_predictor`).
+    the robot, give the cores the explorer gets; None: the :data:`DEFAULT_PROFILE`'s, one member: give
+    ``PROFILES["full"]`` for a planner that reads the ensemble's variance). Every predictor but ``oracle`` is the
+    robot's own (:func:`~superex_deploy.onboard.prediction.registry.make_onboard_predictor`).
 
     Raises:
         ValueError: an unknown name, ``oracle`` without a grid, models that are missing or do not match.
     """
-    if name == "oracle" and grid is not None:
+    if kind_of(name).reads_truth and grid is not None:  # the oracle, the one predictor that reads the truth
         from superex_deploy.sim.oracle import OraclePredictor
 
         return OraclePredictor(grid)
     # The oracle without a grid and unknown names are refused there.
+    profile = PROFILES[DEFAULT_PROFILE] if profile is None else profile
     return make_onboard_predictor(name, models, profile.session_config(cores), profile.max_members,
                                   profile.agreement_stop)
 
 
-def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: RealtimeProfile = RealtimeProfile()):
-    """The episode's SPAD sensing (``None`` without ``spad``); ``lama_bp`` and ``evidence`` get the Pix2Pix
-    filter's evidence; the processing leaves out what ``profile.nlos_skips`` says.
+def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: Optional[RealtimeProfile] = None):
+    """The episode's SPAD sensing (``None`` without ``spad``); the :data:`EVIDENCE_PREDICTORS` get the Pix2Pix
+    filter's evidence; the processing leaves out what ``profile.nlos_skips`` says (None: the
+    :data:`DEFAULT_PROFILE`'s).
 
     Raises:
-        ValueError: ``lama_bp`` or ``evidence`` without ``spad`` (they read the SPAD evidence).
+        ValueError: a predictor of :data:`EVIDENCE_PREDICTORS` without ``spad`` (it reads the SPAD evidence).
     """
-    if predictor in EVIDENCE_PREDICTORS and not spad:
+    if kind_of(predictor).reads_evidence and not spad:
         raise ValueError(f"--predictor {predictor} reads the SPAD evidence: add --spad")
     if not spad:
         return None
     from superex_deploy.sim.sensing import SpadSensing
 
     bp_filter = None
-    if predictor in EVIDENCE_PREDICTORS:
+    if kind_of(predictor).reads_evidence:
         bp_filter = _pix2pix_filter(models)
-    return SpadSensing(seed=seed, bp_filter=bp_filter, skips=profile.nlos_skips)
+    return SpadSensing(seed=seed, bp_filter=bp_filter,
+                       skips=(PROFILES[DEFAULT_PROFILE] if profile is None else profile).nlos_skips)
 
 
 def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, skips: Optional[NlosSkips] = None):
@@ -214,7 +298,7 @@ def make_processing(predictor: str, sensor=None, nlos_cfg=None, models=None, ski
     from superex_deploy.onboard.nlos.processing import SpadProcessing
     from superex_deploy.spad_types import SpadConfig
 
-    bp_filter: Optional[object] = _pix2pix_filter(models) if predictor in EVIDENCE_PREDICTORS else None
+    bp_filter: Optional[object] = _pix2pix_filter(models) if kind_of(predictor).reads_evidence else None
     return SpadProcessing(sensor=sensor or SpadConfig(), nlos_cfg=nlos_cfg or NlosConfig(), bp_filter=bp_filter,
                           skips=skips or NlosSkips())
 
@@ -265,7 +349,7 @@ def build_explorer(frame: MapFrame, planner, predictor, *, profile: Optional[str
     profile_name = resolve_profile(profile, planner, name)
     chosen = check_profile(profile_name, planner, name)
     if isinstance(spad, bool):
-        if name in EVIDENCE_PREDICTORS and not spad:
+        if kind_of(name).reads_evidence and not spad:
             raise ValueError(f"the {name} predictor reads the SPAD evidence: build it with spad=True")
         spad_processing = make_processing(name, sensor, nlos_cfg, models, chosen.nlos_skips) if spad else None
     elif isinstance(spad, SpadProcessing):

@@ -13,6 +13,8 @@ from typing import Optional, Protocol, Union
 import numba
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
+
 __all__ = ["SpadNoise", "SpadConfig", "PhotonBudget", "SPAD_PRESETS", "spad_preset", "SparseHistograms", "ScanTruth",
            "SpadScan", "SPEED_OF_LIGHT", "PLANCK"]
 
@@ -36,7 +38,7 @@ def _check_reals(owner: str, obj, names, positive: bool = False) -> None:
 
 
 @dataclass(frozen=True)
-class SpadNoise:
+class SpadNoise(JsonConfig):
     """Detector noise. Disabled by default (the paper simulates noise-free histograms).
 
     Attributes:
@@ -63,7 +65,7 @@ class SpadNoise:
 
 
 @dataclass(frozen=True)
-class SpadConfig:
+class SpadConfig(JsonConfig):
     """SPAD LiDAR parameters.
 
     Attributes:
@@ -142,7 +144,7 @@ class SpadConfig:
 
 
 @dataclass(frozen=True)
-class PhotonBudget:
+class PhotonBudget(JsonConfig):
     """A SPAD LiDAR's photon budget in physical units, turned into the simulator's sensor model
     (:meth:`sensor`): the signal's scale (the model's pulse energy) and the noise (:class:`SpadNoise`).
 

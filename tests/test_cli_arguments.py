@@ -229,7 +229,8 @@ def test_gif_every_zero_writes_no_gif(tmp_path, capsys):
     from superex_deploy.render import GifRecorder
 
     out = tmp_path / "run"
-    assert main(["explore", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out",
+                 str(out)]) == 0
     assert (out / "metrics.json").exists() and not (out / "episode.gif").exists()
     assert "episode.gif" not in capsys.readouterr().out
     for every in (0, -1, 1.5, True):
@@ -267,8 +268,8 @@ def test_a_record_path_in_a_missing_folder_leaves_nothing_behind(tmp_path, capsy
     assert list(tmp_path.iterdir()) == []
     # A folder that --out creates is fine: the recording goes beside the run.
     new = tmp_path / "new"
-    assert main(["explore", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out", str(new / "run"),
-                 "--record", str(new / "x.mcap")]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "5", "--gif-every", "0", "--out",
+                 str(new / "run"), "--record", str(new / "x.mcap")]) == 0
     assert (new / "x.mcap").exists() and (new / "run" / "metrics.json").exists()
 
 
@@ -379,16 +380,16 @@ def test_settings_differ_exactly_where_a_field_is_named(recorded, new):
 
 @pytest.mark.parametrize("seed", [-1, True, 2.5])
 def test_replay_names_a_bad_recorded_seed(seed):
-    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.commands.replay import explorer_arguments
 
     metadata = {"planner": "nearest", "predictor": "observed", "seed": seed, "explorer": {}}
     with pytest.raises(ValueError, match="the recording's seed must be an integer >= 0"):
-        build_explorer(metadata, MapFrame((10, 10), 0.1), None)
+        explorer_arguments(metadata, MapFrame((10, 10), 0.1), None)
 
 
 def test_replay_names_a_missing_configuration_field():
-    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.commands.replay import explorer_arguments
 
     metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
     with pytest.raises(ValueError, match="cannot be rebuilt: it lacks the field 'motion'"):
-        build_explorer(metadata, MapFrame((10, 10), 0.1), None)
+        explorer_arguments(metadata, MapFrame((10, 10), 0.1), None)

@@ -21,8 +21,8 @@ def test_scan_writes_figure_and_summary(tmp_path, capsys):
 
 def test_explore_writes_metrics_plot_and_gif(tmp_path):
     out = tmp_path / "run"
-    assert main(["explore", "--map", "50052750", "--start", "2", "--planner", "mapex", "--steps", "30",
-                 "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "2", "--planner", "mapex",
+                 "--steps", "30", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 30 and len(metrics["coverage"]) == 30
     assert set(metrics["timings_s"]) == {"scan", "map_update", "frontiers", "prediction", "scoring", "path"}
@@ -78,7 +78,8 @@ def test_benchmark_with_spad_and_the_evidence_ensemble(tmp_path):
 @pytest.mark.slow
 def test_explore_with_spad_reports_carved_coverage(tmp_path):
     out = tmp_path / "spad"
-    assert main(["explore", "--map", "50052750", "--start", "2", "--steps", "25", "--spad", "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "2", "--steps", "25", "--spad",
+                 "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["coverage_with_carving"][-1] > metrics["coverage"][-1]
 
@@ -88,7 +89,7 @@ def test_explore_with_spad_reports_carved_coverage(tmp_path):
     (["explore", "--map", "50052750", "--start", "7", "--steps", "5"], "--start must lie in 0..3"),
     (["scan", "--map", "no_such_map"], "no bundled map"),
     (["explore", "--map", "50052750", "--pose", "0", "1", "--steps", "5"], "inside a wall"),  # a wall cell
-    (["explore", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
+    (["explore", "--pipeline", "nearest", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
     (["benchmark", "--maps", "50052750", "--predictor", "lama_bp", "--steps", "5"], "add --spad"),
     (["benchmark", "--maps", "50052750", "--planners", "mapex", "--planner-option", "distance=manhattan",
       "--steps", "5"], "distance must be"),
@@ -102,8 +103,8 @@ def test_bad_arguments_fail_with_a_clear_message(tmp_path, capsys, argv, message
 
 def test_explore_with_the_oracle_logs_everything_the_benchmark_needs(tmp_path):
     out = tmp_path / "run"
-    argv = ["explore", "--map", "50052750", "--start", "3", "--planner", "nearest", "--predictor", "oracle",
-            "--seed", "4", "--steps", "30", "--gif-every", "7", "--out", str(out)]
+    argv = ["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "3", "--planner", "nearest",
+            "--predictor", "oracle", "--seed", "4", "--steps", "30", "--gif-every", "7", "--out", str(out)]
     assert main(argv) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert (metrics["map"], metrics["planner"], metrics["seed"], metrics["steps"]) == ("50052750", "nearest", 4, 30)
@@ -131,8 +132,9 @@ def test_explore_runs_are_reproducible_and_the_seed_matters(tmp_path):
     # another seed another one, or the test could not fail.
     logs = []
     for run, seed in (("a", "1"), ("b", "1"), ("c", "2")):
-        assert main(["explore", "--map", "50052750", "--start", "1", "--planner", "upen", "--predictor", "lama_los",
-                     "--steps", "40", "--seed", seed, "--gif-every", "100", "--out", str(tmp_path / run)]) == 0
+        assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "1", "--planner", "upen",
+                     "--predictor", "lama_los", "--steps", "40", "--seed", seed, "--gif-every", "100",
+                     "--out", str(tmp_path / run)]) == 0
         logs.append(json.loads((tmp_path / run / "metrics.json").read_text()))
     assert logs[0]["poses"] == logs[1]["poses"] and logs[0]["goals"] == logs[1]["goals"]
     assert logs[0]["goals"] != logs[2]["goals"]
@@ -141,15 +143,15 @@ def test_explore_runs_are_reproducible_and_the_seed_matters(tmp_path):
 @pytest.mark.slow
 def test_explore_with_the_learned_ensembles(tmp_path, capsys):
     out = tmp_path / "lama"
-    assert main(["explore", "--map", "50052750", "--start", "1", "--planner", "mapex", "--predictor", "lama_bp",
-                 "--spad", "--steps", "12", "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "1", "--planner", "mapex",
+                 "--predictor", "lama_bp", "--spad", "--steps", "12", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["predictor"] == "lama_bp" and metrics["steps"] == 12
     # The learned prediction is neither the observation nor the truth: its IoU lies strictly between.
     assert all(0.0 < iou < 1.0 for iou in metrics["iou"]["iou"])
-    assert main(["explore", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5",
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--predictor", "lama_bp", "--steps", "5",
                  "--out", str(tmp_path / "x")]) == 2
     assert "add --spad" in capsys.readouterr().err
-    assert main(["explore", "--map", "50052750", "--predictor", "lama_los", "--steps", "5",
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--predictor", "lama_los", "--steps", "5",
                  "--models", str(tmp_path), "--out", str(tmp_path / "y")]) == 2
     assert "no model manifest" in capsys.readouterr().err

@@ -66,8 +66,8 @@ def test_a_replay_stopped_midway_writes_nothing_and_says_so(tmp_path, capsys, mo
     from superex_deploy.onboard import Explorer
 
     record = tmp_path / "ep.mcap"
-    assert main(["explore", "--map", MAP, "--steps", "20", "--gif-every", "0", "--out", str(tmp_path / "run"),
-                 "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "20", "--gif-every", "0", "--out",
+                 str(tmp_path / "run"), "--record", str(record)]) == 0
     step = Explorer.step
 
     def step_then_sigint(self, observation):
@@ -158,12 +158,13 @@ def test_an_explore_recording_stopped_by_a_signal_is_valid_and_replays(tmp_path,
     record, out = tmp_path / "ep.mcap", tmp_path / "run"
     # Compile the kernels first (a fresh clone's cache is cold): a signal that lands inside numba's compiler is not
     # the case under test, and the stop must come mid-episode.
-    subprocess.run([sys.executable, "-m", "superex_deploy.cli", "explore", "--map", MAP, "--steps", "30", "--spad",
-                    "--predictor", "observed", "--gif-every", "0", "--out", str(tmp_path / "warm")], cwd=tmp_path,
+    subprocess.run([sys.executable, "-m", "superex_deploy.cli", "explore", "--pipeline", "nearest", "--map", MAP,
+                    "--steps", "30", "--spad", "--predictor", "observed", "--gif-every", "0",
+                    "--out", str(tmp_path / "warm")], cwd=tmp_path,
                    env={**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}, capture_output=True,
                    timeout=600, check=True)
-    run = _Superex(["explore", "--map", MAP, "--steps", "400", "--spad", "--predictor", "observed", "--gif-every", "0",
-                    "--out", str(out), "--record", str(record)], tmp_path)
+    run = _Superex(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "400", "--spad", "--predictor",
+                    "observed", "--gif-every", "0", "--out", str(out), "--record", str(record)], tmp_path)
     run.wait_for(lambda: any(int(n) >= 12 for n in re.findall(r"(\d+)/400", run.err)))
     err = run.stop(signum, group=signum == signal.SIGINT)
     assert run.process.returncode == CODES[signum]
@@ -212,8 +213,8 @@ def test_a_recording_stopped_before_its_first_step_leaves_no_file(tmp_path):
     path = tmp_path / "early.mcap"
     record = EpisodeRecorder(path, MapFrame(grid.shape, grid.resolution_m),
                              {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}})
-    args = argparse.Namespace(record=path, out=tmp_path, planner="nearest", predictor="observed", seed=0,
-                              profile="full")
+    args = argparse.Namespace(record=path, out=tmp_path, pipeline="nearest", planner="nearest", predictor="observed",
+                              spad=False, seed=0, profile="full")
     kept = _keep_interrupted(args, grid, (0, 0), _StepsDone(), record, "SIGINT")
     assert "no whole step was recorded" in kept
     assert not path.exists() and not path.with_name(path.name + ".part").exists()
@@ -259,8 +260,8 @@ def test_explore_stopped_by_a_wrapped_signal_keeps_its_steps_like_the_signal(tmp
 
     monkeypatch.setattr(episode, "run_episode", stopped_at_step_12)
     record, out = tmp_path / "ep.mcap", tmp_path / "run"
-    code = main(["explore", "--map", MAP, "--steps", "40", "--predictor", "observed", "--gif-every", "0",
-                 "--out", str(out), "--record", str(record)])
+    code = main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "40", "--predictor", "observed",
+                 "--gif-every", "0", "--out", str(out), "--record", str(record)])
     err = capsys.readouterr().err
     assert code == 143
     assert _one_stop_line(err, "explore", signal.SIGTERM).endswith("marked interrupted")

@@ -319,8 +319,8 @@ def test_bad_bounds_on_the_command_line_are_refused_before_anything_is_written(t
 
 def test_bounds_away_from_the_start_are_refused_on_the_command_line(tmp_path, capsys):
     out = tmp_path / "out"
-    refused(capsys, ["explore", "--map", MAP, "--bounds", "1000,1000 1001,1000 1001,1001", "--out", str(out)],
-             "must contain the robot's start pose")
+    refused(capsys, ["explore", "--pipeline", "nearest", "--map", MAP, "--bounds", "1000,1000 1001,1000 1001,1001",
+                     "--out", str(out)], "must contain the robot's start pose")
     assert not (out / "metrics.json").exists()
 
 
@@ -328,8 +328,9 @@ def test_the_command_line_ends_with_a_status_line_and_records_the_status(tmp_pat
     from superex_deploy.recording import read_recording
 
     out, record = tmp_path / "out", tmp_path / "run.mcap"
-    assert main(["explore", "--map", MAP, "--steps", "12", "--gif-every", "0", "--return-to-start",
-                 "--bounds", "-1,-1 1000,-1 1000,1000 -1,1000", "--record", str(record), "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "12", "--gif-every", "0",
+                 "--return-to-start", "--bounds", "-1,-1 1000,-1 1000,1000 -1,1000", "--record", str(record),
+                 "--out", str(out)]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert re.fullmatch(r"status exploring: 12 steps, coverage \d+\.\d%, coverage inside the bounds \d+\.\d%", last)
     metrics = json.loads((out / "metrics.json").read_text())
@@ -351,8 +352,8 @@ def test_a_recording_written_before_commands_had_a_status_still_replays(tmp_path
     assert old != text
     monkeypatch.setitem(schemas.SCHEMAS, "/command", (name, old))
     out, record = tmp_path / "out", tmp_path / "old.mcap"
-    assert main(["explore", "--map", MAP, "--steps", "8", "--gif-every", "0", "--record", str(record),
-                 "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--steps", "8", "--gif-every", "0", "--record",
+                 str(record), "--out", str(out)]) == 0
     monkeypatch.undo()
     recording = read_recording(record)
     assert recording.error is None and [step.status for step in recording.steps] == [None] * 8

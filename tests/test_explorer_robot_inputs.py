@@ -53,7 +53,7 @@ def _drive(world, explorer, steps, observe=None, after=None):
 def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner, spad):
     grid = load_map(MAP)
     start = start_poses(MAP)[1]
-    sensing = make_sensing("observed", spad, 0)
+    sensing = make_sensing("observed", spad, 0, profile=PROFILES["full"])
     world = World(grid, start, WorldConfig(spad=None if sensing is None else sensing.spad))
     own = Explorer(world.frame, make_planner(planner), ObservedAsPrediction(),
                    spad_processing=None if sensing is None else sensing.processing(), seed=4)
@@ -66,7 +66,7 @@ def test_a_slam_map_equal_to_the_explorers_own_map_gives_the_same_goals(planner,
     commands = _drive(world, own, 40 if spad else 80, after=keep)
     assert sum(c[1] for c in commands) >= 2  # several goals were chosen
 
-    second_sensing = make_sensing("observed", spad, 0)
+    second_sensing = make_sensing("observed", spad, 0, profile=PROFILES["full"])
     fed = Explorer(world.frame, make_planner(planner), ObservedAsPrediction(),
                    spad_processing=None if second_sensing is None else second_sensing.processing(), seed=4)
     replayed = []
@@ -111,7 +111,7 @@ def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goal
     from superex_deploy.cli import main
 
     grid = load_map(MAP)
-    sensing = make_sensing("observed", True, 0)
+    sensing = make_sensing("observed", True, 0, profile=PROFILES["full"])
     world = World(grid, start_poses(MAP)[2], WorldConfig(spad=sensing.spad))
     # This world moves cell to cell and wants each path from the robot's cell: the belief stays within that cell,
     # and the scan matcher's correction (exercised, recorded and replayed) brings it back towards the true pose.

@@ -196,7 +196,8 @@ def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from superex_deploy.commands.replay import build_explorer as replay_explorer
+    from superex_deploy.commands.replay import explorer_arguments
+    from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import EpisodeRecorder, read_recording
 
     cfg = ExplorerConfig(growth=GROWTH)
@@ -223,7 +224,7 @@ def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_
         assert (info.height, info.width) == step_frame.shape and len(message.data) == info.width * info.height
         assert (info.origin.position.x, info.origin.position.y) == pytest.approx(step_frame.origin_xy)
     recording = read_recording(path)
-    with replay_explorer(recording.metadata, recording.frame) as replay:
+    with build_explorer(**explorer_arguments(recording.metadata, recording.frame)) as replay:
         assert replay.cfg.growth == GROWTH
         for recorded in recording.steps:
             command = replay.step(recorded.observation)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from superex_deploy.pipeline import make_predictor, make_sensing
+from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
@@ -43,9 +43,10 @@ def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(ca
     # It ran the defaults of then: the planner's and the sensing's that changed since are given as they were.
     grid = load_map(case["map"])
     start = start_poses(case["map"])[case["start_index"]]
-    sensing = make_sensing(case["predictor"], case["spad"], case["seed"])
+    sensing = make_sensing(case["predictor"], case["spad"], case["seed"], profile=PROFILES["full"])
     result = run_episode(grid, start, make_planner(case["planner"], **previous_planner_options(case["planner"], {})),
-                         make_predictor(case["predictor"], grid), steps=case["steps"], seed=case["seed"],
+                         make_predictor(case["predictor"], grid, profile=PROFILES["full"]), steps=case["steps"],
+                         seed=case["seed"],
                          cfg=ExplorationConfig(iou_every=case["iou_every"]),
                          sensing=None if sensing is None else previous_sensing(sensing))
     assert result.poses.tolist() == case["poses"]
@@ -224,7 +225,7 @@ def test_the_explorer_holds_no_ground_truth_after_an_episode():
         captured["explorer"] = explorer
 
     run_episode(grid, start_poses("50052750")[0], make_planner("superex"), make_predictor("evidence", grid),
-                steps=8, sensing=make_sensing("evidence", True, 0), on_observation=keep)
+                steps=8, sensing=make_sensing("evidence", True, 0, profile=PROFILES["full"]), on_observation=keep)
     for item in _reachable(captured["explorer"]):
         assert not isinstance(item, OccupancyGrid), "the explorer can reach the ground-truth grid"
         if isinstance(item, np.ndarray) and item.size > 1:
@@ -277,8 +278,9 @@ def test_a_replay_of_a_recording_chooses_the_recorded_goals(tmp_path, planner, p
     from superex_deploy.cli import main
 
     record = tmp_path / "episode.mcap"
-    argv = ["explore", "--map", "50052750", "--start", "2", "--planner", planner, "--predictor", predictor,
-            "--steps", "25", "--seed", "5", "--gif-every", "50", "--out", str(tmp_path / "run"), "--record", str(record)]
+    argv = ["explore", "--pipeline", "nearest", "--map", "50052750", "--start", "2", "--planner", planner,
+            "--predictor", predictor, "--steps", "25", "--seed", "5", "--gif-every", "50",
+            "--out", str(tmp_path / "run"), "--record", str(record)]
     assert main(argv + (["--spad"] if spad else [])) == 0
     assert record.exists() and not (tmp_path / "episode.mcap.part").exists()
     assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
@@ -297,8 +299,8 @@ def test_a_recording_is_readable_by_standard_mcap_tools(tmp_path):
     from superex_deploy.cli import main
 
     record = tmp_path / "episode.mcap"
-    assert main(["explore", "--map", "50052750", "--planner", "nearest", "--steps", "30", "--gif-every", "50",
-                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "nearest", "--steps", "30",
+                 "--gif-every", "50", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     with open(record, "rb") as file:
         summary = make_reader(file).get_summary()
     topics = {channel.topic: summary.schemas[channel.schema_id].name for channel in summary.channels.values()}
@@ -318,8 +320,8 @@ def test_a_truncated_recording_replays_what_it_holds_and_says_where_it_broke(tmp
     from superex_deploy.recording import read_recording
 
     record = tmp_path / "episode.mcap"
-    assert main(["explore", "--map", "50052750", "--planner", "mapex", "--steps", "80", "--gif-every", "50",
-                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "mapex", "--steps", "80",
+                 "--gif-every", "50", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     data = record.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[:int(len(data) * 0.7)])
@@ -340,7 +342,7 @@ def test_a_truncated_recording_replays_what_it_holds_and_says_where_it_broke(tmp
 def test_recording_refuses_bad_destinations_and_the_oracle(tmp_path, capsys):
     from superex_deploy.cli import main
 
-    base = ["explore", "--map", "50052750", "--steps", "5", "--out", str(tmp_path / "run")]
+    base = ["explore", "--pipeline", "nearest", "--map", "50052750", "--steps", "5", "--out", str(tmp_path / "run")]
     assert main(base + ["--record", str(tmp_path / "missing" / "x.mcap")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(base + ["--predictor", "oracle", "--record", str(tmp_path / "x.mcap")]) == 2
@@ -484,6 +486,6 @@ def test_recording_into_the_output_folder_of_a_fresh_run(tmp_path):
     from superex_deploy.cli import main
 
     out = tmp_path / "fresh"
-    assert main(["explore", "--map", "50052750", "--steps", "4", "--gif-every", "10", "--out", str(out),
-                 "--record", str(out / "ep.mcap")]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--steps", "4", "--gif-every", "10", "--out",
+                 str(out), "--record", str(out / "ep.mcap")]) == 0
     assert (out / "ep.mcap").is_file() and not list(out.glob("*.part"))

@@ -136,7 +136,7 @@ def test_an_episode_takes_a_built_explorer_only_when_it_matches():
     assert other._closed  # the episode closed the explorer it refused
     with pytest.raises(ValueError, match="either an explorer or a planner and a predictor"):
         run_episode(grid, start, make_planner("nearest"), steps=2, cfg=cfg)
-    sensing = make_sensing("observed", True, 0)
+    sensing = make_sensing("observed", True, 0, profile=PROFILES["full"])
     unrelated = build_explorer(frame, "nearest", "observed", profile="full", spad=True, cfg=cfg.explorer)
     with pytest.raises(ValueError, match="SPAD processing must be the sensing's"):
         run_episode(grid, start, explorer=unrelated, steps=2, cfg=cfg, sensing=sensing)
@@ -149,8 +149,8 @@ def test_a_retired_planner_option_is_refused_by_name(field, tmp_path, capsys):
         make_planner("superex", **{field: value})
     if field == "choice":
         out = tmp_path / "run"
-        assert main(["explore", "--map", MAP, "--planner", "superex", "--planner-option", "choice=rollout",
-                     "--steps", "2", "--out", str(out)]) == 2
+        assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--planner", "superex", "--planner-option",
+                     "choice=rollout", "--steps", "2", "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert "'choice' was retired" in err and err.count("\n") == 1
         assert not out.exists()

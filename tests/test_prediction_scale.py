@@ -222,14 +222,14 @@ def test_a_coarser_grid_is_repeated_to_the_model_and_pooled_back():
 @pytest.mark.slow
 def test_an_episode_on_a_0_05_m_copy_runs_the_models_at_their_scale():
     from superex_deploy.maps import OccupancyGrid
-    from superex_deploy.pipeline import make_predictor, make_sensing
+    from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import run_episode
 
     grid = load_map(list_maps("train")[1])
     fine = OccupancyGrid(np.kron(grid.occupied, np.ones((2, 2), bool)), np.kron(grid.valid, np.ones((2, 2), bool)),
                          0.05, grid.name)
     free = np.argwhere(~fine.occupied & fine.valid)
-    lama, shapes = make_predictor("lama_bp"), []
+    lama, shapes = make_predictor("lama_bp", profile=PROFILES["full"]), []
 
     class Recording:
         """The ensemble, recording the shape of every map it is given."""
@@ -240,7 +240,7 @@ def test_an_episode_on_a_0_05_m_copy_runs_the_models_at_their_scale():
             return lama.predict(observed, extra)
 
     result = run_episode(fine, tuple(free[len(free) // 2]), make_planner("nearest"), Recording(), steps=30,
-                         sensing=make_sensing("lama_bp", True, 0))
+                         sensing=make_sensing("lama_bp", True, 0, profile=PROFILES["full"]))
     assert shapes and set(shapes) == {grid.occupied.shape}  # the 0.1 m map, every time
     assert result.collisions == 0 and result.true_walls_carved == 0 and result.explorer_map_iou > 0.1
 

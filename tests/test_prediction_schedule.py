@@ -299,8 +299,8 @@ def test_a_recording_made_before_the_schedule_modes_still_loads_and_replays(tmp_
 
     monkeypatch.setattr(explore, "recording_metadata", old_metadata)
     record = tmp_path / "old.mcap"
-    assert main(["explore", "--map", "50052750", "--planner", "mapex", "--profile", "full", "--steps", "12",
-                 "--gif-every", "0", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "mapex", "--profile", "full",
+                 "--steps", "12", "--gif-every", "0", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     recording = read_recording(record)
     assert recording.metadata["explorer"]["prediction"] == old_schedule
     assert len(recording.steps) == 12 and all(s.prediction_age_s is None for s in recording.steps)

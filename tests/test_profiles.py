@@ -21,7 +21,7 @@ def test_the_default_profile_is_the_measured_realtime_one():
     assert PROFILES["full"].episode_config().explorer.prediction.mode == "inline"
     assert realtime.max_members == 1 and realtime.reuse.crop_margin_m == 6.4
     ensemble = make_predictor("lama_bp", profile=realtime)
-    assert ensemble.max_members == 1 and make_predictor("lama_bp").max_members is None
+    assert ensemble.max_members == 1 and make_predictor("lama_bp", profile=PROFILES["full"]).max_members is None
 
 
 def test_a_profile_gives_the_explorer_and_episode_configurations():
@@ -56,8 +56,8 @@ def test_a_one_member_profile_refuses_planners_that_read_the_variance():
 
 def test_explore_refuses_a_profile_the_planner_cannot_use_and_defaults_around_it(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["explore", "--map", "50052750", "--planner", "mapex", "--predictor", "lama_los", "--steps", "3",
-            "--gif-every", "10"]
+    argv = ["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "mapex", "--predictor", "lama_los",
+            "--steps", "3", "--gif-every", "10"]
     assert main(argv + ["--profile", "realtime", "--out", str(out)]) == 2
     assert "use --profile full" in capsys.readouterr().err
     assert not out.exists()
@@ -108,8 +108,8 @@ def test_a_replay_refuses_a_profile_defined_differently_since(tmp_path, monkeypa
     from dataclasses import replace
 
     record = tmp_path / "a.mcap"
-    assert main(["explore", "--map", "50052750", "--planner", "nearest", "--steps", "5", "--gif-every", "10",
-                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "nearest", "--steps", "5",
+                 "--gif-every", "10", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     monkeypatch.setitem(PROFILES, "realtime", replace(PROFILES["realtime"], max_members=2))
     assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 2
     assert "the recording's profile 'realtime' was defined differently" in capsys.readouterr().err

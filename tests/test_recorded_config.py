@@ -32,10 +32,11 @@ def test_the_previous_defaults_are_those_that_changed():
 # Recordings.
 
 def _replayed_goals(metadata, recording) -> list:
-    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.commands.replay import explorer_arguments
+    from superex_deploy.pipeline import build_explorer
 
     goals = []
-    with build_explorer(metadata, recording.frame) as explorer:
+    with build_explorer(**explorer_arguments(metadata, recording.frame)) as explorer:
         for recorded in recording.steps:
             command = explorer.step(recorded.observation)
             if command.new_goal:
@@ -44,13 +45,14 @@ def _replayed_goals(metadata, recording) -> list:
 
 
 def test_a_recording_made_with_the_defaults_before_replays_with_them(tmp_path, old_recording):
-    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.commands.replay import explorer_arguments
+    from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import read_recording
 
     path, goals = old_recording(tmp_path / "old.mcap", 2)  # from start 2 the new defaults choose another first goal
     recording = read_recording(path)
     assert "planner_config" not in recording.metadata and recording.metadata["planner_options"] == {}
-    with build_explorer(recording.metadata, recording.frame) as explorer:
+    with build_explorer(**explorer_arguments(recording.metadata, recording.frame)) as explorer:
         assert explorer.planner.cfg == SuperexConfig(**OLD_SUPEREX)
     assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
     replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
@@ -61,7 +63,8 @@ def test_a_recording_made_with_the_defaults_before_replays_with_them(tmp_path, o
 
 
 def test_the_planner_configuration_round_trips_through_a_recording(write_recording, tmp_path):
-    from superex_deploy.commands.replay import build_explorer
+    from superex_deploy.commands.replay import explorer_arguments
+    from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import read_recording
 
     planner = make_planner("superex", gain="goal", wall_support=0.3, drop_resolved_m=2.0)
@@ -71,12 +74,12 @@ def test_the_planner_configuration_round_trips_through_a_recording(write_recordi
     recording = read_recording(write_recording(tmp_path / "r.mcap", metadata=metadata))
     assert recording.metadata["planner_config"] == json.loads(json.dumps(asdict(planner.cfg)))
     # The recorded configuration wins over the options given (none here) and over this version's defaults.
-    with build_explorer(recording.metadata, recording.frame) as explorer:
+    with build_explorer(**explorer_arguments(recording.metadata, recording.frame)) as explorer:
         assert explorer.planner.cfg == planner.cfg and explorer.planner.cfg.wall_support.min_scale == 0.3
     hector = make_planner("hector", visibility=None, info_gain_weight=50.0)
     metadata = {**metadata, "planner": "hector", "planner_config": planner_settings(hector)}
     recording = read_recording(write_recording(tmp_path / "h.mcap", metadata=metadata))
-    with build_explorer(recording.metadata, recording.frame) as explorer:
+    with build_explorer(**explorer_arguments(recording.metadata, recording.frame)) as explorer:
         assert explorer.planner.cfg == hector.cfg
 
 
@@ -84,9 +87,9 @@ def test_explore_records_the_planners_whole_configuration_and_it_replays(tmp_pat
     from superex_deploy.recording import read_recording
 
     record = tmp_path / "new.mcap"
-    assert main(["explore", "--map", MAP, "--start", "2", "--planner", "superex", "--planner-option",
-                 "wall_support=0.5", "--steps", "8", "--gif-every", "0", "--out", str(tmp_path / "run"),
-                 "--record", str(record)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--start", "2", "--planner", "superex",
+                 "--planner-option", "wall_support=0.5", "--steps", "8", "--gif-every", "0",
+                 "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     metadata = read_recording(record).metadata
     assert metadata["planner_options"] == {"wall_support": 0.5}
     assert metadata["planner_config"] == json.loads(json.dumps(asdict(SuperexConfig(wall_support=0.5))))

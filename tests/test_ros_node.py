@@ -300,3 +300,24 @@ def test_a_slam_map_at_a_resolution_the_models_do_not_serve_gets_the_nearest_the
     assert step is not None and core.explorer.frame.resolution_m == 0.05 == servable_resolution(0.0504)
     assert step.command.goal_xy is not None
     core.explorer.close()
+
+
+def test_a_spad_frame_is_stepped_with_the_scan_of_its_stamp():
+    from superex_deploy.sim.world import World, WorldConfig
+    from superex_deploy.spad_types import SpadConfig
+
+    world = World(_rooms(), (20, 10), WorldConfig(spad=SpadConfig()))
+    observation = world.observe()
+    core = ExplorationCore(NodeParams(costmap_topic="", spad_topic="/spad", planner="nearest", predictor="lama_bp"))
+    core.add_transform("base_link", "laser", 0.0, Transform(), static=True)
+    core.add_transform("map", "base_link", 0.0, Transform.from_planar(observation.pose.x, observation.pose.y, 0.0),
+                       static=True)
+    core.add_spad(1.0 + 0.01, observation.spad)  # within spad_sync (0.05 s) of the scan
+    core.add_scan(1.0, "laser", observation.scan)
+    step = core.step(1.0)
+    assert step.observation.spad is observation.spad
+    assert core.explorer.spad_processing.evidence is not None and core.explorer.mapper.carved.any()
+    core.add_spad(2.2, observation.spad)  # too far from the next scan's stamp: that scan steps alone
+    core.add_scan(2.0, "laser", observation.scan)
+    assert core.step(2.0).observation.spad is None
+    core.explorer.close()

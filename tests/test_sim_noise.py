@@ -304,7 +304,8 @@ def test_the_noise_flags_are_parsed_and_checked():
 @pytest.mark.parametrize("argv, message", [
     (["explore", "--map", "50052750", "--steps", "5", "--pose-noise", "0.05"], "--pose-noise takes SIGMA_M,SIGMA_DEG"),
     (["explore", "--map", "50052750", "--steps", "5", "--lidar-noise", "2"], "--lidar-noise: SIGMA_M must lie"),
-    (["explore", "--map", "50052750", "--steps", "5", "--spad-noise", "realistic"], "add --spad"),
+    (["explore", "--pipeline", "nearest", "--map", "50052750", "--steps", "5", "--spad-noise", "realistic"],
+      "add --spad"),
     (["benchmark", "--maps", "50052750", "--steps", "5", "--pose-noise", "x,y"], "--pose-noise takes"),
     (["benchmark", "--suite", "paper", "--pose-noise", "0.05,1"], "noise-free protocol"),
 ])
@@ -316,8 +317,8 @@ def test_bad_noise_flags_fail_with_a_clear_message(tmp_path, capsys, argv, messa
 @pytest.mark.slow
 def test_explore_and_benchmark_run_with_noise(tmp_path, capsys):
     out = tmp_path / "explore"
-    assert main(["explore", "--map", "50052750", "--steps", "50", "--pose-noise", "0.05,1", "--lidar-noise", "0.02",
-                 "--out", str(out)]) == 0
+    assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--steps", "50", "--pose-noise", "0.05,1",
+                 "--lidar-noise", "0.02", "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["pose_noise"] == [0.05, 1.0] and metrics["lidar_noise"] == [0.02, 0.01, 0.001]
     assert {"collisions", "true_walls_held_free", "true_walls_carved", "map_iou"} <= set(metrics)

@@ -271,6 +271,25 @@ def test_fan_cache_restarts_within_its_size_and_earlier_truth_stays_valid(monkey
         _assert_same_scan(scan, reference)
 
 
+def test_a_scanned_grid_goes_with_its_scene_and_fan_caches():
+    """The scenes are cached for their grid's lifetime only: a scene that held its grid strongly kept every grid
+    ever scanned, and its fan caches (up to MAX_CACHED_FAN_BYTES each), alive for the whole process."""
+    import gc
+    import weakref
+
+    from superex_deploy.sim.spad import scene as spad_scene
+
+    grid = _corridor()
+    scan = simulate_scan(grid, (30, 30), SpadConfig(n_rays=90, n_secondary=16))
+    scene = prepare_scene(grid)
+    assert scene.fan_caches and scene.grid.shape == grid.shape and scene.grid.occupied is grid.occupied
+    gone, scenes_before = weakref.ref(grid), len(spad_scene._SCENES)
+    del grid, scene
+    gc.collect()
+    assert gone() is None and len(spad_scene._SCENES) == scenes_before - 1
+    assert scan.histograms.any()  # the scan keeps what it was taken with
+
+
 def test_fan_tracing_does_not_depend_on_the_thread_split():
     grid, walk = _random_rooms_and_walk(4)
     cfg = SpadConfig(n_rays=240, n_secondary=24, range_m=5.0)

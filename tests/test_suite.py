@@ -7,7 +7,8 @@ import pytest
 
 from superex_deploy.cli import main
 from superex_deploy.onboard.prediction.baselines import EvidenceAsPrediction
-from superex_deploy.sim.suite import PAPER_ROWS, bootstrap_interval, paired_summary, scenario_metrics
+from superex_deploy.pipeline import PIPELINES
+from superex_deploy.sim.suite import bootstrap_interval, paired_summary, scenario_metrics
 
 
 def test_scenario_metrics_on_a_hand_built_log(episode_log):
@@ -80,4 +81,4 @@ def test_paper_suite_runs_rows_resumes_and_refuses_other_settings(tmp_path, caps
     assert "other settings" in capsys.readouterr().err
     assert main(argv[:4] + ["nearest,frontier"] + argv[5:]) == 2
     assert "--rows: unknown row(s) frontier;" in capsys.readouterr().err
-    assert set(PAPER_ROWS) >= {"mapex_lama_los", "superex", "no_lama", "no_pix2pix", "superex_oracle"}
+    assert set(PIPELINES) >= {"mapex_lama_los", "superex", "no_lama", "no_pix2pix", "superex_oracle"}

@@ -1,7 +1,7 @@
 """``superex benchmark``: every start pose of a set of maps x planners, in parallel processes.
 
 ``--suite paper`` runs the paper's table instead (``--suite altered``: on altered eval floors, see
-:mod:`superex_deploy.commands.paper_benchmark`): the named rows of :data:`~superex_deploy.sim.suite.PAPER_ROWS`
+:mod:`superex_deploy.commands.paper_benchmark`): the named pipelines of :data:`~superex_deploy.pipeline.PIPELINES`
 (planner x predictor x sensing) on the 40 eval scenarios, each row written to ``OUT/rows/ROW.json`` as soon as it
 is done (a rerun skips the rows already there), then the summary paired by scenario against MapEx on LaMa-LOS:
 ``results.md``, ``results.json``, ``coverage.png``, ``iou_vs_coverage.png``.
@@ -17,7 +17,11 @@ from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.commands.options import (add_noise_options, add_parallel_options, add_planner_option,
                                              add_profile_option, check_jobs, check_output_folder, eval_maps,
                                              make_backend, name_list, noise_options, noise_settings,
-                                             non_negative_int, planner_options, settings_differences)
+                                             non_negative_int, planner_options, predictor_help,
+                                             settings_differences)
+from superex_deploy.onboard.planning.planners import PLANNERS
+from superex_deploy.onboard.prediction.registry import kind_of
+from superex_deploy.pipeline import PREDICTORS
 from superex_deploy.files import write_atomically
 from superex_deploy.spad_types import SpadConfig
 
@@ -25,13 +29,11 @@ from superex_deploy.spad_types import SpadConfig
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--maps", type=name_list, default="eval",
                         help="'eval', or comma-separated bundled eval map names")
-    parser.add_argument("--planners", type=name_list, default="nearest,hector,upen,mapex",
-                        help="comma-separated planner names")
+    parser.add_argument("--planners", type=name_list, default=",".join(PLANNERS),
+                        help="comma-separated planner names (default: every planner, this project's superex "
+                             "included)")
     add_planner_option(parser)
-    parser.add_argument("--predictor", default="observed", choices=("observed", "oracle", "lama_los", "lama_bp"),
-                        help="lama_los: the line-of-sight LaMa ensemble in exported/ (MapEx's predictor); "
-                             "lama_bp: the ensemble that also reads the Pix2Pix-filtered back-projection (needs "
-                             "--spad)")
+    parser.add_argument("--predictor", default="observed", choices=tuple(PREDICTORS), help=predictor_help())
     parser.add_argument("--spad", action="store_true",
                         help=f"simulate the SPAD LiDAR every step ({SpadConfig.n_rays} rays, {SpadConfig.n_secondary} "
                              "secondary rays per wall hit): NLOS carving and back-projection evidence")
@@ -133,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
 
         return run_paper(args)
     from superex_deploy.sim.metrics import results_markdown, summarise
-    from superex_deploy.onboard.planning.planners import PLANNERS, make_planner
+    from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import Interrupted, read_journal, run_tasks
     from superex_deploy.render import save_benchmark_plots
@@ -145,8 +147,8 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise ValueError(f"unknown planner(s) {unknown}; choose from {', '.join(sorted(PLANNERS))}")
     check_jobs(args)
-    if args.predictor == "lama_bp" and not args.spad:
-        raise ValueError("--predictor lama_bp reads the SPAD evidence: add --spad")
+    if kind_of(args.predictor).reads_evidence and not args.spad:
+        raise ValueError(f"--predictor {args.predictor} reads the SPAD evidence: add --spad")
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     options = planner_options(args.planner_option)

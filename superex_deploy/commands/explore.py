@@ -1,4 +1,6 @@
-"""``superex explore``: one exploration episode, written as metrics.json, final.png and episode.gif; with ``--live``
+"""``superex explore``: one exploration episode of a named pipeline (``--pipeline``, default ``superex``: the superex
+planner on the LaMa-BP ensemble with SPAD sensing, the realtime profile; ``--planner``, ``--predictor``, ``--spad``
+and ``--profile`` override its parts), written as metrics.json, final.png and episode.gif; with ``--live``
 also served while it runs on a Foxglove WebSocket (:mod:`superex_deploy.recording.live`), paced for a viewer (at the
 simulated sensor's 10 Hz unless ``--live-pace`` says otherwise), its last state served ``--live-hold`` seconds more
 after the outputs are written (Ctrl-C ends that), and stopped however the run ends, without waiting for a client that
@@ -20,9 +22,11 @@ from superex_deploy.commands.options import (add_live_options, add_noise_options
                                              add_profile_option, bounds_polygon, check_output_file,
                                              check_output_folder, folders_made, load_floor,
                                              noise_options, noise_settings, non_negative_int, planner_options,
-                                             resolve_start)
-from superex_deploy.pipeline import (PREDICTORS, PROFILES, build_explorer, check_profile, make_sensing,
-                                     resolve_profile)
+                                             predictor_help, resolve_start)
+from superex_deploy.onboard.planning.planners import PLANNERS
+from superex_deploy.onboard.prediction.registry import kind_of
+from superex_deploy.pipeline import (DEFAULT_PIPELINE, PIPELINES, PREDICTORS, PROFILES, build_explorer,
+                                     check_profile, make_sensing, resolve_profile)
 from superex_deploy.recording.live import live_view
 from superex_deploy.spad_types import SpadConfig
 
@@ -32,13 +36,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=non_negative_int, default=0,
                         help="index of the eval map's start pose (0-3); a map file or a train map needs --pose")
     parser.add_argument("--pose", type=int, nargs=2, metavar=("ROW", "COL"), help="start cell instead of --start")
-    parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex | superex")
+    parser.add_argument("--pipeline", default=DEFAULT_PIPELINE, choices=tuple(PIPELINES), metavar="NAME",
+                        help="the named pipeline to run (superex_deploy.pipeline.PIPELINES: its planner, predictor, "
+                             f"SPAD sensing and profile; --planner, --predictor, --spad / --no-spad and --profile "
+                             f"override its parts): {', '.join(PIPELINES)}. Default: {DEFAULT_PIPELINE} (the superex "
+                             "planner on the LaMa-BP ensemble with SPAD carving and Pix2Pix evidence, the realtime "
+                             "profile); nearest: the nearest frontier on the observed map")
+    parser.add_argument("--planner", default=None,
+                        help=f"{' | '.join(PLANNERS)} (default: the pipeline's)")
     add_planner_option(parser)
-    parser.add_argument("--predictor", default="observed", choices=PREDICTORS,
-                        help="observed: unknown = free (honest baseline); oracle: ground truth (upper bound only); "
-                             "lama_los: the line-of-sight LaMa ensemble; lama_bp: the LaMa ensemble that also reads "
-                             "the Pix2Pix-filtered back-projection (needs --spad); evidence: the Pix2Pix evidence "
-                             "alone, no LaMa (needs --spad)")
+    parser.add_argument("--predictor", default=None, choices=tuple(PREDICTORS),
+                        help=f"{predictor_help()}. Default: the pipeline's")
     parser.add_argument("--models", type=Path, default=None,
                         help="folder of exported models with manifest.json (default: the repository's exported/)")
     parser.add_argument("--resolution", type=float, default=None, metavar="METRES",
@@ -47,10 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "map's own)")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=non_negative_int, default=0)
-    parser.add_argument("--spad", action="store_true",
+    parser.add_argument("--spad", action=argparse.BooleanOptionalAction, default=None,
                         help=f"also scan with the SPAD LiDAR every step ({SpadConfig.n_rays} rays, "
                              f"{SpadConfig.n_secondary} secondary rays per wall hit) and merge its carved free space "
-                             "(coverage is reported with and without carving)")
+                             "(coverage is reported with and without carving); --no-spad: line of sight only. "
+                             "Default: the pipeline's")
     parser.add_argument("--gif-every", type=non_negative_int, default=5,
                         help="record a GIF frame every N steps; 0: no GIF (episode.gif is not written)")
     parser.add_argument("--record", type=Path, default=None, metavar="FILE",
@@ -86,6 +95,30 @@ def recording_metadata(grid, args, options: dict, planner, sensing, explorer_cfg
             "profile_settings": PROFILES[args.profile].to_json()}
 
 
+def chosen_pipeline(args: argparse.Namespace, options: dict):
+    """The named pipeline ``args.pipeline`` (:data:`~superex_deploy.pipeline.PIPELINES`) with the parts the command
+    line gives in place of its own: fills ``args.planner``, ``args.predictor`` and ``args.spad`` left out (None)
+    with the pipeline's, and ``args.profile`` with its profile where the planner and predictor are its own, else
+    with :func:`~superex_deploy.pipeline.resolve_profile`'s for them (the default profile where the planner can use
+    it, ``full`` where it reads the ensemble's variance). Returns ``(pipeline, planner)``: the table's entry and the
+    planner made with ``options`` (``--planner-option``).
+
+    Raises:
+        ValueError: an unknown planner, an option it does not have.
+    """
+    from superex_deploy.onboard.planning.planners import make_planner
+
+    pipeline = PIPELINES[args.pipeline]
+    args.planner = pipeline.planner if args.planner is None else args.planner
+    args.predictor = pipeline.predictor if args.predictor is None else args.predictor
+    args.spad = pipeline.spad if args.spad is None else bool(args.spad)
+    planner = make_planner(args.planner, **options)
+    if args.profile is None:
+        own = (args.planner, args.predictor) == (pipeline.planner, pipeline.predictor)
+        args.profile = pipeline.profile if own else resolve_profile(None, planner, args.predictor)
+    return pipeline, planner
+
+
 def with_operations(cfg, bounds, return_to_start: bool):
     """The episode config ``cfg`` with the explorer's exploration ``bounds`` (an
     :class:`~superex_deploy.onboard.planning.bounds.ExplorationBounds` or None) and ``return_to_start`` (``cfg``
@@ -108,32 +141,37 @@ def summary_line(result) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from superex_deploy.onboard.planning.planners import make_planner
+    from dataclasses import replace
+
     from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
     from superex_deploy.messages import MapFrame
 
     # Every check first: nothing is created before the last of them.
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    options = planner_options(args.planner_option)
+    pipeline, planner = chosen_pipeline(args, options)  # before the noise: --spad-noise needs the SPAD
     noise = noise_options(args)
     check_output_folder(args.out)
     if args.record is not None:
         check_output_file(args.record, "--record", made=folders_made(args.out))
     grid, start = load_floor(args.map, args.resolution, args.start, args.pose, seed=args.seed,
                              command="superex explore")
-    options = planner_options(args.planner_option)
-    planner = make_planner(args.planner, **options)
-    args.profile = resolve_profile(args.profile, planner, args.predictor)
     profile = check_profile(args.profile, planner, args.predictor)
     sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
                               noise["spad_noise"])
+    if sensing is not None and not pipeline.carving:  # the ablation without carving: the evidence as with it
+        if args.record is not None:
+            raise ValueError(f"--record: the {pipeline.name} pipeline turns the carving off, which a replay does not "
+                             f"rerun; record another pipeline")
+        sensing = replace(sensing, skips=replace(sensing.skips, carving=True))
     cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)
     cfg = with_operations(cfg, args.bounds, args.return_to_start)
     if args.bounds is not None:  # the start inside the polygon, before anything is created
         args.bounds.check_contains(*MapFrame(grid.shape, grid.resolution_m).centre_xy(start))
-    if args.record is not None and args.predictor == "oracle":
-        raise ValueError("--record: the oracle predictor reads the ground truth, so no replay could rerun it; "
-                         "record with another predictor")
+    if args.record is not None and kind_of(args.predictor).reads_truth:
+        raise ValueError(f"--record: the {args.predictor} predictor reads the ground truth, so no replay could rerun "
+                         f"it; record with another predictor")
     # The last check (a port in use); the episode runs paced (--live-pace), and the hold (--live-hold) comes after
     # its outputs are written.
     with live_view(args.live, args.live_every, "superex explore", pace_hz=args.live_pace,
@@ -245,7 +283,7 @@ def _keep_interrupted(args, grid, start, done: _StepsDone, record, signal_name: 
                "poses": done.poses, "goals": {"steps": [s for s in done.goals["steps"] if s < steps],
                                               "cells": [c for s, c in zip(done.goals["steps"], done.goals["cells"])
                                                         if s < steps]},
-               "profile": args.profile}
+               "pipeline": args.pipeline, "spad": args.spad, "profile": args.profile}
     write_atomically(args.out / "metrics.json", json.dumps(metrics))
     kept.append(f"{args.out / 'metrics.json'} holds the {steps} steps done, marked interrupted")
     return "; ".join(kept)
@@ -255,7 +293,7 @@ def _write_outputs(args, grid, start, result, gif, record, noise: dict) -> int:
     from superex_deploy.render import save_episode_figure
 
     metrics = result.to_json()
-    metrics["profile"] = args.profile
+    metrics.update(pipeline=args.pipeline, spad=args.spad, profile=args.profile)
     metrics.update(noise)
     (args.out / "metrics.json").write_text(json.dumps(metrics))
     save_episode_figure(args.out / "final.png", grid, result)

@@ -53,9 +53,12 @@ from types import SimpleNamespace
 import numpy as np
 
 from superex_deploy.commands.options import (add_planner_option, add_profile_option, bounds_polygon,
-                                             check_output_file, check_output_folder, folders_made, planner_options)
+                                             check_output_file, check_output_folder, folders_made, planner_options,
+                                             predictor_help)
 from superex_deploy.files import write_atomically
 from superex_deploy.onboard.mapping.mapper import OccupancyConfig
+from superex_deploy.onboard.planning.planners import PLANNERS
+from superex_deploy.onboard.prediction.registry import PREDICTORS
 from superex_deploy.onboard.prediction.scale import servable_resolution
 
 STAGES_MS = ("scan", "map_update", "frontiers", "prediction", "scoring", "path")
@@ -63,6 +66,12 @@ SUMMARY_EVERY_S = 10.0
 """How often (seconds of wall time) ``summary.json`` and ``map.npz`` are rewritten while a run goes."""
 HEADER = ["stamp_s", "step", "goal_x_m", "goal_y_m", "finished", "new_goal", *(f"{stage}_ms" for stage in STAGES_MS),
           "step_ms", "status", "reason"]
+
+
+def bag_predictors() -> tuple[str, ...]:
+    """The predictors a bag can feed (:data:`~superex_deploy.onboard.prediction.registry.PREDICTORS` but those that
+    read the SPAD evidence or the ground truth: a bag has neither)."""
+    return tuple(name for name, kind in PREDICTORS.items() if not kind.reads_evidence and not kind.reads_truth)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -106,10 +115,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "driver without a clock (its scans all stamped 0 are refused otherwise)")
     parser.add_argument("--finish-after", type=float, default=5.0, metavar="SECONDS",
                         help="seconds without a reachable frontier before `finished` (default: 5)")
-    parser.add_argument("--planner", default="nearest", help="nearest | hector | upen | mapex | superex")
+    parser.add_argument("--planner", default="nearest", help=" | ".join(PLANNERS))
     add_planner_option(parser)
-    parser.add_argument("--predictor", default="observed", choices=("observed", "lama_los"),
-                        help="observed, or lama_los (the bag has no SPAD frames)")
+    parser.add_argument("--predictor", default="observed", choices=bag_predictors(),
+                        help=f"{predictor_help(bag_predictors())} (the bag has no SPAD frames)")
     add_profile_option(parser)
     parser.add_argument("--bounds", type=bounds_polygon, default=None, metavar='"X,Y X,Y X,Y ..."',
                         help="explore only inside this polygon (map-frame metres, at least 3 corners, quoted): "

@@ -14,13 +14,14 @@ import os
 from pathlib import Path
 from typing import Iterable, Optional
 
-from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES
+from superex_deploy.onboard.planning.planners import PLANNERS
+from superex_deploy.pipeline import DEFAULT_PROFILE, ENSEMBLE_PREDICTORS, PREDICTORS, PROFILES
 
-__all__ = ["add_planner_option", "planner_options", "add_profile_option", "add_parallel_options", "check_jobs",
-           "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps", "check_output_folder",
-           "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M", "settings_differences",
-           "add_noise_options", "load_floor", "parse_pose_noise", "parse_lidar_noise", "noise_options", "noise_settings",
-           "add_live_options"]
+__all__ = ["add_planner_option", "planner_options", "predictor_help", "add_profile_option", "add_parallel_options",
+           "check_jobs", "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps",
+           "check_output_folder", "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M",
+           "settings_differences", "add_noise_options", "load_floor", "parse_pose_noise", "parse_lidar_noise",
+           "noise_options", "noise_settings", "add_live_options"]
 
 
 def _integer(text: str, low: int) -> int:
@@ -277,13 +278,26 @@ def planner_options(pairs: list[str]) -> dict:
     return options
 
 
+def predictor_help(names: Optional[Iterable[str]] = None) -> str:
+    """``NAME: what it is`` for each predictor of ``names`` (None: every one of
+    :data:`~superex_deploy.pipeline.PREDICTORS`), ``(needs --spad)`` after those that read the SPAD evidence: a
+    ``--predictor`` option's help."""
+    names = tuple(PREDICTORS) if names is None else names
+    return "; ".join(f"{name}: {PREDICTORS[name].summary}"
+                     + (" (needs --spad)" if PREDICTORS[name].reads_evidence else "") for name in names)
+
+
+_VARIANCE_PLANNERS = tuple(name for name, planner in PLANNERS.items() if planner.reads_variance)
+
+
 def add_profile_option(parser: argparse.ArgumentParser) -> None:
     """``--profile NAME`` (default None: :func:`superex_deploy.pipeline.resolve_profile` chooses)."""
     parser.add_argument("--profile", choices=tuple(PROFILES), default=None,
                         help="real-time settings of the onboard pipeline (superex_deploy.pipeline.PROFILES): "
                              "'full' runs everything inside each step, 'realtime' the measured asynchronous, cropped, "
                              f"one-member prediction (benchmarks/realtime). Default: {DEFAULT_PROFILE}, or full for "
-                             "planners that read the ensemble's variance (mapex, upen) with a LaMa predictor")
+                             f"planners that read the ensemble's variance ({', '.join(_VARIANCE_PLANNERS)}) with an "
+                             f"ensemble predictor ({', '.join(ENSEMBLE_PREDICTORS)})")
 
 
 def add_parallel_options(parser: argparse.ArgumentParser) -> None:

@@ -1,5 +1,6 @@
 """``superex benchmark --suite paper`` and ``--suite altered``: the paper's rows on the 40 eval scenarios, resumable
-row by row.
+row by row. Its rows are the named pipelines (:data:`~superex_deploy.pipeline.PIPELINES`), each run under the
+``full`` profile (the table measures models and planners).
 
 ``altered`` runs them on the eval floors altered with a fixed seed per scenario
 (:mod:`superex_deploy.sim.altered_floors`): the floors are made first, once each, into ``OUT/floors/`` (journal
@@ -23,8 +24,9 @@ import numpy as np
 from superex_deploy.commands.options import (check_jobs, check_output_folder, eval_maps, make_backend,
                                              settings_differences)
 from superex_deploy.files import write_atomically
-from superex_deploy.sim.suite import (CHECKPOINTS, DEAD_END_METRICS, IOU_BINS, IOU_LEVELS, PAPER_ROWS,
-                                      REFERENCE_ROW, common_scenarios, paired_summary, row_summary)
+from superex_deploy.pipeline import PIPELINES
+from superex_deploy.sim.suite import (CHECKPOINTS, DEAD_END_METRICS, IOU_BINS, IOU_LEVELS, REFERENCE_ROW,
+                                      common_scenarios, paired_summary, row_summary)
 
 IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 """IoU every 10 steps while the coverage is below 35 % (the IoU metrics read that part), every 100 after."""
@@ -32,10 +34,10 @@ IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 
 def _rows(names: list[str]) -> list[str]:
     """``--rows`` (a :func:`~superex_deploy.commands.options.name_list`) -> row names; ``["all"]`` is every row."""
-    names = list(PAPER_ROWS) if list(names) == ["all"] else list(names)
-    unknown = [r for r in names if r not in PAPER_ROWS]
+    names = list(PIPELINES) if list(names) == ["all"] else list(names)
+    unknown = [r for r in names if r not in PIPELINES]
     if unknown:
-        raise ValueError(f"--rows: unknown row(s) {', '.join(unknown)}; choose from {', '.join(PAPER_ROWS)} or 'all'")
+        raise ValueError(f"--rows: unknown row(s) {', '.join(unknown)}; choose from {', '.join(PIPELINES)} or 'all'")
     return names
 
 
@@ -48,7 +50,7 @@ def _row_setting(setting: dict, name: str, previous: bool = False) -> dict:
     its SPAD sensing's (``sensing``, None without); ``previous``: those of the defaults before 0.2."""
     from superex_deploy.commands.recorded_config import default_planner_settings, default_sensing_settings
 
-    row = PAPER_ROWS[name]
+    row = PIPELINES[name]
     return json.loads(json.dumps({**setting, "planner_config": default_planner_settings(row.planner, previous=previous),
                                   "sensing": default_sensing_settings(previous=previous) if row.spad else None}))
 
@@ -98,7 +100,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
 
     from superex_deploy.sim.altered_floors import alteration_seed
 
-    row = PAPER_ROWS[name]
+    row = PIPELINES[name]
     altered = {} if "alteration" not in setting else {"floors_dir": str(args.out / "floors")}
     tasks = [ScenarioTask(map_name=m, start_index=k, start_rc=pose, planner=row.planner, predictor=row.predictor,
                           spad=row.spad, carving=row.carving, steps=args.steps, seed=args.seed, profile="full",
@@ -133,7 +135,7 @@ def _paired_lines(rows: dict[str, list[dict]], reference: str, steps: int, metri
             paired[name] = paired_summary(ref, cand, steps)
     note = ("; dead ends in entries and metres per scenario (there better / worse count larger / smaller values: "
             "fewer metres is the better outcome)") if any(m in DEAD_END_METRICS for m in metrics) else ""
-    text = (f"\nPaired by scenario against {reference} ({PAPER_ROWS[reference].label}): mean difference "
+    text = (f"\nPaired by scenario against {reference} ({PIPELINES[reference].label}): mean difference "
             f"[bootstrap 95 % interval], ratio of means - 1, better / worse / tied. Coverage in points{note}.\n\n")
     sizes = {name: max((d["n"] for d in per.values()), default=0) for name, per in paired.items()}
     uneven = len(set(sizes.values())) > 1
@@ -178,7 +180,7 @@ def _table(rows: dict[str, list[dict]], steps: int, references: tuple[str, ...] 
         cells += [f"{summary[f'iou_bin_{a:.1f}_{b:.1f}']:.3f}" for a, b in IOU_BINS]
         cells += [f"{summary.get(f'{stage}_ms_per_goal', float('nan')):.1f}" for stage in ("scoring", "prediction")]
         cells += [f"{summary.get(m, float('nan')):.2f}" for m in dead_ends]
-        lines.append(f"| {name} | {PAPER_ROWS[name].label} | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | {PIPELINES[name].label} | " + " | ".join(cells) + " |")
     text = "\n".join(lines) + "\n"
     metrics = ["auc_first_half", "auc"] + [f"coverage@{n}" for n in checkpoints] + [
         f"iou@{lv:.2f}" for lv in IOU_LEVELS] + [f"iou_bin_{a:.1f}_{b:.1f}" for a, b in IOU_BINS] + dead_ends
@@ -259,7 +261,7 @@ def run_paper(args: argparse.Namespace) -> int:
             raise
         write_atomically(path, json.dumps({"row": name, "setting": row_setting, "episodes": episodes}))
     rows = {}
-    for name in PAPER_ROWS:  # every finished row of this protocol (perhaps on fewer maps), in the table's order
+    for name in PIPELINES:  # every finished row of this protocol (perhaps on fewer maps), in the table's order
         path = rows_dir / f"{name}.json"
         if path.is_file():
             done = json.loads(path.read_text())

@@ -33,15 +33,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_live_options(parser)
 
 
-def build_explorer(metadata: dict, frame, models=None):
-    """The explorer a recording's metadata describes (:func:`superex_deploy.pipeline.build_explorer` with the
-    recorded configuration).
+def explorer_arguments(metadata: dict, frame, models=None) -> dict:
+    """The keyword arguments of :func:`superex_deploy.pipeline.build_explorer` that rebuild the explorer a
+    recording's metadata describes on ``frame`` (the recording's first map frame, included as ``frame``): its
+    planner (a Planner instance), predictor name, profile, SPAD sensor model and processing, ``models`` (default:
+    the recording's), seed and explorer configuration. ``build_explorer(**explorer_arguments(metadata, frame))``.
 
     Raises:
         ValueError: metadata that names no planner or predictor, the oracle predictor (it reads the truth), or
             configurations this package cannot build.
     """
     from superex_deploy import pipeline
+    from superex_deploy.onboard.prediction.registry import kind_of
     from superex_deploy.onboard.planning.motion import MotionConfig
     from superex_deploy.onboard.checks import from_cells, nested_configs, without_retired
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
@@ -56,8 +59,9 @@ def build_explorer(metadata: dict, frame, models=None):
         options, seed = metadata.get("planner_options") or {}, int(metadata["seed"])
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"the recording's metadata lacks the planner, predictor or seed ({error})") from None
-    if predictor_name == "oracle":
-        raise ValueError("the recording used the oracle predictor, which reads the ground truth: it cannot be replayed")
+    if kind_of(predictor_name).reads_truth:
+        raise ValueError(f"the recording used the {predictor_name} predictor, which reads the ground truth: it cannot "
+                         f"be replayed")
     models = models or metadata.get("models")
     profile_name = metadata.get("profile", "full")
     if profile_name not in pipeline.PROFILES:
@@ -107,12 +111,8 @@ def build_explorer(metadata: dict, frame, models=None):
     except (TypeError, ValueError) as error:
         raise ValueError(f"the recording's configuration cannot be rebuilt: a field has the wrong type or value "
                          f"({error})") from None
-    try:
-        return pipeline.build_explorer(frame, planner, predictor_name, profile=profile_name,
-                                       spad=bool(metadata.get("spad")), models=models, seed=seed, cfg=cfg,
-                                       sensor=sensor, nlos_cfg=nlos_cfg)
-    except ValueError as error:
-        raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
+    return dict(frame=frame, planner=planner, predictor=predictor_name, profile=profile_name,
+                spad=bool(metadata.get("spad")), models=models, seed=seed, cfg=cfg, sensor=sensor, nlos_cfg=nlos_cfg)
 
 
 def _settings_as_now(settings, resolution_m: float):
@@ -145,6 +145,7 @@ def _settings_as_now(settings, resolution_m: float):
 
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.commands.options import check_output_folder
+    from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import read_recording
 
     check_output_folder(args.out)
@@ -154,7 +155,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.recording} holds no step to replay ({why})")
     if recording.error is not None:
         print(f"superex replay: warning: {recording.error}")
-    explorer = build_explorer(recording.metadata, recording.frame, args.models)
+    arguments = explorer_arguments(recording.metadata, recording.frame, args.models)
+    try:
+        explorer = build_explorer(**arguments)
+    except ValueError as error:
+        raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
     with explorer, live_view(args.live, args.live_every, "superex replay", pace_hz=args.live_pace,
                              hold_s=args.live_hold) as live:
         if explorer.scheduled is not None:

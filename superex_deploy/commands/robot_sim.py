@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from superex_deploy.commands.options import add_noise_options, non_negative_int
@@ -41,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spad", action="store_true", help="also publish SPAD frames on /spad")
     parser.add_argument("--finish-frontier", type=float, default=0.5, metavar="METRES",
                         help="the frontier size the node's finished is judged against (its min_frontier_size)")
+    parser.add_argument("--judge-every", type=float, default=0.5, metavar="SECONDS",
+                        help="how often the run's log checks whether a reachable frontier is left (a search over the "
+                             "floor, for judging the node's finished; 0: never)")
     parser.add_argument("--keep-running", action="store_true",
                         help="go on after the node says finished (default: stop a second after)")
     parser.add_argument("--namespace", default="", help="the ROS namespace")
@@ -70,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
                          pose_noise=None if pose is None else PoseNoise.from_sigmas(*pose, seed=args.seed),
                          lidar_noise=None if lidar is None else LidarNoise(sigma_m=lidar[0], dropout_prob=lidar[1],
                                                                            spurious_prob=lidar[2], seed=args.seed))
+    if not (math.isfinite(args.judge_every) and args.judge_every >= 0):
+        raise ValueError(f"--judge-every must be a number of seconds >= 0, got {args.judge_every}")
     out = None if args.out is None else check_output_folder(args.out)
     try:
         from superex_deploy.ros.dds import loopback_config
@@ -78,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         raise ModuleNotFoundError(f"superex robot-sim needs {error.name}: pip install 'superex[ros2]'",
                                   name=error.name) from error
     with SimulatedRobotNode(grid, start, cfg, args.finish_frontier, args.namespace, args.domain_id,
-                            config=loopback_config() if args.loopback else None) as robot:
+                            config=loopback_config() if args.loopback else None,
+                            judge_every_s=args.judge_every) as robot:
         print(f"superex robot-sim: {grid.name} from cell {start}, domain {robot.participant.domain_id}; waiting for "
               f"a node on /scan and /goal_pose", flush=True)
         if args.wait_for_node and not robot.wait_for_node(args.wait_for_node):

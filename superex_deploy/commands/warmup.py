@@ -13,8 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-PLANNERS = ("nearest", "hector", "upen", "mapex", "superex")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", type=Path, default=None, help="folder of exported models (default: installed)")
@@ -33,10 +31,11 @@ def numba_cache_is_warm() -> bool:
 
 def warm_up(models=None) -> float:
     """Run a few steps of every planner with SPAD sensing on a small synthetic floor (compiling every kernel on the
-    way) and load the learned models; returns the seconds it took."""
+    way) and load the learned models (every predictor's of :data:`~superex_deploy.pipeline.PREDICTORS`); returns the
+    seconds it took."""
     from superex_deploy.maps import OccupancyGrid
-    from superex_deploy.onboard.planning.planners import make_planner
-    from superex_deploy.pipeline import make_predictor, make_sensing
+    from superex_deploy.onboard.planning.planners import PLANNERS, make_planner
+    from superex_deploy.pipeline import PREDICTORS, PROFILES, make_predictor, make_sensing
     from superex_deploy.sim.episode import ExplorationConfig, run_episode
 
     started = time.perf_counter()
@@ -45,11 +44,13 @@ def warm_up(models=None) -> float:
     walls[:, 30] = True
     walls[15:22, 30] = False
     grid = OccupancyGrid(walls, ~walls, 0.1, "warm-up")
+    full = PROFILES["full"]  # every frame's evidence, every LaMa member: every kernel and every model
     for planner in PLANNERS:
         run_episode(grid, (10, 10), make_planner(planner), make_predictor("evidence"), steps=4,
-                    cfg=ExplorationConfig(iou_every=2), sensing=make_sensing("evidence", True, 0, models))
-    for name in ("lama_los", "lama_bp"):
-        make_predictor(name, models=models)
+                    cfg=ExplorationConfig(iou_every=2), sensing=make_sensing("evidence", True, 0, models, full))
+    for name, kind in PREDICTORS.items():
+        if kind.models:
+            make_predictor(name, models=models, profile=full)
     return time.perf_counter() - started
 
 

@@ -1,6 +1,6 @@
 """The benchmarks' evaluation library: scenario sets, one episode runner, the metrics and their paired bootstrap
 intervals, and report writers. The scripts under ``scripts/`` each ask one question with it; the paper suite's
-rows and metrics are :mod:`superex_deploy.sim.suite`'s.
+rows are the named pipelines (:data:`superex_deploy.pipeline.PIPELINES`), its metrics :mod:`superex_deploy.sim.suite`'s.
 
 * :mod:`~superex_deploy.evaluation.scenarios`: the eval, held-out train and altered-floor scenario sets;
 * :mod:`~superex_deploy.evaluation.episodes`: :func:`run_benchmark_episode`;

@@ -10,7 +10,7 @@ from typing import Callable, NamedTuple, Optional, Union
 
 from superex_deploy.maps import OccupancyGrid, load_map
 from superex_deploy.onboard.planning.planners import make_planner
-from superex_deploy.pipeline import RealtimeProfile, make_predictor, make_sensing
+from superex_deploy.pipeline import PROFILES, RealtimeProfile, make_predictor, make_sensing, resolve_profile
 from superex_deploy.sim.episode import EpisodeResult, ExplorationConfig, run_episode
 
 __all__ = ["EpisodeRun", "run_benchmark_episode"]
@@ -27,7 +27,7 @@ class EpisodeRun(NamedTuple):
 
 def run_benchmark_episode(floor: Union[str, OccupancyGrid], start_rc, planner, predictor="observed", *,
                           steps: int, planner_options: Optional[dict] = None, seed: int = 0,
-                          cfg: Optional[ExplorationConfig] = None, profile: RealtimeProfile = RealtimeProfile(),
+                          cfg: Optional[ExplorationConfig] = None, profile: Optional[RealtimeProfile] = None,
                           spad: bool = False, sensing=None, cores: Optional[int] = None,
                           on_step: Optional[Callable] = None,
                           on_observation: Optional[Callable] = None) -> EpisodeRun:
@@ -43,8 +43,12 @@ def run_benchmark_episode(floor: Union[str, OccupancyGrid], start_rc, planner, p
             ``profile``) or a predictor object.
         steps: step budget.
         seed: the episode's seed (and the SPAD noise's when the sensing is made here).
-        cfg: the episode's config; by default :class:`~superex_deploy.sim.episode.ExplorationConfig`'s defaults.
-        profile: the real-time profile the predictor and sensing are made under.
+        cfg: the episode's config; by default the profile's (:meth:`RealtimeProfile.episode_config
+            <superex_deploy.pipeline.RealtimeProfile.episode_config>`, on the simulated clock).
+        profile: the real-time profile the predictor, the sensing and the default ``cfg`` are made under; None: the
+            default profile where the planner can use it, else ``full``
+            (:func:`~superex_deploy.pipeline.resolve_profile`). ``PROFILES["full"]`` with ``cfg`` left out is the
+            unskipped pipeline (``ExplorationConfig()``).
         spad: the SPAD sensing of a named ``predictor`` (:func:`~superex_deploy.pipeline.make_sensing`, None
             without ``spad``); ignored when ``sensing`` is given.
         sensing: the episode's SPAD sensing object, instead of making one.
@@ -57,6 +61,9 @@ def run_benchmark_episode(floor: Union[str, OccupancyGrid], start_rc, planner, p
     grid = load_map(floor) if isinstance(floor, str) else floor
     if isinstance(planner, str):
         planner = make_planner(planner, **(planner_options or {}))
+    if profile is None:
+        name = predictor if isinstance(predictor, str) else getattr(predictor, "name", type(predictor).__name__)
+        profile = PROFILES[resolve_profile(None, planner, name)]
     if isinstance(predictor, str):
         name, predictor = predictor, make_predictor(predictor, grid, profile=profile, cores=cores)
         if sensing is None:
@@ -65,6 +72,6 @@ def run_benchmark_episode(floor: Union[str, OccupancyGrid], start_rc, planner, p
         raise ValueError("spad=True makes the sensing for a named predictor: pass sensing= with a predictor object")
     clock = time.perf_counter()
     result = run_episode(grid, tuple(start_rc), planner, predictor, steps=steps, seed=seed,
-                         cfg=ExplorationConfig() if cfg is None else cfg, sensing=sensing, on_step=on_step,
+                         cfg=profile.episode_config() if cfg is None else cfg, sensing=sensing, on_step=on_step,
                          on_observation=on_observation)
     return EpisodeRun(result, grid, time.perf_counter() - clock)

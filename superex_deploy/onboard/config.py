@@ -8,6 +8,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import cells_at_least, check_real, renames
 from superex_deploy.onboard.mapping.growth import MapGrowth
 from superex_deploy.onboard.mapping.mapper import OccupancyConfig
@@ -30,7 +31,7 @@ _PARTS = (("goal_policy", GoalPolicy, "a", True, False), ("growth", MapGrowth, "
 
 @renames(frontier_min_cells=("frontier_min_m", 1))
 @dataclass(frozen=True)
-class ExplorerConfig:
+class ExplorerConfig(JsonConfig):
     """Onboard exploration parameters.
 
     Attributes:

@@ -136,8 +136,10 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
     data = path.read_bytes()
     metadata = _metadata(data, path)
     if metadata.get("format_version") != FORMAT_VERSION:
-        raise ValueError(f"{path} has recording format {metadata.get('format_version')!r}, this package reads "
-                         f"{FORMAT_VERSION!r}")
+        version = metadata.get("format_version")
+        newer = isinstance(version, str) and version.isdigit() and int(version) > int(FORMAT_VERSION)
+        raise ValueError(f"{path} has recording format {version!r}, this package reads {FORMAT_VERSION!r}"
+                         + (": a newer version of superex_deploy wrote it; upgrade to replay it" if newer else ""))
     try:
         frame_fields = metadata["frame"]
         frame = MapFrame(tuple(frame_fields["shape"]), frame_fields["resolution_m"], tuple(frame_fields["origin_xy"]))

@@ -147,13 +147,14 @@ class ExplorationCore:
     def __init__(self, params: NodeParams = NodeParams(), models=None):
         from superex_deploy.pipeline import PROFILES, check_profile
         from superex_deploy.onboard.planning.planners import make_planner
+        from superex_deploy.onboard.prediction.registry import kind_of
 
         if not isinstance(params, NodeParams):
             raise ValueError(f"params must be NodeParams, got {type(params).__name__}")
         self.params, self.models = params, models
         self._planner = make_planner(params.planner)
         check_profile(params.profile, self._planner, params.predictor_name)
-        if params.predictor_name in ("lama_bp", "evidence") and not params.spad_topic:
+        if kind_of(params.predictor_name).reads_evidence and not params.spad_topic:
             raise ValueError(f"the {params.predictor_name} predictor reads the SPAD evidence: set spad_topic (or "
                              f"predictor: lama_los)")
         self._cfg = params.exploration_config(PROFILES[params.profile].explorer_config("robot"))

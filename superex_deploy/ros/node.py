@@ -288,8 +288,9 @@ class ExplorationNode:
         self._recorder.write(step.observation, step.command, explorer.observed, explorer.frame)
 
     def recording_metadata(self) -> dict:
-        """What a replay needs to rebuild this node's explorer (:func:`superex_deploy.commands.replay.build_explorer`):
-        the planner's whole configuration, the predictor, the sensing, the explorer's configuration and the profile."""
+        """What a replay needs to rebuild this node's explorer
+        (:func:`superex_deploy.commands.replay.explorer_arguments`): the planner's whole configuration, the predictor,
+        the sensing, the explorer's configuration and the profile."""
         from superex_deploy.pipeline import PROFILES
 
         explorer, p = self.core.explorer, self.params

@@ -23,7 +23,9 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import check_int, check_real
+from superex_deploy.onboard.planning.planners import PLANNERS
 
 __all__ = ["NodeParams", "load_params", "PARAM_DOCS"]
 
@@ -40,7 +42,7 @@ PARAM_DOCS = {
     "global_frame": "the fixed frame of the map and the goals",
     "robot_base_frame": "the robot's frame: the goals' orientation is the base's heading toward them (explore_lite's "
                         "name)",
-    "planner": "the planner (superex, mapex, nearest, hector, upen)",
+    "planner": f"the planner ({', '.join(PLANNERS)})",
     "predictor": "the map predictor (lama_bp needs spad_topic; auto: lama_bp with a SPAD topic, else lama_los)",
     "profile": "the real-time profile (realtime, full)",
     "resolution": "the explorer's cell size in metres; 0: the SLAM map's where the models serve it, else the nearest "
@@ -75,7 +77,7 @@ PARAM_DOCS = {
 
 
 @dataclass(frozen=True)
-class NodeParams:
+class NodeParams(JsonConfig):
     """The node's parameters (see :data:`PARAM_DOCS` for each; metres and seconds).
 
     Raises:

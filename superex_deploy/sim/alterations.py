@@ -55,6 +55,7 @@ from typing import Optional
 import numpy as np
 from scipy import ndimage
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.planning.motion import dijkstra
 from superex_deploy.sim.dead_ends import DeadEnd, face_hidden_from, measure_dead_end, robot_cells
@@ -62,7 +63,7 @@ from superex_deploy.sim.dead_ends import DeadEnd, face_hidden_from, measure_dead
 __all__ = ["AlterationConfig", "Alteration", "AlteredFloor", "alter_floor", "alter_floor_with_record"]
 
 @dataclass(frozen=True)
-class AlterationConfig:
+class AlterationConfig(JsonConfig):
     """Parameters of :func:`alter_floor` (see the module docstring for the rules). Lengths in metres, areas in
     square metres. Fixed on the train floors (``scripts/ceiling_altered.py``); never tuned on ``eval/``.
 

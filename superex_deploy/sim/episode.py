@@ -16,11 +16,12 @@ feeds only the planner's random generator (the SPAD noise has its own, :attr:`Sp
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.sim.noise.lidar import LidarNoise
 from superex_deploy.sim.noise.pose import PoseNoise
@@ -36,7 +37,7 @@ __all__ = ["STAGES", "ExplorationConfig", "EpisodeState", "EpisodeResult", "run_
 
 
 @dataclass(frozen=True)
-class ExplorationConfig:
+class ExplorationConfig(JsonConfig):
     """Episode parameters: the world's sensors, the explorer's configuration, and when the metrics are evaluated.
 
     Attributes:
@@ -72,9 +73,10 @@ class ExplorationConfig:
             raise ValueError(f"iou_every must be an integer >= 0, got {self.iou_every!r}")
 
     def to_json(self) -> dict:
-        """The configuration as JSON values; the noise entries only where noise is on (a noise-free
-        configuration reads as it did before they existed)."""
-        config = asdict(self)
+        """The configuration as JSON values (:meth:`~superex_deploy.configs.JsonConfig.to_json`); the noise entries
+        only where noise is on (a noise-free configuration reads as it did before they existed; :meth:`from_json`
+        reads a left-out entry as None)."""
+        config = super().to_json()
         for name in ("pose_noise", "lidar_noise"):
             if config[name] is None:
                 del config[name]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.checks import check_real
 
@@ -25,7 +26,7 @@ __all__ = ["FloorLayout", "generate_floor", "upsampled", "named_floor"]
 
 
 @dataclass(frozen=True)
-class FloorLayout:
+class FloorLayout(JsonConfig):
     """The shape of a generated floor (metres).
 
     Attributes:

@@ -33,6 +33,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import LaserScan, MapFrame, OccupancyGridMessage, Pose2D, PoseCovariance, SpadFrame
 from superex_deploy.onboard.checks import check_real
@@ -53,7 +54,7 @@ MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "la
 
 
 @dataclass(frozen=True)
-class RobotSimConfig:
+class RobotSimConfig(JsonConfig):
     """The simulated robot's sensors, SLAM stand-in and navigation, in seconds and metres.
 
     Attributes:
@@ -383,7 +384,8 @@ class RobotRun:
 class RunLog:
     """What a run of the simulated robot records as it goes (shared by :func:`run_in_process` and the robot-sim
     over DDS): coverage per scan, the goals and whether they lie in walls, the node's status changes, when the node
-    said ``finished``, and when the last reachable frontier went: from when on, checked every ``check_every_s``,
+    said ``finished``, and when the last reachable frontier went: from when on, checked every ``check_every_s`` (0:
+    never; a search over the whole floor, a second at 0.05 m on the largest eval floor),
     the SLAM stand-in's map held no frontier the node's finish rule counts (:meth:`SimulatedRobot.frontier_left`,
     regions of ``finish_frontier_m``, the node's ``min_frontier_size``); with the largest part of the floor the
     robot could drive into and had not seen, when ``finished`` came (:meth:`SimulatedRobot.unseen_reachable_m2`)."""
@@ -402,7 +404,7 @@ class RunLog:
         floor), whether a reachable frontier is left."""
         self.stamps.append(stamp_s)
         self.coverage.append(self.robot.coverage())
-        if stamp_s - self._checked_s < self.check_every_s - 1e-9:
+        if not self.check_every_s or stamp_s - self._checked_s < self.check_every_s - 1e-9:
             return
         self._checked_s = stamp_s
         if self.robot.frontier_left(self.finish_frontier_m):
@@ -439,17 +441,18 @@ class RunLog:
 
 def run_in_process(grid: OccupancyGrid, start_rc, core, cfg: RobotSimConfig = RobotSimConfig(),
                    duration_s: float = 300.0, stop_when_finished: bool = True,
-                   on_tick: Optional[Callable] = None) -> RobotRun:
+                   on_tick: Optional[Callable] = None, judge_every_s: float = 0.5) -> RobotRun:
     """Run the exploration node's core ``core`` (:class:`~superex_deploy.ros.core.ExplorationCore`) on the
     simulated robot in one process for ``duration_s`` seconds of simulated time: every tick's transforms, scans and
     maps go to the core as the node's subscriptions would hand them over, the core steps the explorer on every scan,
-    and each goal it sends goes to the follower. Stops once the core says ``finished`` (``stop_when_finished``).
+    and each goal it sends goes to the follower. Stops once the core says ``finished`` (``stop_when_finished``);
+    ``judge_every_s`` is the log's check for frontiers left (:class:`RunLog`; 0: never).
 
     Returns:
         The :class:`RobotRun`.
     """
     robot = SimulatedRobot(grid, start_rc, cfg, core.params.motion())
-    log = RunLog(robot, core.params.explorer.finish_frontier_m)
+    log = RunLog(robot, core.params.explorer.finish_frontier_m, judge_every_s)
     for sample in robot.static_transforms():
         core.add_planar_transform(sample, static=True)
     while robot.stamp_s + 1.0 / cfg.tf_hz <= duration_s + 1e-9:

@@ -43,15 +43,17 @@ class SimulatedRobotNode:
         namespace, domain_id, config: as :class:`~superex_deploy.ros.dds.RosParticipant` takes them.
         goal_topic, status_topic: where the goals come from and the node's status.
         epoch_s: the stamp of simulated time 0 (seconds; None: the wall clock's now, whole seconds).
+        judge_every_s: how often (simulated seconds) the log checks whether a reachable frontier is left
+            (:class:`~superex_deploy.sim.robot.RunLog`; 0: never).
     """
 
     def __init__(self, grid: OccupancyGrid, start_rc, cfg: RobotSimConfig = RobotSimConfig(),
                  finish_frontier_m: float = 0.5, namespace: str = "", domain_id: Optional[int] = None,
                  config: Optional[str] = None, goal_topic: str = "/goal_pose",
-                 status_topic: str = "/superex/status", epoch_s: Optional[float] = None):
+                 status_topic: str = "/superex/status", epoch_s: Optional[float] = None, judge_every_s: float = 0.5):
         self.epoch_s = float(math.floor(time.time()) if epoch_s is None else epoch_s)
         self.robot = SimulatedRobot(grid, start_rc, cfg)
-        self.log = RunLog(self.robot, finish_frontier_m)
+        self.log = RunLog(self.robot, finish_frontier_m, judge_every_s)
         self.participant = part = RosParticipant("robot_sim", namespace, domain_id, config=config)
         self._clock = part.publisher("/clock", idl.Clock, qos.CLOCK)
         self._tf = part.publisher("/tf", idl.TFMessage, qos.TF)

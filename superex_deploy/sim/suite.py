@@ -1,5 +1,6 @@
-"""The paper's exploration benchmark: named rows (planner x predictor x sensing), per-scenario metrics, and
-comparisons paired by scenario against a reference row with bootstrap intervals.
+"""The paper's exploration benchmark: per-scenario metrics, and comparisons paired by scenario against a reference
+row with bootstrap intervals. Its rows are the named pipelines (:data:`superex_deploy.pipeline.PIPELINES`: planner x
+predictor x sensing).
 
 A row's episodes are :meth:`~superex_deploy.sim.episode.EpisodeResult.to_json` dicts (plus ``start_index``),
 as ``superex benchmark`` writes them. Coverage is the known share of the valid area **with NLOS carving**
@@ -13,7 +14,6 @@ Episodes on altered floors (``superex benchmark --suite altered``) carry ``dead_
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -21,47 +21,10 @@ import numpy as np
 from superex_deploy.sim.metrics import (coverage_at, coverage_auc, difference_counts, first_half_auc,
                                         pair_by_scenario)
 
-__all__ = ["BenchmarkRow", "PAPER_ROWS", "REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
+__all__ = ["REFERENCE_ROW", "CHECKPOINTS", "IOU_LEVELS", "IOU_BINS",
            "DEAD_END_METRICS", "scenario_metrics", "bootstrap_interval", "paired_summary", "row_summary",
            "coverage_curves", "common_scenarios", "scenario_key"]
 
-
-@dataclass(frozen=True)
-class BenchmarkRow:
-    """One row of the benchmark table.
-
-    Attributes:
-        planner: planner name (``planners.make_planner``).
-        predictor: predictor name (``observed``, ``oracle``, ``lama_los``, ``lama_bp``, ``evidence``).
-        spad: SPAD sensing every step (carving, and the Pix2Pix evidence for ``lama_bp`` / ``evidence``).
-        label: what the row is, for tables.
-        carving: with ``spad``, the carved cells join the map (False: the ablation without carving).
-    """
-
-    planner: str
-    predictor: str
-    spad: bool
-    label: str
-    carving: bool = True
-
-
-PAPER_ROWS: dict[str, BenchmarkRow] = {
-    "nearest": BenchmarkRow("nearest", "observed", False, "nearest frontier"),
-    "hector_lama_los": BenchmarkRow("hector", "lama_los", False, "IG-Hector on LaMa-LOS"),
-    "upen_lama_los": BenchmarkRow("upen", "lama_los", False, "UPEN on LaMa-LOS"),
-    "mapex_lama_los": BenchmarkRow("mapex", "lama_los", False, "MapEx on LaMa-LOS"),
-    "mapex_observed": BenchmarkRow("mapex", "observed", False, "MapEx, observed map"),
-    "superex_observed": BenchmarkRow("superex", "observed", False, "superex planner, observed map"),
-    "superex_lama_los": BenchmarkRow("superex", "lama_los", False, "superex planner on LaMa-LOS"),
-    "superex": BenchmarkRow("superex", "lama_bp", True, "SuperEx: superex planner, LaMa-BP + SPAD"),
-    "superex_oracle": BenchmarkRow("superex", "oracle", False, "superex planner, true map (ceiling)"),
-    "no_pix2pix": BenchmarkRow("superex", "lama_los", True, "ablation no Pix2Pix: LaMa-LOS + SPAD carving"),
-    "no_lama": BenchmarkRow("superex", "evidence", True, "ablation no LaMa: SPAD carving + Pix2Pix evidence"),
-    "no_carving": BenchmarkRow("superex", "lama_bp", True, "ablation no carving: LaMa-BP + Pix2Pix evidence",
-                               carving=False),
-    "carving_only": BenchmarkRow("superex", "observed", True, "ablation carving only: observed map + SPAD carving"),
-}
-"""The rows of the paper's table, by name."""
 
 REFERENCE_ROW = "mapex_lama_los"
 """Every row is paired against this one (MapEx as published: its planner on the line-of-sight ensemble)."""

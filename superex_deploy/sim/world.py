@@ -23,6 +23,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
@@ -38,7 +39,7 @@ __all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "
 
 
 @dataclass(frozen=True)
-class LidarConfig:
+class LidarConfig(JsonConfig):
     """The simulated robot's line-of-sight 2-D LiDAR (MapEx ``lidar_sim_configs``: 2500 rays over a full turn, 20 m).
 
     Attributes:
@@ -57,7 +58,7 @@ class LidarConfig:
 
 @renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
-class WorldConfig:
+class WorldConfig(JsonConfig):
     """The simulated robot's sensors and motion.
 
     Attributes:

@@ -20,13 +20,14 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import MapFrame, Observation, check_map_size, max_map_cells
 
 __all__ = ["MapGrowth", "Regrid", "reach_of", "grown_frame", "regrid_for", "embed"]
 
 
 @dataclass(frozen=True)
-class MapGrowth:
+class MapGrowth(JsonConfig):
     """How the explorer's grid grows.
 
     Attributes:

@@ -53,6 +53,7 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.geometry import RETURN_TOLERANCE_CELLS, check_measured_rays, dda_start, dda_step
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance, grid_angles
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
@@ -62,7 +63,7 @@ __all__ = ["OccupancyConfig", "Mapper", "integrate_log_odds", "clear_limits"]
 
 
 @dataclass(frozen=True)
-class OccupancyConfig:
+class OccupancyConfig(JsonConfig):
     """Log-odds occupancy parameters (natural log-odds ``ln(p / (1 - p))``; OctoMap's defaults in brackets).
 
     Attributes:

@@ -36,6 +36,7 @@ import numba
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance
 from superex_deploy.onboard.checks import cells_at_least, in_cells, renames, retires
 
@@ -51,7 +52,7 @@ _FACE_TO_CENTRE_CELLS = 0.5
          min_map_walls=("min_map_wall_m", 1))
 @retires("docs/on-a-robot.md", match_sigma_cells=0.0, match_sigma_deg=0.0, start_after_scans=0)
 @dataclass(frozen=True)
-class ScanMatchingConfig:
+class ScanMatchingConfig(JsonConfig):
     """Parameters of the correlative scan matcher (see the module docstring; fixed on train floors).
 
     Attributes:

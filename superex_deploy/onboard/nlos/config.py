@@ -10,6 +10,7 @@ from functools import cached_property
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.spad_types import SpadScan, SparseHistograms
 
 ROW_BLOCK = 8
@@ -17,7 +18,7 @@ ROW_BLOCK = 8
 
 
 @dataclass(frozen=True)
-class NlosConfig:
+class NlosConfig(JsonConfig):
     """NLOS processing parameters, in metres (and degrees): the same parameters serve every grid resolution
     (:meth:`in_cells` converts them for one).
 

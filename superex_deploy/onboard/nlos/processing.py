@@ -14,6 +14,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame, grid_angles
 from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
 from superex_deploy.onboard.nlos.back_projection import back_project_patch, rays_reaching_unknown
@@ -60,7 +61,7 @@ def scan_from_frame(frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, sensor:
 
 
 @dataclass(frozen=True)
-class NlosSkips:
+class NlosSkips(JsonConfig):
     """Work the SPAD processing may leave out (all off by default: every frame is processed in full).
 
     Attributes:

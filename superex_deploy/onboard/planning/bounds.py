@@ -27,6 +27,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import MapFrame
 from superex_deploy.onboard.types import Frontier
 
@@ -66,7 +67,7 @@ def _point(index: int, value) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
-class ExplorationBounds:
+class ExplorationBounds(JsonConfig):
     """A simple polygon in map-frame metres: the region to explore.
 
     Attributes:

@@ -49,6 +49,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.geometry import dda_start, dda_step
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, PlanningContext, Prediction, check_observed
 from superex_deploy.onboard.planning.visibility import MAX_RAYS, check_cells, check_map
@@ -62,7 +63,7 @@ TRANSMITTANCES = ("independent", "correlated")
 
 
 @dataclass(frozen=True)
-class ExpectedVisibility:
+class ExpectedVisibility(JsonConfig):
     """The rays of an expected-visibility cast.
 
     Attributes:
@@ -94,7 +95,7 @@ class ExpectedVisibility:
 
 
 @dataclass(frozen=True)
-class WallSupport:
+class WallSupport(JsonConfig):
     """How much a predicted wall is believed, from what supports it.
 
     An unknown cell's wall probability ``p`` becomes ``p * s`` with

@@ -31,13 +31,14 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import check_real
 
 __all__ = ["GoalPolicy", "GoalTracker", "path_length_m"]
 
 
 @dataclass(frozen=True)
-class GoalPolicy:
+class GoalPolicy(JsonConfig):
     """Blacklisting and commitment settings (see the module docstring).
 
     Attributes:

@@ -38,6 +38,7 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import cells_within, check_real, renames
 from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
@@ -54,7 +55,7 @@ MAX_WALL_REACH_CELLS = 1000
 
 @renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
-class MotionConfig:
+class MotionConfig(JsonConfig):
     """Robot motion and path planning.
 
     Attributes:

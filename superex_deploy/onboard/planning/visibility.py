@@ -22,6 +22,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.types import UNKNOWN, Frontier, PlanningContext, check_observed
 from superex_deploy.geometry import dda_start, dda_step
 
@@ -36,7 +37,7 @@ MAX_RAYS = 100_000
 
 
 @dataclass(frozen=True)
-class VisibilityConfig:
+class VisibilityConfig(JsonConfig):
     """Predicted-visibility raycast (MapEx ``pred_vis_configs`` and ``hit_prob_threshold``).
 
     Attributes:

@@ -43,6 +43,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import cells_at_least, renames
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, MapPredictor, Prediction
 
@@ -64,7 +65,7 @@ whole-map predictions near a seam, and a step across a seam no larger than the w
 
 @renames(min_changed_cells=("min_changed_m2", 2))
 @dataclass(frozen=True)
-class PredictionReuse:
+class PredictionReuse(JsonConfig):
     """What the explorer keeps of its last prediction (the defaults keep nothing: every request runs the
     predictor on the whole map).
 

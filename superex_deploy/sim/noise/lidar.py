@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
+
 __all__ = ["LidarNoise", "noisy_ranges", "DEFAULT_DROPOUT_PROB", "DEFAULT_SPURIOUS_PROB"]
 
 DEFAULT_DROPOUT_PROB = 0.01
@@ -32,7 +34,7 @@ _STREAM = 0x6C696461  # "lida": keeps this generator's stream apart from the oth
 
 
 @dataclass(frozen=True)
-class LidarNoise:
+class LidarNoise(JsonConfig):
     """Noise of the simulated LiDAR (see the module docstring).
 
     Attributes:

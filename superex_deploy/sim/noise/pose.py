@@ -37,6 +37,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import Pose2D, PoseCovariance
 
 __all__ = ["PoseNoise", "PoseErrorModel", "DRIFT_FRACTION_PER_SQRT_M", "DRIFT_BOUND_SIGMAS"]
@@ -59,7 +60,7 @@ def _non_negative(name: str, value, allow_inf: bool = False) -> float:
 
 
 @dataclass(frozen=True)
-class PoseNoise:
+class PoseNoise(JsonConfig):
     """Localisation error of the simulated robot (see the module docstring for the model).
 
     Attributes:

@@ -66,7 +66,8 @@ class SpadScene:
     """Per-grid precomputation shared by every scan in that grid (ground-truth geometry only).
 
     Attributes:
-        grid: the ground-truth occupancy grid.
+        grid: the ground-truth occupancy grid, as a ``weakref.proxy``: the cache of scenes is keyed by a weak
+            reference to the grid, and a strong one here would keep every grid ever scanned alive.
         normals: float64 ``[H, W, 2]`` unit normal ``(dy, dx)`` at wall cells; Sobel-based (pointing out of the
             wall, physical sign) where ``two_sided`` is False, principal-axis based (sign unknown) where True,
             zero where undefined (isolated cells: the entry face is used instead).
@@ -146,7 +147,7 @@ def prepare_scene(grid: OccupancyGrid) -> SpadScene:
         _thin_wall_normals(grid.occupied, weak, normals)
         wall_blocks = _wall_blocks(grid.occupied)
         wall_index = np.where(grid.occupied, np.cumsum(grid.occupied.ravel()).reshape(grid.shape) - 1, -1)
-        scene = SpadScene(grid=grid, normals=normals, two_sided=weak, wall_blocks=wall_blocks,
+        scene = SpadScene(grid=weakref.proxy(grid), normals=normals, two_sided=weak, wall_blocks=wall_blocks,
                           cell_kind=_cell_kind(grid.occupied, wall_blocks), wall_index=wall_index.astype(np.int32),
                           n_wall_cells=int(np.count_nonzero(grid.occupied)))
         _SCENES[grid] = scene

@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import check_instance, check_real
 from superex_deploy.onboard.types import Planner, PlanningContext, Prediction
 from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
@@ -17,7 +18,7 @@ __all__ = ["HectorConfig", "HectorPlanner"]
 
 
 @dataclass(frozen=True)
-class HectorConfig:
+class HectorConfig(JsonConfig):
     """IG-Hector (Shrestha et al., ICRA 2019, as MapEx runs it: ``hectoraug``).
 
     Attributes:

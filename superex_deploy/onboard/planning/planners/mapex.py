@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
@@ -20,7 +21,7 @@ __all__ = ["MapexConfig", "MapexPlanner"]
 
 @renames(min_distance_cells=("min_distance_m", 1))
 @dataclass(frozen=True)
-class MapexConfig:
+class MapexConfig(JsonConfig):
     """MapEx (``visvarprob``): predicted-visible variance per unit distance.
 
     Attributes:

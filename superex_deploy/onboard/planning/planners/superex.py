@@ -36,6 +36,7 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
@@ -52,7 +53,7 @@ __all__ = ["SuperexConfig", "SuperexPlanner", "descend", "descend_all", "path_vi
 @retires("docs/benchmarks/better-map.md", choice="greedy", candidates=5, rollout_goals=4, horizon_m=60.0,
          rollout_cell_m=0.3, rollout_frontier_cells=3, tour_frontiers=18)
 @dataclass(frozen=True)
-class SuperexConfig:
+class SuperexConfig(JsonConfig):
     """Settings of :class:`SuperexPlanner` (chosen on the train floors only, never on ``eval/``).
 
     Attributes:

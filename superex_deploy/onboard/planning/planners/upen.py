@@ -9,6 +9,7 @@ from typing import Optional
 import numba
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import check_instance, check_int, check_real, in_cells, renames
 from superex_deploy.onboard.types import OCCUPIED, Planner, PlanningContext
 from superex_deploy.onboard.planning.planners.nearest import NearestFrontier
@@ -177,7 +178,7 @@ def grow_rrt(passable: np.ndarray, start_rc, n_samples: int, expand_cells: float
 
 @renames(expand_cells=("expand_m", 1))
 @dataclass(frozen=True)
-class UpenConfig:
+class UpenConfig(JsonConfig):
     """UPEN (Georgakis et al., ICRA 2022) as MapEx runs it (``upen_config`` of its ``base.yaml``).
 
     Attributes:

@@ -18,6 +18,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.prediction.inference.encoding import NORMALISATION, BpEncoding
 from superex_deploy.onboard.prediction.inference.manifest import FORMAT_VERSION, MODEL_CHANNELS, ModelKind, PathLike, sha256_file
 
@@ -35,7 +36,7 @@ class GraphOptimization(enum.Enum):
 
 
 @dataclass(frozen=True)
-class SessionConfig:
+class SessionConfig(JsonConfig):
     """How ONNX Runtime sessions are made (one factory for every model: :func:`make_session`).
 
     Attributes:
@@ -78,7 +79,7 @@ def available_cores() -> int:
 
 
 @dataclass(frozen=True)
-class ThreadBudget:
+class ThreadBudget(JsonConfig):
     """How the cores given to the explorer are split between its control loop and its prediction worker, so that
     the two never ask for more threads than there are cores (oversubscribed cores stretch the step time's tail).
 
