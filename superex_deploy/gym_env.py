@@ -6,7 +6,7 @@ or ``steps_per_action`` steps have passed. The reward is the area newly known (s
 included). The observation is the explorer's map cropped around the robot, one-hot per cell state, plus the predicted
 wall probability when a predictor is given; the agent sees only what the robot knows.
 
->>> import gymnasium, superex_deploy.sim  # registers SuperEx/Explore-v0
+>>> import gymnasium, superex_deploy.gym_env  # importing it registers SuperEx/Explore-v0 (ENV_ID)
 >>> env = gymnasium.make("SuperEx/Explore-v0", map="50052750")
 """
 
@@ -27,7 +27,10 @@ from superex_deploy.messages import MapFrame
 from superex_deploy.pipeline import build_explorer
 from superex_deploy.sim.episode import make_world_and_explorer
 
-__all__ = ["ExplorationEnv"]
+__all__ = ["ExplorationEnv", "ENV_ID"]
+
+ENV_ID = "SuperEx/Explore-v0"
+"""The id :class:`ExplorationEnv` is registered under when this module is imported."""
 
 
 class _AgentGoal(Planner):
@@ -197,3 +200,6 @@ class ExplorationEnv(gym.Env):
             self._ended = f"the episode has {'terminated' if terminated else 'been truncated'}"
         return self._observation(), float(reward), terminated, truncated, info
 
+
+if ENV_ID not in gym.registry:  # registered beside its class, once per process
+    gym.register(id=ENV_ID, entry_point=f"{__name__}:ExplorationEnv")

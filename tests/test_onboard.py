@@ -354,7 +354,7 @@ def test_the_gymnasium_environment_passes_the_checker_and_runs_a_random_agent():
     gymnasium = pytest.importorskip("gymnasium")
     from gymnasium.utils.env_checker import check_env
 
-    import superex_deploy.sim  # noqa: F401 - importing it registers the environment
+    import superex_deploy.gym_env  # noqa: F401 - importing it registers the environment
 
     env = gymnasium.make("SuperEx/Explore-v0", map="50052750", max_steps=120)
     check_env(env.unwrapped)
