@@ -218,7 +218,7 @@ def table(rows: list[dict], setting: dict) -> str:
     lines = [f"{setting['scenarios_run']} held-out train scenarios ({', '.join(m for m, _ in setting['scenarios'])}), "
              f"{setting['steps']} steps, wall support min_scale {setting['min_scale']}. First-half AUC in % "
              "(NLOS-carved cells included; LOS only beside it); paired differences in points: mean [bootstrap 95 % "
-             "interval] better/worse. Target (issue #26): every learned row >= -0.30 against the same planner, as "
+             "interval] better/worse. Target (set when the learned rows were proposed): every learned row >= -0.30 against the same planner, as "
              "it ships, on the observed map. Scoring: median over episodes of the planner's ms per goal choice.", ""]
     cells = []
     for r in rows:

@@ -243,6 +243,19 @@ def test_explore_and_replay_live_run_as_without_it_and_free_the_port(tmp_path, c
     assert _port_is_free(port) and _threads() <= threads
 
 
+
+def _advertised(ws, deadline: float, topics) -> dict:
+    """Topic -> channel id of the server's advertisements, read until ``topics`` are all advertised (fails at
+    ``deadline``)."""
+    ids = {}
+    while not set(topics) <= set(ids):
+        frame = _receive(ws, deadline)
+        assert frame is not None
+        if isinstance(frame, dict) and frame["op"] == "advertise":
+            ids.update({item["topic"]: item["id"] for item in frame["channels"]})
+    return ids
+
+
 def _receive(ws, deadline: float):
     """The next frame (text as a dict, binary as bytes), or None at the deadline."""
     try:
@@ -349,12 +362,7 @@ def test_grids_are_published_at_most_once_per_every_s_of_simulated_time():
     with LiveServer("127.0.0.1", 0, every_s=0.5) as server, \
             websockets_client.connect(server.url, subprotocols=[SUBPROTOCOL], max_queue=None) as ws:
         deadline = time.monotonic() + 10
-        ids = {}
-        while len(ids) < len(CHANNELS):
-            frame = _receive(ws, deadline)
-            assert frame is not None
-            if isinstance(frame, dict) and frame["op"] == "advertise":
-                ids.update({item["topic"]: item["id"] for item in frame["channels"]})
+        ids = _advertised(ws, deadline, {spec.topic for spec in CHANNELS})
         ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/map"]},
                                                                  {"id": 2, "channelId": ids["/pose"]}]}))
         while len(server.subscribed_topics()) < 2 and time.monotonic() < deadline:
@@ -629,12 +637,7 @@ def test_the_last_state_stays_served_for_the_hold_then_the_command_returns(tmp_p
             with websockets_client.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None,
                                            open_timeout=10, close_timeout=2) as ws:
                 deadline = time.monotonic() + 10
-                ids = {}
-                while not {"/map", "/pose"} <= set(ids):
-                    frame = _receive(ws, deadline)
-                    assert frame is not None
-                    if isinstance(frame, dict) and frame["op"] == "advertise":
-                        ids.update({item["topic"]: item["id"] for item in frame["channels"]})
+                ids = _advertised(ws, deadline, {"/map", "/pose"})
                 ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/map"]},
                                                                          {"id": 2, "channelId": ids["/pose"]}]}))
                 topics = {1: "/map", 2: "/pose"}
