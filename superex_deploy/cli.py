@@ -24,6 +24,7 @@ COMMANDS = {
     "explore": "Run one exploration episode and write metrics, a final plot and a GIF",
     "benchmark": "Run the exploration benchmark (maps x start poses x planners) in parallel",
     "replay": "Rerun the onboard explorer on a recorded episode (MCAP) and compare its goals",
+    "convert-recording": "Rewrite a recording (MCAP) of an earlier format into the one superex replay reads",
     "offline": "Run the explorer open-loop on a robot's bag (ROS 1, ROS 2 or MCAP): map, goals, finished, timings",
     "node": "Run the ROS 2 exploration node on DDS (no ROS install): map, scans, tf in; Nav2 goals out",
     "robot-sim": "Run a simulated ROS 2 robot on DDS (LiDAR, SLAM stand-in, Nav2-like follower) for superex node",

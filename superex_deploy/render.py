@@ -92,7 +92,6 @@ def save_episode_figure(path: Path, grid, result) -> Path:
     """Ground truth with the driven path; the final observed map with the goals chosen (red crosses) and the
     frontier regions left (orange, dots at their goal cells); the final prediction."""
     from superex_deploy.onboard import ExplorerConfig
-    from superex_deploy.onboard.checks import from_cells
     from superex_deploy.onboard.planning.frontiers import find_frontiers
 
     plt = _pyplot()
@@ -102,9 +101,7 @@ def save_episode_figure(path: Path, grid, result) -> Path:
     axes[0].plot(result.start_rc[1], result.start_rc[0], "g*", markersize=12)
     axes[0].set_title(f"{grid.name}: path {result.path_length_m[-1] if len(result.path_length_m) else 0:.1f} m")
     axes[1].imshow(_observed_image(result.final_observed), cmap="gray", vmin=0, vmax=1)
-    recorded = {name: value for name, value in result.config.get("explorer", {}).items()
-                if name in ("frontier_min_m", "frontier_min_cells")}  # a log of an earlier version counts cells
-    explorer_cfg = ExplorerConfig(**from_cells(ExplorerConfig, recorded, grid.resolution_m))
+    explorer_cfg = ExplorerConfig.from_json(result.config["explorer"])
     frontiers = find_frontiers(result.final_observed, explorer_cfg.frontier_min_cells(grid.resolution_m))
     if frontiers:
         cells = np.concatenate([f.cells for f in frontiers])

@@ -141,6 +141,19 @@ def deterministic_episodes():
     return read
 
 
+def nearest_metadata(**changes) -> dict:
+    """The metadata of a recording of the nearest-frontier planner on the observed map, no SPAD, the full profile and
+    the default explorer (:func:`superex_deploy.recording.metadata.recording_metadata`), with ``changes``."""
+    from superex_deploy.onboard import ExplorerConfig
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.recording.metadata import recording_metadata
+
+    metadata = recording_metadata(map_name="", planner_name="nearest", planner=make_planner("nearest"),
+                                  planner_options={}, predictor="observed", seed=0, sensor=None, nlos_cfg=None,
+                                  explorer_cfg=ExplorerConfig(), profile="full")
+    return {**metadata, **changes}
+
+
 @pytest.fixture(scope="session")
 def write_recording():
     """``write_recording(path, metadata=<a nearest-frontier run>, steps=1, yaw=0.0, chunk_bytes=256 KiB)``: a
@@ -151,7 +164,7 @@ def write_recording():
 
         frame = MapFrame((20, 20), 0.1)
         if metadata is None:
-            metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
+            metadata = nearest_metadata()
         scan = LaserScan(0.0, 2 * math.pi / 72, 0.1, 5.0, np.full(72, 1.0))
         with EpisodeRecorder(path, frame, metadata, chunk_bytes=chunk_bytes) as recorder:
             for step in range(steps):
@@ -183,16 +196,21 @@ def record_episode():
     return record
 
 
+OLD_SUPEREX = {"gain": "path", "transmittance": "independent"}
+"""SuperexConfig's defaults before 0.2, of the fields whose default changed since (an old recording's planner ran
+them; its metadata does not name them)."""
+
+
 @pytest.fixture(scope="session")
 def old_recording(record_episode):
     """``old_recording(path, start_index, planner_options={}, scan_matching_extra={})``: a short recording of the
-    superex planner on map 50052750 from that start, its metadata written as a version before 0.2 wrote it (the
-    options given, no ``planner_config``; the scan matcher's fields plus ``scan_matching_extra``); the planner ran
-    the defaults of then (``PREVIOUS_DEFAULTS``), which the metadata does not name. Returns ``(path, goals)``."""
+    superex planner on map 50052750 from that start in recording format "1", its metadata as a version before 0.2
+    wrote it (the options given, no ``planner_config``; the explorer's fields by ``asdict``, the scan matcher's plus
+    ``scan_matching_extra``); the planner ran the defaults of then (:data:`OLD_SUPEREX` under the options), which
+    the metadata does not name. Returns ``(path, goals)``: the goals the run chose."""
     def record(path, start_index, planner_options=None, scan_matching_extra=None):
         from dataclasses import asdict
 
-        from superex_deploy.commands.recorded_config import previous_planner_options
         from superex_deploy.maps import load_map, start_poses
         from superex_deploy.onboard.planning.planners import make_planner
         from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
@@ -203,11 +221,12 @@ def old_recording(record_episode):
         cfg = PROFILES["full"].episode_config(iou_every=0)
         explorer_cfg = asdict(cfg.explorer)
         explorer_cfg["scan_matching"].update(scan_matching_extra or {})
-        metadata = {"map": name, "planner": "superex", "planner_options": dict(planner_options or {}),
-                    "predictor": "observed", "seed": 0, "spad": False, "models": None, "sensor": None, "nlos": None,
-                    "explorer": explorer_cfg, "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+        metadata = {"format_version": "1", "map": name, "planner": "superex",
+                    "planner_options": dict(planner_options or {}), "predictor": "observed", "seed": 0,
+                    "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": explorer_cfg,
+                    "profile": "full", "profile_settings": PROFILES["full"].to_json()}
         world, explorer = make_world_and_explorer(load_map(name), start_poses(name)[start_index],
-                                                  make_planner("superex", **previous_planner_options("superex", {})),
+                                                  make_planner("superex", **OLD_SUPEREX),
                                                   ObservedAsPrediction(), 0, cfg)
         return path, record_episode(path, world, explorer, metadata)
     return record

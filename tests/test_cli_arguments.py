@@ -141,7 +141,14 @@ def test_a_recording_without_steps_is_refused(write_recording, tmp_path, capsys)
     out = tmp_path / "replay"
     refused(capsys, ["replay", str(empty), "--out", str(out)], "holds no step to replay")
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(write_recording(tmp_path / "three.mcap", steps=3).read_bytes()[:900])  # the metadata, then cut
+    data = write_recording(tmp_path / "three.mcap", steps=3).read_bytes()
+    for size in range(0, len(data), 50):  # the first cut that keeps the metadata whole: no step left
+        cut.write_bytes(data[:size])
+        try:
+            read_recording(cut)
+            break
+        except ValueError:
+            continue
     refused(capsys, ["replay", str(cut), "--out", str(out)], "holds no step to replay", "truncated")
     assert not out.exists()
 
@@ -380,16 +387,19 @@ def test_settings_differ_exactly_where_a_field_is_named(recorded, new):
 
 @pytest.mark.parametrize("seed", [-1, True, 2.5])
 def test_replay_names_a_bad_recorded_seed(seed):
-    from superex_deploy.commands.replay import explorer_arguments
+    from superex_deploy.recording.metadata import explorer_arguments
+    from tests.conftest import nearest_metadata
 
-    metadata = {"planner": "nearest", "predictor": "observed", "seed": seed, "explorer": {}}
     with pytest.raises(ValueError, match="the recording's seed must be an integer >= 0"):
+        explorer_arguments(nearest_metadata(seed=seed), MapFrame((10, 10), 0.1), None)
+
+
+def test_replay_names_a_missing_configuration():
+    from superex_deploy.recording.metadata import explorer_arguments
+    from tests.conftest import nearest_metadata
+
+    metadata = {key: value for key, value in nearest_metadata().items() if key != "explorer"}
+    with pytest.raises(ValueError, match="the recording's metadata lacks 'explorer'"):
         explorer_arguments(metadata, MapFrame((10, 10), 0.1), None)
-
-
-def test_replay_names_a_missing_configuration_field():
-    from superex_deploy.commands.replay import explorer_arguments
-
-    metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": {}}
-    with pytest.raises(ValueError, match="cannot be rebuilt: it lacks the field 'motion'"):
-        explorer_arguments(metadata, MapFrame((10, 10), 0.1), None)
+    with pytest.raises(ValueError, match="ExplorerConfig has no field 'no_such_field'"):
+        explorer_arguments(nearest_metadata(explorer={"no_such_field": 1}), MapFrame((10, 10), 0.1), None)

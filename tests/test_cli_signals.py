@@ -53,6 +53,7 @@ def test_every_command_stopped_by_a_signal_says_so_in_one_line(monkeypatch, caps
     monkeypatch.setattr(module, "run", interrupted_run)
     argv = {"scan": ["--map", MAP, "--out", str(tmp_path)], "explore": ["--map", MAP, "--out", str(tmp_path)],
             "benchmark": ["--out", str(tmp_path)], "replay": ["x.mcap", "--out", str(tmp_path)], "warmup": [],
+            "convert-recording": ["x.mcap", "y.mcap"],
             "offline": ["x.bag", "--out", str(tmp_path)], "node": [], "robot-sim": ["--map", MAP]}[command]
     handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     assert main([command, *argv]) == CODES[signum]

@@ -232,11 +232,11 @@ def test_a_recording_of_a_newer_format_is_refused(tmp_path, capsys):
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import FORMAT_VERSION, EpisodeRecorder, read_recording
 
-    assert FORMAT_VERSION == "1"
+    assert FORMAT_VERSION == "2"
     path = tmp_path / "newer.mcap"
-    with EpisodeRecorder(path, MapFrame((20, 20), 0.1), {"format_version": "2"}):
+    with EpisodeRecorder(path, MapFrame((20, 20), 0.1), {"format_version": "3"}):
         pass
-    expected = f"{path} has recording format '2', this package reads '1': a newer version of superex_deploy wrote it; " \
+    expected = f"{path} has recording format '3', this package reads '2': a newer version of superex_deploy wrote it; " \
                "upgrade to replay it"
     with pytest.raises(ValueError) as raised:
         read_recording(path)

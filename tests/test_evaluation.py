@@ -289,13 +289,13 @@ def test_the_runner_is_run_episode_with_the_pieces_made_by_name():
 @pytest.mark.parametrize("folder", ["eval_paper", "eval_paper/ablations"])
 def test_the_committed_paper_rows_are_those_of_this_version(folder):
     """Every committed row of the paper suite (and its ablations) is what a rerun of its command with this version's
-    defaults would find done: its setting, read as now, is the row's setting today (a row made with other defaults
-    would be refused or left out of the regenerated table)."""
-    from superex_deploy.commands.paper_benchmark import _row_setting, _row_setting_as_now
+    defaults would find done: its setting is the row's setting today (a row made with other defaults would be
+    refused or left out of the regenerated table)."""
+    from superex_deploy.commands.paper_benchmark import _row_setting
 
     paths = sorted((BENCHMARKS / folder / "rows").glob("*.json"))
     assert paths
     for path in paths:
         done = json.loads(path.read_text())
         base = {key: done["setting"][key] for key in ("maps", "steps", "seed", "iou")}
-        assert _row_setting_as_now(done["setting"], done["row"]) == _row_setting(base, done["row"]), path.name
+        assert done["setting"] == _row_setting(base, done["row"]), path.name

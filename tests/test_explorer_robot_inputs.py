@@ -3,7 +3,6 @@ same goals), the pose covariance (with one, paths cross only cells the line of s
 of both that replays with the same goals."""
 
 import json
-from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.pipeline import PROFILES, make_sensing
 from superex_deploy.recording import EpisodeRecorder, read_recording
+from superex_deploy.recording.metadata import recording_metadata
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
 
@@ -133,9 +133,9 @@ def test_a_recording_with_a_slam_map_and_a_covariance_replays_with_the_same_goal
                            pose_covariance=covariance, occupancy_grid=slam["map"] if use_map else None)
 
     record_path = tmp_path / "robot.mcap"
-    metadata = {"map": MAP, "planner": "nearest", "planner_options": {}, "predictor": "observed", "seed": 1,
-                "spad": True, "models": None, "sensor": asdict(sensing.spad), "nlos": asdict(sensing.nlos_cfg),
-                "explorer": asdict(cfg), "profile": "full", "profile_settings": PROFILES["full"].to_json()}
+    metadata = recording_metadata(map_name=MAP, planner_name="nearest", planner=make_planner("nearest"),
+                                  planner_options={}, predictor="observed", seed=1, sensor=sensing.spad,
+                                  nlos_cfg=sensing.nlos_cfg, explorer_cfg=cfg, profile="full")
     matched = []
     with EpisodeRecorder(record_path, world.frame, metadata) as recorder:
         def record(observation, command, explorer):

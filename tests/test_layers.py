@@ -25,6 +25,8 @@ LAYERS = (
     ("ros 2 wire", ("superex_deploy.ros",)),  # messages over DDS, QoS, transforms, the node's parameters
     ("sim", ("superex_deploy.sim",)),
     ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
+    # A recording's configurations, written and rebuilt into the pipeline's explorer, and the converter of old ones.
+    ("recording format", ("superex_deploy.recording.metadata", "superex_deploy.recording.convert")),
     ("ros 2 node", ("superex_deploy.ros.core", "superex_deploy.ros.node")),  # builds its explorer by the pipeline
     ("gym env", ("superex_deploy.gym_env",)),  # builds its explorer with pipeline.build_explorer
     ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports

@@ -191,19 +191,17 @@ def test_the_simulated_schedule_is_the_thread_schedules_while_the_grid_grows():
 
 
 def test_a_recording_of_a_growing_run_holds_each_maps_own_frame_and_replays(tmp_path):
-    from dataclasses import asdict
-
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from superex_deploy.commands.replay import explorer_arguments
     from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import EpisodeRecorder, read_recording
+    from superex_deploy.recording.metadata import explorer_arguments
+    from tests.conftest import nearest_metadata
 
     cfg = ExplorerConfig(growth=GROWTH)
     frame = MapFrame((100, 100), 0.1, (0.0, 0.0))
-    metadata = {"planner": "nearest", "predictor": "observed", "seed": 0, "explorer": asdict(cfg),
-                "profile": "full"}
+    metadata = nearest_metadata(explorer=cfg.to_json())
     path = tmp_path / "growing.mcap"
     frames = []
     with Explorer(frame, make_planner("nearest"), ObservedAsPrediction(), cfg=cfg) as explorer, \

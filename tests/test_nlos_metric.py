@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.onboard import ExplorerConfig
 from superex_deploy.onboard.nlos import NlosConfig, laplacian_filter, process_scan
 from superex_deploy.onboard.nlos.config import metres_to_cells
 from superex_deploy.onboard.nlos.processing import SpadProcessing
@@ -44,13 +45,22 @@ def test_lengths_in_cells_are_the_former_cell_settings_at_0_1_m_and_scale_with_t
         NlosConfig(wall_strip_m=-0.1)
 
 
-def test_a_recorded_configuration_in_cells_is_read_in_metres_of_its_grid():
-    recorded = {"window_m": 6.0, "wall_strip_cells": 0.5, "normal_radius_cells": 5.0, "retired_option": 3}
-    cfg = NlosConfig.from_recorded(recorded, 0.05)
+def test_a_recorded_configuration_in_cells_is_converted_to_metres_of_its_grid():
+    from superex_deploy.recording.convert import convert_metadata
+
+    def converted(nlos, resolution):
+        old = {"format_version": "1", "frame": {"shape": [10, 10], "resolution_m": resolution, "origin_xy": [0, 0]},
+               "planner": "nearest", "predictor": "observed", "seed": 0, "spad": True,
+               "sensor": SpadConfig().to_json(), "nlos": nlos, "explorer": ExplorerConfig().to_json()}
+        return NlosConfig.from_json(convert_metadata(old)["nlos"])
+
+    cfg = converted({"window_m": 6.0, "wall_strip_cells": 0.5, "normal_radius_cells": 5.0, "retired_option": 3}, 0.05)
     assert cfg.window_m == 6.0 and cfg.wall_strip_m == 0.025 and cfg.normal_radius_m == 0.25
     assert cfg.in_cells(0.05).wall_strip == 0.5 and cfg.in_cells(0.05).normal_radius == 5.0
-    assert NlosConfig.from_recorded({f: v for f, v in vars(NlosConfig()).items()}, 0.1) == NlosConfig()
-    assert NlosConfig.from_recorded({"apex_margin_cells": 1.5}, 0.1).in_cells(0.1).apex_margin == 1.5
+    assert converted(NlosConfig().to_json(), 0.1) == NlosConfig()
+    assert converted({"apex_margin_cells": 1.5}, 0.1).in_cells(0.1).apex_margin == 1.5
+    with pytest.raises(ValueError, match="NlosConfig has no field 'retired_option'"):
+        NlosConfig.from_json({"retired_option": 3})
 
 
 def test_the_laplacian_baseline_blurs_over_metres():

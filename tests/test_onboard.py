@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 import types
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
 from superex_deploy.sim.episode import ExplorationConfig, run_episode
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
-from superex_deploy.commands.recorded_config import previous_planner_options, previous_sensing
+from superex_deploy.recording.convert import PREVIOUS_DEFAULTS
 from tests.naive import naive_mark_ranges
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,15 +41,18 @@ MODEL_FREE = [e for e in LEGACY["episodes"] if e["predictor"] not in ("lama_bp",
 def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(case):
     # tests/data/legacy_episodes.json was written by the ground-truth loop at commit 4253e2c (mapper casting rays
     # on grid.occupied, the SPAD hook called with the grid): every pose, goal, coverage and IoU must be identical.
-    # It ran the defaults of then: the planner's and the sensing's that changed since are given as they were.
+    # It ran the defaults of then: the planner's and the sensing's that changed since are given as they were (the
+    # sensing's before 0.2: 64 secondary rays, a 35 degree sector margin).
     grid = load_map(case["map"])
     start = start_poses(case["map"])[case["start_index"]]
     sensing = make_sensing(case["predictor"], case["spad"], case["seed"], profile=PROFILES["full"])
-    result = run_episode(grid, start, make_planner(case["planner"], **previous_planner_options(case["planner"], {})),
+    result = run_episode(grid, start, make_planner(case["planner"], **PREVIOUS_DEFAULTS.get(case["planner"], {})),
                          make_predictor(case["predictor"], grid, profile=PROFILES["full"]), steps=case["steps"],
                          seed=case["seed"],
                          cfg=ExplorationConfig(iou_every=case["iou_every"]),
-                         sensing=None if sensing is None else previous_sensing(sensing))
+                         sensing=None if sensing is None else replace(
+                             sensing, spad=replace(sensing.spad, n_secondary=64),
+                             nlos_cfg=replace(sensing.nlos_cfg, sector_margin_deg=35.0)))
     assert result.poses.tolist() == case["poses"]
     assert result.goal_steps == case["goal_steps"] and [list(g) for g in result.goals] == case["goals"]
     assert result.coverage.tolist() == case["coverage"]

@@ -1,6 +1,6 @@
 """``pipeline.build_explorer``, the one way to build an explorer: what each profile and predictor gives, the one
-default profile every entry point agrees on, the retired options' errors, and a recording made before the options
-were retired that still replays."""
+default profile every entry point agrees on, and the retired options' errors (a recording made before they were
+retired: tests/test_recording_format.py)."""
 
 import inspect
 import json
@@ -14,9 +14,10 @@ from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import MapFrame
 from superex_deploy.onboard import ExplorerConfig, SpadProcessing
 from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
-from superex_deploy.onboard.planning.planners import SuperexConfig, make_planner
+from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer, make_sensing
+from superex_deploy.recording.convert import RETIRED
 from superex_deploy.sim.episode import run_episode
 from superex_deploy.sim.oracle import OraclePredictor
 
@@ -142,50 +143,28 @@ def test_an_episode_takes_a_built_explorer_only_when_it_matches():
         run_episode(grid, start, explorer=unrelated, steps=2, cfg=cfg, sensing=sensing)
 
 
-@pytest.mark.parametrize("field", sorted(SuperexConfig.RETIRED))
+@pytest.mark.parametrize("field", sorted(RETIRED["superex"][1]))
 def test_a_retired_planner_option_is_refused_by_name(field, tmp_path, capsys):
-    value = SuperexConfig.RETIRED[field]
-    with pytest.raises(ValueError, match=f"the option '{field}' was retired"):
+    value = RETIRED["superex"][1][field]
+    with pytest.raises(ValueError, match=f"bad configuration for planner 'superex': .*'{field}'"):
         make_planner("superex", **{field: value})
     if field == "choice":
         out = tmp_path / "run"
         assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--planner", "superex", "--planner-option",
                      "choice=rollout", "--steps", "2", "--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert "'choice' was retired" in err and err.count("\n") == 1
+        assert "'choice'" in err and err.count("\n") == 1
         assert not out.exists()
 
 
 @pytest.mark.parametrize("field", ["match_sigma_cells", "match_sigma_deg", "start_after_scans"])
 def test_a_retired_scan_matching_option_is_refused_by_name(field):
-    assert field in ScanMatchingConfig.RETIRED
-    with pytest.raises(ValueError, match=f"ScanMatchingConfig: the option '{field}' was retired"):
+    assert field in RETIRED["scan_matching"][1]
+    with pytest.raises(TypeError, match=field):
         ScanMatchingConfig(**{field: 1})
-    with pytest.raises(ValueError, match=f"'{field}' was retired"):
-        ExplorerConfig(scan_matching={field: ScanMatchingConfig.RETIRED[field]})
+    with pytest.raises(ValueError, match=f"ScanMatchingConfig has no field '{field}'"):
+        ExplorerConfig.from_json({"scan_matching": {field: RETIRED["scan_matching"][1][field]}})
     assert not hasattr(ScanMatchingConfig(), field)
-
-
-def test_a_recording_made_before_the_retirement_replays(tmp_path, old_recording):
-    old_defaults = dict(ScanMatchingConfig.RETIRED)
-    path, goals = old_recording(tmp_path / "old.mcap", 1, {"choice": "greedy", "candidates": 5, "n_rays": 250},
-                                old_defaults)
-    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 0
-    replay = json.loads((tmp_path / "replay" / "metrics.json").read_text())
-    assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals
-
-
-@pytest.mark.parametrize("scan_matching, options, named", [
-    ({"match_sigma_cells": 0.3}, {}, "ScanMatchingConfig: the option 'match_sigma_cells' was retired"),
-    ({}, {"choice": "rollout"}, "SuperexConfig: the option 'choice' was retired"),
-])
-def test_a_recording_with_a_retired_option_in_use_is_refused_by_name(tmp_path, capsys, old_recording, scan_matching,
-                                                                     options, named):
-    path, _ = old_recording(tmp_path / "old.mcap", 1, options, scan_matching)
-    assert main(["replay", str(path), "--out", str(tmp_path / "replay")]) == 2
-    err = capsys.readouterr().err
-    assert named in err and "cannot be rebuilt" in err
-    assert not (tmp_path / "replay" / "metrics.json").exists()
 
 
 def test_the_ablation_without_carving_counts_no_carved_cell_and_keeps_the_rest_of_the_sensing():

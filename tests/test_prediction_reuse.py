@@ -319,7 +319,7 @@ def test_bad_settings_and_inputs():
         PredictionReuse(evidence_change=None)
     with pytest.raises(ValueError, match=r"min_changed_m2 must be a number of square metres >= 0, got True"):
         PredictionReuse(min_changed_m2=True)
-    with pytest.raises(ValueError, match=r"'min_changed_cells' was renamed to min_changed_m2 \(square metres"):
+    with pytest.raises(TypeError, match="min_changed_cells"):  # the old cell count is no field
         PredictionReuse(min_changed_cells=2)
     with pytest.raises(ValueError, match=r"crop_margin_m must be a positive number of metres or None, got True"):
         PredictionReuse(crop_margin_m=True)

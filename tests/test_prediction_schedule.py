@@ -185,20 +185,26 @@ def test_the_command_carries_the_prediction_age(corridor_rooms):
     assert all(c.prediction_age_s == pytest.approx(0.1 * c.prediction_age_steps) for c in simulated[3:])
 
 
-def test_schedules_are_checked_and_older_ones_are_read():
-    assert PredictionSchedule.from_json({"asynchronous": False, "every_steps": 10, "apply_after_steps": 1}) == \
-        PredictionSchedule()
-    assert PredictionSchedule.from_json({"asynchronous": True, "every_steps": 2, "apply_after_steps": 2,
-                                         "wait_first": True}) == PredictionSchedule("thread", 2, 2, True)
-    assert PredictionSchedule.from_json({"asynchronous": True, "every_steps": 0}).mode == "free"
+def test_schedules_are_checked_and_older_ones_are_converted():
+    from superex_deploy.recording.convert import schedule_in_modes
+
+    def older(fields):
+        return PredictionSchedule.from_json(schedule_in_modes(fields))
+
+    assert older({"asynchronous": False, "every_steps": 10, "apply_after_steps": 1}) == PredictionSchedule()
+    assert older({"asynchronous": True, "every_steps": 2, "apply_after_steps": 2, "wait_first": True}) == \
+        PredictionSchedule("thread", 2, 2, True)
+    assert older({"asynchronous": True, "every_steps": 0}).mode == "free"
     assert PredictionSchedule.from_json({"mode": "free"}) == PredictionSchedule("free")
+    with pytest.raises(ValueError, match="PredictionSchedule has no field 'asynchronous'"):
+        PredictionSchedule.from_json({"asynchronous": False})
     with pytest.raises(ValueError, match="mode must be one of inline, free, simulated, thread, got True"):
         PredictionSchedule(True, 2, 2)
     with pytest.raises(ValueError, match="every_steps must be >= 1 in simulated mode"):
         PredictionSchedule("simulated", 0)
     with pytest.raises(ValueError, match="either mode or the older asynchronous"):
-        PredictionSchedule.from_json({"mode": "free", "asynchronous": True})
-    with pytest.raises(ValueError, match=r"unknown schedule field\(s\) \['every'\]"):
+        schedule_in_modes({"mode": "free", "asynchronous": True})
+    with pytest.raises(ValueError, match="PredictionSchedule has no field 'every'"):
         PredictionSchedule.from_json({"every": 2})
     assert [PredictionSchedule(m, 2, 1).threaded for m in ("inline", "free", "simulated", "thread")] == \
         [False, True, False, True]
@@ -272,14 +278,15 @@ def test_the_profile_gives_the_sessions_the_workers_share_of_the_cores():
     assert {m.session.get_session_options().intra_op_num_threads for m in ensemble._members} == {1}
 
 
-def test_a_recording_made_before_the_schedule_modes_still_loads_and_replays(tmp_path, monkeypatch):
+def test_a_recording_made_before_the_schedule_modes_converts_and_replays(tmp_path, monkeypatch):
     """A recording of the version before: its command schema lacks ``prediction_age_s``, its metadata holds the
-    schedule as ``asynchronous`` and the profile without ``simulated_schedule``."""
+    schedule as ``asynchronous`` and the profile without ``simulated_schedule`` (format "1"): converted, it
+    replays."""
     import json
 
     from superex_deploy.cli import main
-    from superex_deploy.commands import explore
     from superex_deploy.recording import read_recording
+    from superex_deploy.recording import metadata as recorded
     from superex_deploy.recording import schemas
 
     old_command = schemas.EXPLORER_COMMAND_MSG.replace(
@@ -288,22 +295,26 @@ def test_a_recording_made_before_the_schedule_modes_still_loads_and_replays(tmp_
     assert old_command != schemas.EXPLORER_COMMAND_MSG
     monkeypatch.setitem(schemas.SCHEMAS, "/command", ("superex_msgs/msg/ExplorerCommand", old_command))
     old_schedule = {"asynchronous": False, "every_steps": 10, "apply_after_steps": 1, "wait_first": False}
-    written = explore.recording_metadata
+    written = recorded.recording_metadata
 
-    def old_metadata(*args):
-        metadata = written(*args)
+    def old_metadata(**kwargs):
+        metadata = written(**kwargs)
+        metadata["format_version"] = "1"
         metadata["explorer"]["prediction"] = dict(old_schedule)
         metadata["profile_settings"]["schedule"] = dict(old_schedule)
         del metadata["profile_settings"]["simulated_schedule"]
         return metadata
 
-    monkeypatch.setattr(explore, "recording_metadata", old_metadata)
+    monkeypatch.setattr(recorded, "recording_metadata", old_metadata)
     record = tmp_path / "old.mcap"
     assert main(["explore", "--pipeline", "nearest", "--map", "50052750", "--planner", "mapex", "--profile", "full",
                  "--steps", "12", "--gif-every", "0", "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
-    recording = read_recording(record)
-    assert recording.metadata["explorer"]["prediction"] == old_schedule
+    monkeypatch.undo()
+    assert main(["convert-recording", str(record), str(tmp_path / "new.mcap")]) == 0
+    recording = read_recording(tmp_path / "new.mcap")
+    assert recording.metadata["explorer"]["prediction"] == {"mode": "inline", "every_steps": 10,
+                                                            "apply_after_steps": 1, "wait_first": False}
     assert len(recording.steps) == 12 and all(s.prediction_age_s is None for s in recording.steps)
     assert any(s.prediction_step >= 0 for s in recording.steps)  # MapEx asked: the new schema would hold ages
-    assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
+    assert main(["replay", str(tmp_path / "new.mcap"), "--out", str(tmp_path / "replay")]) == 0
     assert json.loads((tmp_path / "replay" / "metrics.json").read_text())["goals_match"]

@@ -62,8 +62,8 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
     ``OUT/settings.json`` records the run's settings; a folder that holds episodes of another run is refused (the
     error names the settings that differ, with their recorded and new values), and one that holds episodes of
     this run only with ``resume``. A folder whose journal holds no episode has nothing to lose: it is reused.
-    What the episodes ran is compared (:func:`settings_as_now`): where both settings hold the planners' whole
-    configurations (``planner_configs``), the options that gave them (``planner_options``) may differ.
+    What the episodes ran is compared: where both settings hold the planners' whole configurations
+    (``planner_configs``), the options that gave them (``planner_options``) may differ.
 
     Raises:
         ValueError: ``out`` is a file, holds episodes of other settings, or holds episodes without ``resume``.
@@ -77,10 +77,10 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
             raise ValueError(f"{journal} has no settings.json beside it: its settings cannot be checked; choose "
                              f"another --out")
         old, new = json.loads(recorded.read_text()), json.loads(json.dumps(settings))
-        differences = settings_differences(_what_ran(settings_as_now(old, new)), _what_ran(new))
+        differences = settings_differences(_what_ran(old), _what_ran(new))
         if differences:
-            before = ("; its settings.json was written before the settings held the planners' and the sensing's "
-                      "configurations: its episodes ran the defaults of the versions before 0.2"
+            before = ("; its settings.json was written by a version before 0.2, before the settings held the "
+                      "planners' and the sensing's configurations: finish it with that version"
                       if isinstance(old, dict) and "planner_configs" in new and "planner_configs" not in old else "")
             raise ValueError(f"{out} holds a run with other settings ({'; '.join(differences)}){before}; choose "
                              f"another --out, or rerun with its settings")
@@ -90,30 +90,6 @@ def prepare_output(out: Path, settings: dict, resume: bool) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     write_atomically(recorded, json.dumps(settings))
     return journal
-
-
-def settings_as_now(recorded, new: dict):
-    """A benchmark's ``recorded`` settings in the form of the ``new`` ones: settings written before they held the
-    planners' whole configurations (``planner_configs``) and the SPAD sensing's (``sensing``) get those their
-    episodes ran (where ``new`` holds them): the options given, the other fields at the defaults of the versions
-    before 0.2 (:mod:`~superex_deploy.commands.recorded_config`). Anything else as recorded (what differs is then
-    named)."""
-    from superex_deploy.commands.recorded_config import default_planner_settings, default_sensing_settings
-
-    if not isinstance(recorded, dict) or not isinstance(recorded.get("planners"), list):
-        return recorded
-    recorded = dict(recorded)
-    options = recorded.get("planner_options") or {}
-    if "planner_configs" in new and "planner_configs" not in recorded and isinstance(options, dict):
-        try:
-            recorded["planner_configs"] = json.loads(json.dumps({
-                name: default_planner_settings(name, options, previous=True) for name in recorded["planners"]}))
-        except (TypeError, ValueError):
-            pass  # left out: the comparison names it
-    if "sensing" in new and "sensing" not in recorded and isinstance(recorded.get("spad"), bool):
-        recorded["sensing"] = (default_sensing_settings(recorded.get("spad_noise", "off"), previous=True)
-                               if recorded["spad"] else None)
-    return recorded
 
 
 def _what_ran(settings):
@@ -167,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
                           spad_noise=noise["spad_noise"])
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
-    from superex_deploy.commands.recorded_config import default_sensing_settings, planner_settings
+    from superex_deploy.evaluation.tasks import default_sensing_settings
+    from superex_deploy.recording.metadata import planner_settings
 
     configs = {planner: planner_settings(instance) for planner, instance in zip(planners, instances)}
     settings = {"maps": names, "planners": planners, "planner_options": options, "planner_configs": configs,

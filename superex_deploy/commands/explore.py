@@ -25,7 +25,7 @@ from superex_deploy.commands.options import (add_live_options, add_noise_options
                                              predictor_help, resolve_start)
 from superex_deploy.onboard.planning.planners import PLANNERS
 from superex_deploy.onboard.prediction.registry import kind_of
-from superex_deploy.pipeline import (DEFAULT_PIPELINE, PIPELINES, PREDICTORS, PROFILES, build_explorer,
+from superex_deploy.pipeline import (DEFAULT_PIPELINE, PIPELINES, PREDICTORS, build_explorer,
                                      check_profile, make_sensing, resolve_profile)
 from superex_deploy.recording.live import live_view
 from superex_deploy.spad_types import SpadConfig
@@ -75,24 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_noise_options(parser)
     add_live_options(parser)
     parser.add_argument("--out", required=True, type=Path)
-
-
-def recording_metadata(grid, args, options: dict, planner, sensing, explorer_cfg) -> dict:
-    """What a replay needs to rebuild the explorer of this run (JSON values): ``options`` as the user gave them
-    (``planner_options``) and every field of ``planner``'s configuration (``planner_config``: a replay builds it
-    whatever the defaults are then); ``sensing``: the episode's :class:`~superex_deploy.sim.sensing.SpadSensing` or
-    None (recorded in full under ``sensor`` and ``nlos``)."""
-    from dataclasses import asdict
-
-    from superex_deploy.commands.recorded_config import planner_settings, sensing_settings
-
-    return {"map": grid.name, "planner": args.planner, "planner_options": options,
-            "planner_config": planner_settings(planner), "predictor": args.predictor,
-            "seed": args.seed, "spad": sensing is not None,
-            "models": None if args.models is None else str(Path(args.models).resolve()),
-            **(sensing_settings(sensing) or {"sensor": None, "nlos": None}),
-            "explorer": asdict(explorer_cfg), "profile": args.profile,
-            "profile_settings": PROFILES[args.profile].to_json()}
 
 
 def chosen_pipeline(args: argparse.Namespace, options: dict):
@@ -183,6 +165,7 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
     """The episode and its outputs, after every check."""
     from superex_deploy.messages import MapFrame
     from superex_deploy.recording import EpisodeRecorder
+    from superex_deploy.recording.metadata import recording_metadata
     from superex_deploy.render import GifRecorder
 
     # The robot's clock: a step never waits for the predictor (a recording keeps when each prediction landed, and a
@@ -203,7 +186,11 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
     record = None
     try:
         if args.record is not None:
-            metadata = recording_metadata(grid, args, options, planner, sensing, cfg.explorer)
+            metadata = recording_metadata(
+                map_name=grid.name, planner_name=args.planner, planner=planner, planner_options=options,
+                predictor=args.predictor, seed=args.seed, sensor=None if sensing is None else sensing.spad,
+                nlos_cfg=None if sensing is None else sensing.nlos_cfg, explorer_cfg=cfg.explorer,
+                profile=args.profile, models=args.models)
             metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
             record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
         result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live)

@@ -48,7 +48,6 @@ import math
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -298,13 +297,13 @@ class _Progress:
 
 
 def _recorder(args, frame, planner, settings):
-    from superex_deploy.commands.explore import recording_metadata
     from superex_deploy.recording import EpisodeRecorder
+    from superex_deploy.recording.metadata import recording_metadata
 
-    described = SimpleNamespace(planner=args.planner, predictor=args.predictor, seed=0, models=args.models,
-                                profile=settings["profile"])
-    metadata = recording_metadata(SimpleNamespace(name=f"bag:{Path(args.bag).name}"), described,
-                                  settings["options"], planner, None, settings["cfg"])
+    metadata = recording_metadata(map_name=f"bag:{Path(args.bag).name}", planner_name=args.planner, planner=planner,
+                                  planner_options=settings["options"], predictor=args.predictor, seed=0, sensor=None,
+                                  nlos_cfg=None, explorer_cfg=settings["cfg"], profile=settings["profile"],
+                                  models=args.models)
     metadata["bag"] = str(args.bag)
     return EpisodeRecorder(args.record, frame, metadata)
 

@@ -45,23 +45,17 @@ CEILING_REFERENCE = "mapex_observed"
 """The altered suite also pairs every row against this one: the oracle ceiling's baseline."""
 
 
-def _row_setting(setting: dict, name: str, previous: bool = False) -> dict:
+def _row_setting(setting: dict, name: str) -> dict:
     """``setting`` with what row ``name`` runs in full: its planner's whole configuration (``planner_config``) and
-    its SPAD sensing's (``sensing``, None without); ``previous``: those of the defaults before 0.2."""
-    from superex_deploy.commands.recorded_config import default_planner_settings, default_sensing_settings
+    its SPAD sensing's (``sensing``, None without). A row written by a version before 0.2 holds neither: it differs
+    from every setting of this version, and is refused (or left out of the table) as one of another protocol."""
+    from superex_deploy.evaluation.tasks import default_sensing_settings
+    from superex_deploy.onboard.planning.planners import make_planner
+    from superex_deploy.recording.metadata import planner_settings
 
     row = PIPELINES[name]
-    return json.loads(json.dumps({**setting, "planner_config": default_planner_settings(row.planner, previous=previous),
-                                  "sensing": default_sensing_settings(previous=previous) if row.spad else None}))
-
-
-def _row_setting_as_now(recorded, name: str):
-    """A row's recorded setting in this version's form: one written before the settings held the planner's and the
-    sensing's whole configurations gets those the row ran then, the defaults of the versions before 0.2
-    (:mod:`superex_deploy.commands.recorded_config`); anything else as recorded."""
-    if not isinstance(recorded, dict) or "planner_config" in recorded:
-        return recorded
-    return _row_setting(recorded, name, previous=True)
+    return json.loads(json.dumps({**setting, "planner_config": planner_settings(make_planner(row.planner)),
+                                  "sensing": default_sensing_settings() if row.spad else None}))
 
 
 def _same_protocol(recorded: dict, setting: dict) -> bool:
@@ -112,7 +106,7 @@ def _run_row(name: str, args: argparse.Namespace, maps: list[str], rows_dir: Pat
     setting = {**setting, "row": {"planner": row.planner, "predictor": row.predictor, "spad": row.spad,
                                   **({} if row.carving else {"carving": False})}}
     if recorded.is_file():
-        _refuse_other_settings(recorded, _row_setting_as_now(json.loads(recorded.read_text()), name), setting,
+        _refuse_other_settings(recorded, json.loads(recorded.read_text()), setting,
                                f"move it and {name}.episodes.jsonl away or choose another --out")
     write_atomically(recorded, json.dumps(setting))
     episodes = run_tasks(run_scenario, tasks, keys, backend, rows_dir / f"{name}.episodes.jsonl", name)
@@ -248,7 +242,7 @@ def run_paper(args: argparse.Namespace) -> int:
     for name in names:
         path, row_setting = rows_dir / f"{name}.json", _row_setting(setting, name)
         if path.is_file():
-            done = _row_setting_as_now(json.loads(path.read_text()).get("setting"), name)
+            done = json.loads(path.read_text()).get("setting")
             if done == row_setting:
                 print(f"{name}: done already ({path})")
                 continue
@@ -265,7 +259,7 @@ def run_paper(args: argparse.Namespace) -> int:
         path = rows_dir / f"{name}.json"
         if path.is_file():
             done = json.loads(path.read_text())
-            if _same_protocol(_row_setting_as_now(done.get("setting"), name), _row_setting(setting, name)):
+            if _same_protocol(done.get("setting"), _row_setting(setting, name)):
                 rows[name] = done["episodes"]
     text, summary = _table(rows, args.steps, references)
     sizes = sorted(set(summary["scenarios"].values()))

@@ -1,11 +1,11 @@
 """``superex replay FILE --out DIR``: rerun a fresh explorer on a recorded episode's observations alone.
 
 The explorer is rebuilt from the recording's metadata (the planner's configuration, predictor, seed, sensor model,
-NLOS and explorer configuration) and given no map: it sees exactly the recorded observations. A recording made before
-the planner's whole configuration was recorded holds the options given: the other fields are rebuilt at the defaults
-of its version (:mod:`~superex_deploy.commands.recorded_config`). Its goals are compared with the recorded commands
-step by step. Writes ``DIR/metrics.json`` (goals, per-stage timings, the comparison, anything that stopped the
-reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
+NLOS and explorer configuration, each read by its class's strict ``from_json``:
+:func:`~superex_deploy.recording.metadata.explorer_arguments`) and given no map: it sees exactly the recorded
+observations. A recording of an earlier format is refused, naming ``superex convert-recording``, which rewrites it.
+Its goals are compared with the recorded commands step by step. Writes ``DIR/metrics.json`` (goals, per-stage
+timings, the comparison, anything that stopped the reading, the final map frame) and ``DIR/map.npz`` (the explorer's final map and evidence, and its frame: ``shape``,
 ``resolution_m``, ``origin_xy``; a map that grows ends on a larger frame than the recording's first). A recording
 without a single whole step is refused: there is nothing to compare. With ``--live`` the replayed steps are served
 on a Foxglove WebSocket as they run (:mod:`superex_deploy.recording.live`), at the recording's stamps unless
@@ -33,120 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_live_options(parser)
 
 
-def explorer_arguments(metadata: dict, frame, models=None) -> dict:
-    """The keyword arguments of :func:`superex_deploy.pipeline.build_explorer` that rebuild the explorer a
-    recording's metadata describes on ``frame`` (the recording's first map frame, included as ``frame``): its
-    planner (a Planner instance), predictor name, profile, SPAD sensor model and processing, ``models`` (default:
-    the recording's), seed and explorer configuration. ``build_explorer(**explorer_arguments(metadata, frame))``.
-
-    Raises:
-        ValueError: metadata that names no planner or predictor, the oracle predictor (it reads the truth), or
-            configurations this package cannot build.
-    """
-    from superex_deploy import pipeline
-    from superex_deploy.onboard.prediction.registry import kind_of
-    from superex_deploy.onboard.planning.motion import MotionConfig
-    from superex_deploy.onboard.checks import from_cells, nested_configs, without_retired
-    from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
-    from superex_deploy.onboard.planning.planners import make_planner, planner_config
-    from superex_deploy.onboard.nlos import NlosConfig
-    from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
-    from superex_deploy.spad_types import SpadConfig, SpadNoise
-    from superex_deploy.commands.recorded_config import previous_planner_options, recorded_explorer_fields
-
-    try:
-        planner_name, predictor_name = metadata["planner"], metadata["predictor"]
-        options, seed = metadata.get("planner_options") or {}, int(metadata["seed"])
-    except (KeyError, TypeError, ValueError) as error:
-        raise ValueError(f"the recording's metadata lacks the planner, predictor or seed ({error})") from None
-    if kind_of(predictor_name).reads_truth:
-        raise ValueError(f"the recording used the {predictor_name} predictor, which reads the ground truth: it cannot "
-                         f"be replayed")
-    models = models or metadata.get("models")
-    profile_name = metadata.get("profile", "full")
-    if profile_name not in pipeline.PROFILES:
-        raise ValueError(f"the recording used the profile {profile_name!r}, which this version does not have "
-                         f"({', '.join(pipeline.PROFILES)})")
-    profile = pipeline.PROFILES[profile_name]
-    if "profile_settings" in metadata and _settings_as_now(metadata["profile_settings"], frame.resolution_m) \
-            != profile.to_json():
-        raise ValueError(f"the recording's profile {profile_name!r} was defined differently when it was recorded "
-                         f"({metadata['profile_settings']}) than in this version ({profile.to_json()}): "
-                         "a replay would not rebuild its explorer")
-    if isinstance(metadata["seed"], bool) or seed != metadata["seed"] or seed < 0:
-        raise ValueError(f"the recording's seed must be an integer >= 0, got {metadata['seed']!r}")
-    try:
-        # The planner's whole configuration as recorded; a recording made before it was recorded holds the options
-        # given, the other fields at the defaults of its version (those that changed since: PREVIOUS_DEFAULTS).
-        # A recording made before an option was retired carries it at its old default (accepted) or at another
-        # value (refused, named); one made before an option counted metres carries cells (converted).
-        if "planner_config" in metadata:
-            options = metadata["planner_config"]
-        elif isinstance(options, dict):
-            options = previous_planner_options(planner_name, options)
-        config = planner_config(planner_name)
-        if config is not None and isinstance(options, dict):
-            options = nested_configs(config, without_retired(config, from_cells(config, options, frame.resolution_m)))
-        planner = make_planner(planner_name, **options)
-    except ValueError as error:
-        raise ValueError(f"the recording's planner or predictor cannot be rebuilt: {error}") from None
-    try:
-        # A recording made before the settings counted in metres carries cell counts: converted with its grid.
-        explorer_fields = from_cells(ExplorerConfig, recorded_explorer_fields(metadata["explorer"]),
-                                     frame.resolution_m)
-        schedule = PredictionSchedule.from_json(explorer_fields.pop("prediction", {}))
-        reuse = PredictionReuse(**from_cells(PredictionReuse, explorer_fields.pop("reuse", {}), frame.resolution_m))
-        if isinstance(explorer_fields.get("scan_matching"), dict):
-            explorer_fields["scan_matching"] = without_retired(ScanMatchingConfig, from_cells(
-                ScanMatchingConfig, explorer_fields["scan_matching"], frame.resolution_m))
-        motion = MotionConfig(**from_cells(MotionConfig, explorer_fields.pop("motion"), frame.resolution_m))
-        cfg = ExplorerConfig(motion=motion, prediction=schedule, reuse=reuse, **explorer_fields)
-        sensor = nlos_cfg = None
-        if metadata.get("spad"):
-            sensor = dict(metadata["sensor"])
-            sensor = SpadConfig(**{**sensor, "noise": SpadNoise(**sensor["noise"])})
-            nlos_cfg = NlosConfig.from_recorded(dict(metadata["nlos"]), frame.resolution_m)
-    except KeyError as error:
-        raise ValueError(f"the recording's configuration cannot be rebuilt: it lacks the field {error}") from None
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"the recording's configuration cannot be rebuilt: a field has the wrong type or value "
-                         f"({error})") from None
-    return dict(frame=frame, planner=planner, predictor=predictor_name, profile=profile_name,
-                spad=bool(metadata.get("spad")), models=models, seed=seed, cfg=cfg, sensor=sensor, nlos_cfg=nlos_cfg)
-
-
-def _settings_as_now(settings, resolution_m: float):
-    """A recording's profile settings in this version's form: a schedule written before the schedule's modes
-    converted (``PredictionSchedule.from_json``), reuse counts of cells converted to square metres on the
-    recording's grid of ``resolution_m`` metres per cell, fields added since filled in with their defaults (the
-    values that behave as the version before them did)."""
-    from dataclasses import asdict
-
-    from superex_deploy.onboard import PredictionReuse, PredictionSchedule
-    from superex_deploy.onboard.checks import from_cells
-    from superex_deploy.pipeline import RealtimeProfile
-
-    if not isinstance(settings, dict):
-        return settings
-    settings = {**RealtimeProfile().to_json(), **settings}
-    for key in ("schedule", "simulated_schedule"):
-        if isinstance(settings[key], dict):
-            try:
-                settings[key] = asdict(PredictionSchedule.from_json(settings[key]))
-            except (TypeError, ValueError):
-                pass  # left as recorded: it differs from this version's, which the caller reports
-    if isinstance(settings["reuse"], dict):
-        try:
-            settings["reuse"] = from_cells(PredictionReuse, settings["reuse"], resolution_m)
-        except ValueError:
-            pass  # as above
-    return settings
-
-
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.commands.options import check_output_folder
     from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import read_recording
+    from superex_deploy.recording.metadata import explorer_arguments
 
     check_output_folder(args.out)
     recording = read_recording(args.recording, progress=True)

@@ -6,7 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
-__all__ = ["ScenarioTask", "run_scenario", "make_altered_floor", "with_noise", "with_spad_noise"]
+__all__ = ["ScenarioTask", "run_scenario", "make_altered_floor", "with_noise", "with_spad_noise",
+           "default_sensing_settings"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,6 +98,17 @@ def with_spad_noise(sensing, preset: str):
     if sensing is None or preset == "off":
         return sensing
     return replace(sensing, spad=spad_preset(preset, sensing.spad))
+
+
+def default_sensing_settings(spad_noise: str = "off") -> dict:
+    """The SPAD sensing a simulated benchmark episode runs (the default :class:`~superex_deploy.sim.sensing.SpadSensing`
+    with the photon budget of ``spad_noise``) as a benchmark's settings record it:
+    :func:`~superex_deploy.recording.metadata.sensing_settings`."""
+    from superex_deploy.recording.metadata import sensing_settings
+    from superex_deploy.sim.sensing import SpadSensing
+
+    sensing = with_spad_noise(SpadSensing(), spad_noise)
+    return sensing_settings(sensing.spad, sensing.nlos_cfg)
 
 
 def run_scenario(task: ScenarioTask) -> dict:

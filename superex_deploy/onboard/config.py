@@ -9,7 +9,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.checks import cells_at_least, check_real, renames
+from superex_deploy.onboard.checks import cells_at_least, check_real
 from superex_deploy.onboard.mapping.growth import MapGrowth
 from superex_deploy.onboard.mapping.mapper import OccupancyConfig
 from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
@@ -29,7 +29,6 @@ _PARTS = (("goal_policy", GoalPolicy, "a", True, False), ("growth", MapGrowth, "
 """(field, its config class, the article of its name, a dict of its fields accepted, None accepted)."""
 
 
-@renames(frontier_min_cells=("frontier_min_m", 1))
 @dataclass(frozen=True)
 class ExplorerConfig(JsonConfig):
     """Onboard exploration parameters.
@@ -41,7 +40,7 @@ class ExplorerConfig(JsonConfig):
             this (:meth:`frontier_min_cells` cells) are offered to the planner only when no larger region gives a
             goal (MapEx drops them: 10 cells of 0.1 m, 1 m). They are kept as a last tier because a room whose
             open door is seen edge-on shows fewer frontier cells, and dropping them would stop such an episode at
-            its first step (docs/benchmarks/exploration.md). The old ``frontier_min_cells`` is refused, naming it.
+            its first step (docs/benchmarks/exploration.md).
         prediction: when the predictor runs (:class:`PredictionSchedule`).
         reuse: what the explorer keeps of its last prediction
             (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map

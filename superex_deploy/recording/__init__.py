@@ -24,9 +24,12 @@ The topics, their schemas and how each message is built from a step are one tabl
 ``superex explore --live``) serves too, with four topics of its own (``/tf``, ``/goal``, ``/prediction``,
 ``/evidence``).
 
-A metadata record ``superex.episode`` holds what a replay needs to rebuild the explorer (map frame, planner and its
-options, predictor, seed, sensor model, NLOS and explorer configuration), each value a JSON string whose type is
-fixed (:data:`METADATA_TYPES`; checked when writing and when reading). The SPAD
+A metadata record ``superex.episode`` holds the format version (:data:`FORMAT_VERSION`) and what a replay needs to
+rebuild the explorer (map frame, planner and its whole configuration, predictor, seed, sensor model, NLOS and
+explorer configuration, profile: :mod:`superex_deploy.recording.metadata`, every configuration as its ``to_json``
+writes it), each value a JSON string whose type is fixed (:data:`METADATA_TYPES`; checked when writing and when
+reading). A recording of another format is refused when read; one of an earlier format is rewritten into this one
+by ``superex convert-recording`` (:mod:`superex_deploy.recording.convert`). The SPAD
 frame's arrays are little-endian byte blobs (``uint8[]``): the CDR encoders write numeric arrays element by element,
 and a frame holds ~160,000 non-zero bins.
 

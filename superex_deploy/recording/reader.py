@@ -17,7 +17,7 @@ from superex_deploy.messages.ros_fields import laser_scan, occupancy_grid, spad_
 from superex_deploy.recording.schemas import (FORMAT_VERSION, METADATA_NAME, REPLAYED_TOPICS, check_metadata,
                                              stamp_seconds)
 
-__all__ = ["RecordedStep", "Recording", "read_recording"]
+__all__ = ["RecordedStep", "Recording", "read_recording", "read_metadata", "check_format"]
 
 
 @dataclass
@@ -98,6 +98,39 @@ def _metadata(data: bytes, path: Path) -> dict:
     raise ValueError(f"{path} is not a SuperEx recording: no readable {METADATA_NAME!r} metadata record")
 
 
+def check_format(metadata: dict, path: Path) -> None:
+    """Refuse a recording whose metadata gives another format than :data:`FORMAT_VERSION`: an older one (the
+    error names ``superex convert-recording``, which rewrites it) or a newer one (upgrade).
+
+    Raises:
+        ValueError: another format version, said in one line.
+    """
+    version = metadata.get("format_version")
+    if version == FORMAT_VERSION:
+        return
+    known = isinstance(version, str) and version.isdigit()
+    why = ""
+    if known and int(version) > int(FORMAT_VERSION):
+        why = ": a newer version of superex_deploy wrote it; upgrade to replay it"
+    elif known:
+        why = (f": an older version of superex_deploy wrote it; convert it with `superex convert-recording {path} "
+               f"NEW.mcap` and replay NEW.mcap")
+    raise ValueError(f"{path} has recording format {version!r}, this package reads {FORMAT_VERSION!r}{why}")
+
+
+def read_metadata(path: Union[str, Path]) -> dict:
+    """The ``superex.episode`` metadata of the recording ``path`` (JSON values decoded, types checked), of any
+    format version: what ``superex convert-recording`` reads.
+
+    Raises:
+        ValueError: a missing file, or a file that is not an MCAP recording with SuperEx metadata.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"recording {path} does not exist or is not a file")
+    return _metadata(path.read_bytes(), path)
+
+
 def _message_count(data: bytes) -> Optional[int]:
     """The number of messages the file's summary section states, or None (no summary: a cut file)."""
     from mcap.reader import make_reader
@@ -122,8 +155,8 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
 
     Raises:
         ValueError: a missing file, a file that is not an MCAP recording with SuperEx metadata, metadata values of
-            the wrong type (:data:`METADATA_TYPES`), another format version, a map frame beyond the size limits
-            (:func:`superex_deploy.messages.check_map_size`).
+            the wrong type (:data:`METADATA_TYPES`), another format version (:func:`check_format`), a map frame
+            beyond the size limits (:func:`superex_deploy.messages.check_map_size`).
     """
     from mcap.exceptions import EndOfFile
     from mcap.reader import NonSeekingReader
@@ -135,11 +168,7 @@ def read_recording(path: Union[str, Path], progress: bool = False) -> Recording:
         raise ValueError(f"recording {path} does not exist or is not a file")
     data = path.read_bytes()
     metadata = _metadata(data, path)
-    if metadata.get("format_version") != FORMAT_VERSION:
-        version = metadata.get("format_version")
-        newer = isinstance(version, str) and version.isdigit() and int(version) > int(FORMAT_VERSION)
-        raise ValueError(f"{path} has recording format {version!r}, this package reads {FORMAT_VERSION!r}"
-                         + (": a newer version of superex_deploy wrote it; upgrade to replay it" if newer else ""))
+    check_format(metadata, path)
     try:
         frame_fields = metadata["frame"]
         frame = MapFrame(tuple(frame_fields["shape"]), frame_fields["resolution_m"], tuple(frame_fields["origin_xy"]))

@@ -12,7 +12,10 @@ __all__ = ["FORMAT_VERSION", "METADATA_NAME", "METADATA_TYPES", "check_metadata"
            "POSE_WITH_COVARIANCE_STAMPED_MSG", "TF_MESSAGE_MSG", "SCHEMAS", "REPLAYED_TOPICS", "COVARIANCE_INDEX",
            "stamp_message", "stamp_seconds", "header_message", "pose_message"]
 
-FORMAT_VERSION = "1"
+FORMAT_VERSION = "2"
+"""The recording format this package writes and reads (:mod:`superex_deploy.recording.metadata`). ``"1"``: the
+versions up to 0.2, whose metadata held some configurations in their old form (``superex convert-recording``,
+:mod:`superex_deploy.recording.convert`, rewrites it)."""
 METADATA_NAME = "superex.episode"
 METADATA_TYPES: dict = {"format_version": (str,), "frame": (dict,), "map": (str,), "planner": (str,),
                         "planner_options": (dict, type(None)), "planner_config": (dict,), "predictor": (str,),

@@ -289,19 +289,17 @@ class ExplorationNode:
 
     def recording_metadata(self) -> dict:
         """What a replay needs to rebuild this node's explorer
-        (:func:`superex_deploy.commands.replay.explorer_arguments`): the planner's whole configuration, the predictor,
-        the sensing, the explorer's configuration and the profile."""
-        from superex_deploy.pipeline import PROFILES
+        (:func:`superex_deploy.recording.metadata.recording_metadata`): the planner's whole configuration, the
+        predictor, the sensing, the explorer's configuration and the profile."""
+        from superex_deploy.recording.metadata import recording_metadata
 
         explorer, p = self.core.explorer, self.params
-        spad, planner_cfg = explorer.spad_processing, getattr(explorer.planner, "cfg", None)
-        return {"map": "", "planner": p.planner, "planner_options": {},
-                "planner_config": {} if planner_cfg is None else asdict(planner_cfg),
-                "predictor": p.predictor_name, "seed": p.seed, "spad": spad is not None,
-                "models": None if self.core.models is None else str(Path(self.core.models).resolve()),
-                "sensor": None if spad is None else asdict(spad.sensor),
-                "nlos": None if spad is None else asdict(spad.nlos_cfg), "explorer": asdict(explorer.cfg),
-                "profile": p.profile, "profile_settings": PROFILES[p.profile].to_json()}
+        spad = explorer.spad_processing
+        return recording_metadata(map_name="", planner_name=p.planner, planner=explorer.planner, planner_options={},
+                                  predictor=p.predictor_name, seed=p.seed,
+                                  sensor=None if spad is None else spad.sensor,
+                                  nlos_cfg=None if spad is None else spad.nlos_cfg, explorer_cfg=explorer.cfg,
+                                  profile=p.profile, models=self.core.models)
 
     def summary(self) -> dict:
         """What the run did: steps, goals, latency percentiles (ms), scans received / dropped, the states the status

@@ -27,7 +27,7 @@ from superex_deploy.configs import JsonConfig
 from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.checks import cells_within, check_real, renames
+from superex_deploy.onboard.checks import cells_within, check_real
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.kinematics import drive_belief_relative
@@ -56,7 +56,6 @@ class LidarConfig(JsonConfig):
                              f"{self.n_rays}, range_m={self.range_m}")
 
 
-@renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
 class WorldConfig(JsonConfig):
     """The simulated robot's sensors and motion.
@@ -65,8 +64,7 @@ class WorldConfig(JsonConfig):
         lidar: the line-of-sight LiDAR (rays over a full turn, maximum range).
         spad: the SPAD LiDAR, or None (no SPAD frames).
         step_m: how far the robot drives per :meth:`World.apply` (metres, > 0; MapEx: 3 cells of 0.1 m): along a
-            path of cells, the most cells that fit in it (:attr:`World.step_cells`, at least one). The old
-            ``step_cells`` is refused, naming it.
+            path of cells, the most cells that fit in it (:attr:`World.step_cells`, at least one).
         seed: seed of the SPAD noise generator (used only when ``spad.noise.enabled``).
         step_s: simulated time per step (seconds; the observations' time stamps).
         pose_noise: the localisation error (None: the observations carry the true pose, and the robot moves from

@@ -38,7 +38,7 @@ from scipy.ndimage import distance_transform_edt
 
 from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D, PoseCovariance
-from superex_deploy.onboard.checks import cells_at_least, in_cells, renames, retires
+from superex_deploy.onboard.checks import cells_at_least, in_cells
 
 __all__ = ["ScanMatchingConfig", "ScanMatch", "ScanMatcher", "score_poses", "likelihood_field"]
 
@@ -48,9 +48,6 @@ _FACE_TO_CENTRE_CELLS = 0.5
 """Added to each return's range (cells) before scoring: from the wall's face to its cell's centre, along the ray."""
 
 
-@renames(field_sigma_cells=("field_sigma_m", 1), coarse_sigma_cells=("coarse_sigma_m", 1),
-         min_map_walls=("min_map_wall_m", 1))
-@retires("docs/on-a-robot.md", match_sigma_cells=0.0, match_sigma_deg=0.0, start_after_scans=0)
 @dataclass(frozen=True)
 class ScanMatchingConfig(JsonConfig):
     """Parameters of the correlative scan matcher (see the module docstring; fixed on train floors).
@@ -77,10 +74,8 @@ class ScanMatchingConfig(JsonConfig):
             tried").
         refine_levels: fine search levels after the lattice (each halves the steps).
 
-    The options ``match_sigma_cells``, ``match_sigma_deg`` (fusing an accepted match with the belief) and
-    ``start_after_scans`` (matching only after the first scans) were retired (``RETIRED``: their old defaults;
-    measured in docs/on-a-robot.md, "What was tried"). The cell counts ``field_sigma_cells``, ``coarse_sigma_cells``
-    and ``min_map_walls`` are refused, naming their metric fields.
+    Fusing an accepted match with the belief and matching only after the first scans were measured and retired
+    (docs/on-a-robot.md, "What was tried").
     """
 
     enabled: bool = True

@@ -95,23 +95,6 @@ class NlosConfig(JsonConfig):
         if int(self.threads) != self.threads or self.threads < 0:
             raise ValueError(f"NlosConfig.threads must be an integer >= 0, got {self.threads}")
 
-    @classmethod
-    def from_recorded(cls, values: dict, resolution_m: float) -> "NlosConfig":
-        """The configuration a recording (or an earlier version's settings) holds as ``values`` on a grid of
-        ``resolution_m``: the lengths an earlier version gave in cells (``wall_strip_cells`` ...) are read as that
-        many cells of the grid; names this version does not know are left out.
-
-        Raises:
-            ValueError: a value :class:`NlosConfig` refuses.
-        """
-        known = set(cls.__dataclass_fields__)
-        kept = {name: value for name, value in values.items() if name in known}
-        for name, value in values.items():
-            metric = name.removesuffix("_cells") + "_m"
-            if name.endswith("_cells") and metric in known and metric not in kept:
-                kept[metric] = float(value) * float(resolution_m)
-        return cls(**kept)
-
     def in_cells(self, resolution_m: float) -> "NlosCells":
         """The metric lengths in cells of a grid of ``resolution_m`` metres per cell (the kernels work in cells).
 

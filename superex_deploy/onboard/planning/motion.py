@@ -39,7 +39,7 @@ import numba
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.checks import cells_within, check_real, renames
+from superex_deploy.onboard.checks import cells_within, check_real
 from superex_deploy.onboard.types import FREE, OCCUPIED, check_observed
 
 __all__ = ["MAX_WALL_REACH_M", "MAX_WALL_REACH_CELLS", "check_wall_reach", "MotionConfig", "PlanningMap",
@@ -53,7 +53,6 @@ MAX_WALL_REACH_CELLS = 1000
 (24 bytes each), 96 MB at this limit."""
 
 
-@renames(step_cells=("step_m", 1))
 @dataclass(frozen=True)
 class MotionConfig(JsonConfig):
     """Robot motion and path planning.
@@ -82,8 +81,7 @@ class MotionConfig(JsonConfig):
         ValueError: ``MotionConfig: FIELD must ...``, for a field of another type, not finite or out of its range:
             ``robot_radius_m`` in ``[0, MAX_WALL_REACH_M]``, ``wall_cost_range_m`` in ``(0, MAX_WALL_REACH_M]``
             (:data:`MAX_WALL_REACH_M`), ``wall_cost_weight`` and ``goal_reached_m`` finite and >= 0,
-            ``step_m`` and ``planning_cell_m`` positive and finite; the old name ``step_cells`` (a count of cells, whose distance
-            changed with the grid) is refused, naming ``step_m``.
+            ``step_m`` and ``planning_cell_m`` positive and finite.
     """
 
     robot_radius_m: float = 0.15

@@ -44,7 +44,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.checks import cells_at_least, renames
+from superex_deploy.onboard.checks import cells_at_least
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, MapPredictor, Prediction
 
 __all__ = ["PredictionReuse", "ReusingPredictor", "merge_with_map", "changed_box", "feather_weights", "RAMPS",
@@ -63,7 +63,6 @@ whole-map predictions near a seam, and a step across a seam no larger than the w
 (measured in docs/benchmarks/realtime.md, "Seams")."""
 
 
-@renames(min_changed_cells=("min_changed_m2", 2))
 @dataclass(frozen=True)
 class PredictionReuse(JsonConfig):
     """What the explorer keeps of its last prediction (the defaults keep nothing: every request runs the
@@ -71,8 +70,7 @@ class PredictionReuse(JsonConfig):
 
     Attributes:
         min_changed_m2: run the predictor only when the cells changed since the map of the last prediction cover at
-            least this area (square metres, >= 0; 2 m^2 is 200 cells of 0.1 m, 800 of 0.05 m; 0: always). The
-            old ``min_changed_cells`` is refused, naming it.
+            least this area (square metres, >= 0; 2 m^2 is 200 cells of 0.1 m, 800 of 0.05 m; 0: always).
         crop_margin_m: predict only the box around the changed cells grown by this many metres of context (None:
             the whole map); see the module docstring.
         evidence_change: an evidence cell (the filtered back-projection, in [0, 1]) counts as changed when it

@@ -12,6 +12,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.prediction.reuse import ReusingPredictor, merge_with_map
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 
@@ -24,7 +25,7 @@ MODES = ("inline", "free", "simulated", "thread")
 
 
 @dataclass(frozen=True)
-class PredictionSchedule:
+class PredictionSchedule(JsonConfig):
     """When the explorer runs its map predictor, and on which step's map.
 
     Attributes:
@@ -49,10 +50,6 @@ class PredictionSchedule:
             ``free`` and ``thread`` mode it waits for it: the one wait a never-waiting schedule allows, taken while
             the robot stands at its start). Without it the planners and the first evaluations see no prediction at
             all until one lands, which costs map IoU early in the episode (docs/benchmarks/realtime.md).
-
-    :meth:`from_json` also reads the fields this class had before the modes (``asynchronous``: False is
-    ``inline``; True with ``every_steps`` 0 is ``free``, with ``every_steps >= 1`` ``thread``), as older
-    recordings hold them.
     """
 
     mode: str = "inline"
@@ -90,32 +87,6 @@ class PredictionSchedule:
     def deterministic(self) -> bool:
         """Whether the steps at which predictions land are fixed (``simulated`` and ``thread``)."""
         return self.mode in ("simulated", "thread")
-
-    def to_json(self) -> dict:
-        """The schedule's fields as JSON values."""
-        return {"mode": self.mode, "every_steps": int(self.every_steps),
-                "apply_after_steps": int(self.apply_after_steps), "wait_first": self.wait_first}
-
-    @classmethod
-    def from_json(cls, fields: dict) -> "PredictionSchedule":
-        """The schedule that JSON ``fields`` describe, in this version's form or the one before the modes
-        (``asynchronous``, see the class docstring).
-
-        Raises:
-            ValueError: unknown fields, or both ``mode`` and ``asynchronous``.
-        """
-        fields = dict(fields)
-        if "asynchronous" in fields:
-            if "mode" in fields:
-                raise ValueError("a schedule gives either mode or the older asynchronous, not both")
-            asynchronous = fields.pop("asynchronous")
-            if not isinstance(asynchronous, bool):
-                raise ValueError(f"asynchronous must be True or False, got {asynchronous!r}")
-            fields["mode"] = ("thread" if fields.get("every_steps", 10) else "free") if asynchronous else "inline"
-        unknown = sorted(set(fields) - {"mode", "every_steps", "apply_after_steps", "wait_first"})
-        if unknown:
-            raise ValueError(f"unknown schedule field(s) {unknown}")
-        return cls(**fields)
 
 
 class LazyPrediction:

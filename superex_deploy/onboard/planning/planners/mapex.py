@@ -11,7 +11,7 @@ from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.checks import check_choice, check_instance, check_real, in_cells, renames
+from superex_deploy.onboard.checks import check_choice, check_instance, check_real, in_cells
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction, frontiers_at, scores_by_cell
 from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
 from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_frontier, reachable_frontiers
@@ -19,7 +19,6 @@ from superex_deploy.onboard.planning.visibility import VisibilityConfig, best_fr
 __all__ = ["MapexConfig", "MapexPlanner"]
 
 
-@renames(min_distance_cells=("min_distance_m", 1))
 @dataclass(frozen=True)
 class MapexConfig(JsonConfig):
     """MapEx (``visvarprob``): predicted-visible variance per unit distance.
@@ -30,8 +29,7 @@ class MapexConfig(JsonConfig):
             by the wall-proximity cost), or ``"euclidean"``, the straight-line distance from the robot to the
             frontier cell in cells, as MapEx's code divides (``sim_utils.py``: ``frontier_val / cost_dist``).
         min_distance_m: floor on the divisor (metres, positive, finite; one cell of 0.1 m). Frontiers within the
-            goal tolerance (1 m) are never offered, so it only guards against a zero distance. The old
-            ``min_distance_cells`` is refused, naming it.
+            goal tolerance (1 m) are never offered, so it only guards against a zero distance.
         gain: ``"visible"`` (MapEx): the cells of the thresholded raycast's filled polygon; ``"expected"``: every
             unknown cell weighted by the probability that a ray reaches it through the predicted walls
             (:func:`~superex_deploy.onboard.planning.expected_visibility.expected_visible_gains`, with ``visibility``'s

@@ -40,7 +40,7 @@ from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
                                                         check_wall_support, context_evidence,
                                                         expected_visible_gains, supported_prediction)
-from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real, retires
+from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real
 from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown_flat, visible_gains
 from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map,
                                                        reachable_frontiers)
@@ -50,8 +50,6 @@ from superex_deploy.onboard.types import (UNKNOWN, Planner, PlanningContext, Pre
 __all__ = ["SuperexConfig", "SuperexPlanner", "descend", "descend_all", "path_viewpoints"]
 
 
-@retires("docs/benchmarks/better-map.md", choice="greedy", candidates=5, rollout_goals=4, horizon_m=60.0,
-         rollout_cell_m=0.3, rollout_frontier_cells=3, tour_frontiers=18)
 @dataclass(frozen=True)
 class SuperexConfig(JsonConfig):
     """Settings of :class:`SuperexPlanner` (chosen on the train floors only, never on ``eval/``).
@@ -80,11 +78,11 @@ class SuperexConfig(JsonConfig):
             :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
-    ``[3, MAX_RAYS]``. The rollout and tour choices were retired (``RETIRED``: their options and old defaults).
+    ``[3, MAX_RAYS]``. The rollout and tour choices were measured and retired (docs/benchmarks/better-map.md).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
-            :mod:`~superex_deploy.onboard.checks`); a retired option.
+            :mod:`~superex_deploy.onboard.checks`).
     """
 
     gain: str = "expected"

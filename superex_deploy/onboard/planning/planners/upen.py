@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.checks import check_instance, check_int, check_real, in_cells, renames
+from superex_deploy.onboard.checks import check_instance, check_int, check_real, in_cells
 from superex_deploy.onboard.types import OCCUPIED, Planner, PlanningContext
 from superex_deploy.onboard.planning.planners.nearest import NearestFrontier
 from superex_deploy.onboard.planning.visibility import check_cells, check_map
@@ -176,15 +176,13 @@ def grow_rrt(passable: np.ndarray, start_rc, n_samples: int, expand_cells: float
                       exit_rc[:n].copy())
 
 
-@renames(expand_cells=("expand_m", 1))
 @dataclass(frozen=True)
 class UpenConfig(JsonConfig):
     """UPEN (Georgakis et al., ICRA 2022) as MapEx runs it (``upen_config`` of its ``base.yaml``).
 
     Attributes:
         rrt_samples: RRT iterations (MapEx: 2500; an integer in ``[1, MAX_RRT_SAMPLES]``).
-        expand_m: RRT step length (metres, positive, finite; MapEx: 5 cells of 0.1 m). The old ``expand_cells``
-            is refused, naming it.
+        expand_m: RRT step length (metres, positive, finite; MapEx: 5 cells of 0.1 m).
         reach_horizon: the longest path scored, in RRT edges (MapEx: 50; an integer >= 1).
         min_goal_distance_m: a goal this close to the robot counts as reached already (MapEx's
             ``cur_pose_dist_threshold_m``: 1 m; finite, >= 0).
