@@ -173,7 +173,7 @@ def _profile_settings(settings, profile: str, resolution_m: float):
     from superex_deploy.pipeline import PROFILES, RealtimeProfile
 
     if settings is None:
-        return PROFILES[profile].to_json() if profile in PROFILES else None
+        return PROFILES[profile].to_json() if profile in PROFILES else {}  # a replay names the unknown profile
     settings = {**RealtimeProfile().to_json(), **settings}
     for key in ("schedule", "simulated_schedule"):
         settings[key] = schedule_in_modes(settings[key])
