@@ -805,6 +805,29 @@ def reference_superex_gains(planner, ctx, prediction, frontiers):
                                            ctx.resolution_m).astype(float)
 
 
+def naive_pool_observed(observed, k):
+    """onboard.prediction.scale.pool_observed before scikit-image's block_reduce: the map padded with UNKNOWN to
+    whole blocks, viewed as ``[H/k, k, W/k, k]``; a wall where any cell is one, unknown where all are, else free."""
+    rows, cols = -(-observed.shape[0] // k) * k, -(-observed.shape[1] // k) * k
+    padded = np.full((rows, cols), -1, np.int8)
+    padded[:observed.shape[0], :observed.shape[1]] = observed
+    blocks = padded.reshape(rows // k, k, cols // k, k)
+    wall = (blocks == 1).any(axis=(1, 3))
+    unknown = (blocks == -1).all(axis=(1, 3))
+    return np.where(wall, 1, np.where(unknown, -1, 0)).astype(np.int8)
+
+
+def naive_pool_prediction(mean, variance, u):
+    """onboard.prediction.scale.pool_prediction before scikit-image's block_reduce: float64 ``[H u, W u]`` maps
+    viewed as ``[H, u, W, u]``; each block's mean, and its variance as one mixture."""
+    rows, cols = mean.shape[0] // u, mean.shape[1] // u
+    mean = np.asarray(mean, np.float64).reshape(rows, u, cols, u)
+    variance = np.asarray(variance, np.float64).reshape(rows, u, cols, u)
+    pooled = mean.mean(axis=(1, 3))
+    spread = variance.mean(axis=(1, 3)) + mean.var(axis=(1, 3))
+    return pooled.astype(np.float32), spread.astype(np.float32)
+
+
 def naive_pool_mean(values, k):
     """onboard.prediction.scale._block_means with numpy: the map padded to whole blocks, each block's sum over the
     cells it has divided by their count."""

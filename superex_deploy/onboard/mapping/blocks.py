@@ -1,6 +1,10 @@
 """The map on blocks of ``k x k`` cells, as the planning reads a map finer than its planning cell
 (:mod:`superex_deploy.onboard.planning.coarse`): a block is a wall where any of its cells is, else free where any
-is, unknown where none is known."""
+is, unknown where none is known.
+
+``skimage.measure.block_reduce`` with ``np.max`` (OCCUPIED > FREE > UNKNOWN) gives the same blocks (it is what
+:func:`~superex_deploy.onboard.prediction.scale.pool_observed` calls), but measured 7.1x slower than this kernel on
+the largest eval floor at 0.05 m (13x at 0.1 m; ``benchmarks/skimage``)."""
 
 from __future__ import annotations
 

@@ -32,7 +32,10 @@ under a disc of the robot radius less ``footprint_margin_sigmas`` position sigma
 and no path, and the explorer "finished") is gone at once. A cell at the ``highest`` clamp (hit by at least two
 scans) is kept: a pose error can put a true wall under the believed footprint, and a wall seen twice is safer
 kept than driven through. Unknown cells stay unknown. In the noise-free protocol the cells under the robot are
-known free already (the robot starts and moves clear of walls), so no class changes.
+known free already (the robot starts and moves clear of walls), so no class changes. The disc is the cells whose
+centre lies within the radius (``<=``) of a position anywhere in a cell; ``skimage.draw.disk`` keeps only those
+strictly inside, and drew 138 of 3000 random footprints differently, by cells at exactly the radius
+(``benchmarks/skimage``).
 
 **SLAM map.** :meth:`Mapper.set_line_of_sight` replaces the line-of-sight layer by a published map
 (``nav_msgs/OccupancyGrid`` percentages, thresholded as costmap_2d does: occupied at or above

@@ -2,6 +2,9 @@
 back-projection (:func:`laplacian_filter`). It is ``scipy.ndimage``'s ``gaussian_filter`` and ``laplace``
 rewritten in numba with the same order of operations (equal to the last bit), to skip scipy's per-call overhead
 and the whole-map copies: only the back-projection's patch, widened by a margin, is filtered.
+``skimage.filters.gaussian`` and ``skimage.filters.laplace`` (the negative 5-point Laplacian) on the same widened
+patch give the same bits but measured 4.0x slower per scan than these kernels on the largest eval floor at 0.05 m
+(4.9x at 0.1 m; ``benchmarks/skimage``).
 """
 
 from __future__ import annotations

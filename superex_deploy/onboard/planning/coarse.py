@@ -17,6 +17,9 @@ any of its cells is, else free where any is, unknown where none is known
 rays. A path of free blocks may cross a cell no ray reached between cells rays crossed (a gap between rays at
 range), never a cell the map holds occupied. A block's cell on the map is its centre cell (:meth:`PlanningGrid.centre`); a path of blocks becomes an 8-connected
 path of cells that never leaves those blocks (:meth:`PlanningGrid.fine_path`).
+
+:func:`pool_prediction_blocks` is a compiled kernel: ``skimage.measure.block_reduce`` (three block sums, the same
+bits) measured 9.0x slower on the largest eval floor at 0.05 m (21x at 0.1 m; ``benchmarks/skimage``).
 """
 
 from __future__ import annotations

@@ -10,7 +10,9 @@ region's centroid, so the goal is always a frontier cell (a centroid can lie in 
 One compiled pass finds and labels the frontier cells, vectorised reductions pick each region's goal cell, and only
 kept regions become Python objects, so a whole-map call stays a few milliseconds on the largest eval map (measured
 in docs/benchmarks/exploration.md). The numpy :func:`frontier_cells` is an independent second implementation
-of the cell rule.
+of the cell rule. ``skimage.measure.label`` (connectivity 2) on that mask gives the same regions in the same order,
+but :func:`find_frontiers` built on it measured 4.7x slower on the largest eval floor at 0.05 m (8.7x at 0.1 m;
+``benchmarks/skimage``): it labels the whole map where the flood fill visits only the frontier cells.
 """
 
 from __future__ import annotations
