@@ -18,7 +18,7 @@ from superex_deploy.messages import MapFrame
 from superex_deploy.onboard.planning.planners import PLANNERS, reachable_frontiers
 from superex_deploy.onboard.types import Planner
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer
-from superex_deploy.sim.episode import run_episode
+from superex_deploy.evaluation.episodes import run_episode
 
 
 class LargestFrontier(Planner):

@@ -33,7 +33,7 @@ from superex_deploy.maps import list_maps, load_map
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
 from superex_deploy.onboard.nlos.carving import carve_sectors
 from superex_deploy.parallel import process_pool
-from superex_deploy.sim.metrics import coverage as coverage_of
+from superex_deploy.maps import coverage as coverage_of
 from superex_deploy.spad_types import SpadConfig
 
 VARIANTS = {
@@ -134,7 +134,7 @@ def _wall_end_carving(scan, los, cfg: NlosConfig, extra_margin_deg: float) -> np
 
 
 def _scenario(task: tuple) -> dict:
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
     from superex_deploy.sim.spad import simulate_scan
     from superex_deploy.sim.spad.scene import prepare_scene
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy.evaluation import run_benchmark_episode, write_json
-from superex_deploy.sim.episode import STAGES
+from superex_deploy.evaluation.episodes import STAGES
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.maps import load_map, start_poses

@@ -38,7 +38,7 @@ def run_one(task: tuple) -> dict:
     from superex_deploy.onboard.planning.goal_policy import GoalPolicy
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PIPELINES, build_explorer, check_profile, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     name, start_index, start, margin, steps = task
     grid = load_map(name)

@@ -26,7 +26,8 @@ from superex_deploy.onboard import Explorer, ExplorerConfig
 from superex_deploy.onboard.mapping.growth import MapGrowth
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 
 
 def drive(grid, steps: int, seed: int):

@@ -62,7 +62,7 @@ import numpy as np
 import torch
 
 from superex_deploy.evaluation import run_benchmark_episode, write_json
-from superex_deploy.sim.episode import ExplorationConfig
+from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.inference import (MODEL_CHANNELS, BpEncoding, LamaEnsemble, ManifestEntry,
                                       ModelKind, SessionConfig, crop_window, encode_bp_windows, encode_map,

@@ -152,7 +152,7 @@ def run(split: str, steps: int, limit: int, starts: int, jobs: int, out: Path) -
 
 def _summary(folder: Path) -> dict:
     from superex_deploy.parallel import read_journal
-    from superex_deploy.evaluation.metrics import paired_summary, row_summary
+    from superex_deploy.evaluation.summary import paired_summary, row_summary
 
     setting = json.loads((folder / "setting.json").read_text())
     steps, keys = setting["steps"], setting["scenarios"]

@@ -43,7 +43,8 @@ def _worker(map_name: str, start_index: int, setting: str, steps: int) -> dict:
 
         from superex_deploy import pipeline
         from superex_deploy.onboard.planning.planners import make_planner
-        from superex_deploy.sim.episode import ExplorationConfig, run_episode
+        from superex_deploy.evaluation.episodes import run_episode
+        from superex_deploy.sim.exploration import ExplorationConfig
 
         # The unskipped pipeline (the full profile), as the legacy loop ran it.
         make_predictor = partial(pipeline.make_predictor, profile=pipeline.PROFILES["full"])

@@ -44,7 +44,7 @@ def _inputs() -> list[tuple[str, np.ndarray, np.ndarray]]:
     from superex_deploy.evaluation import run_benchmark_episode, train_scenarios
     from superex_deploy.onboard.prediction.inference import MODEL_CHANNELS, ModelKind, encode_map
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     out = []
     for name, start in train_scenarios(4, 1, 40000, heldout=True):

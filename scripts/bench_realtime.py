@@ -324,7 +324,7 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 def report(out: Path) -> None:
     from superex_deploy.evaluation import write_json, write_text
-    from superex_deploy.evaluation.metrics import paired_summary, row_summary, scenario_key
+    from superex_deploy.evaluation.summary import paired_summary, row_summary, scenario_key
 
     timing = _timing_rows(out)
     error = {}

@@ -78,7 +78,7 @@ def _interpolation(task: tuple) -> dict:
     on a held-out train floor, scored at 0.1 m, and on the floor upsampled x2 as the explorer would hand them out
     there (bilinear, :func:`~superex_deploy.onboard.prediction.scale.upsample_linear`) and with each cell repeated."""
     from superex_deploy.onboard.prediction.scale import upsample_linear
-    from superex_deploy.sim.metrics import map_iou
+    from superex_deploy.evaluation.metrics import map_iou
 
     map_name, start, steps = task
     grid, grabbed = load_map(map_name), {}

@@ -46,7 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from superex_deploy import evaluation
-from superex_deploy.evaluation.metrics import first_half_auc, iou_at_coverage, mean_with_interval, scenario_key
+from superex_deploy.evaluation.metrics import first_half_auc, iou_at_coverage
+from superex_deploy.evaluation.summary import mean_with_interval, scenario_key
 from superex_deploy.evaluation.reports import markdown_table, pyplot, save_figure
 
 POSE_LEVELS = ((0.0, 0.0), (0.02, 0.5), (0.05, 1.0), (0.10, 2.0))

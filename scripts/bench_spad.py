@@ -40,7 +40,7 @@ from superex_deploy.geometry import cast_rays, cell_centre, mark_rays, ray_angle
 from superex_deploy.maps import list_maps, load_map, start_poses
 from superex_deploy.pipeline import PROFILES
 from superex_deploy.onboard.nlos import NlosConfig, process_scan
-from superex_deploy.sim.metrics import wall_iou
+from superex_deploy.evaluation.metrics import wall_iou
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SPEED_OF_LIGHT, SpadConfig
 from superex_deploy.sim.spad import prepare_scene, simulate_scan

@@ -123,7 +123,7 @@ def scenarios(n_maps: int, starts: int, min_area: int, min_reach: float, work: P
 def _episode(task: dict) -> dict:
     from superex_deploy.pipeline import PROFILES
     from superex_deploy.sim.dead_ends import dead_end_entries
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     grid, dead_ends, _ = _load_floor(Path(task["floor"]), task["variant"])
     planner, predictor = RUNS[task["run"]]

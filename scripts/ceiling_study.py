@@ -24,7 +24,7 @@ from superex_deploy.evaluation import (bootstrap_interval, coverage_auc, coverag
                                        markdown_table, run_benchmark_episode, train_scenarios, write_json)
 from superex_deploy.parallel import process_pool
 from superex_deploy.pipeline import PROFILES
-from superex_deploy.sim.episode import ExplorationConfig
+from superex_deploy.sim.exploration import ExplorationConfig
 
 IDEAS = {
     "mapex": ("mapex", {}),

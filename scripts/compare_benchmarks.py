@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 from superex_deploy.evaluation import write_json
-from superex_deploy.sim.metrics import paired_differences
+from superex_deploy.evaluation.summary import paired_differences
 
 
 def _load(path: Path) -> list[dict]:

@@ -13,7 +13,7 @@ evidence every step; planner cycled over nearest / hector / mapex with the obser
 trajectory does not depend on the models scored). The first time the line-of-sight coverage enters each
 coverage bin (0-10, 10-20, 20-30 %), both ensembles predict the whole map: LAMA_BP from the observation with
 carving plus evidence, LAMA_LOS from the line-of-sight observation, and the observed map itself (unknown =
-free) as the floor. Scores: wall IoU over the evaluation area (``superex_deploy.sim.metrics.map_iou``,
+free) as the floor. Scores: wall IoU over the evaluation area (``superex_deploy.evaluation.metrics.map_iou``,
 threshold 0.5) and wall IoU on the cells unknown at that step (what prediction adds). A calibration table
 pools all predictions: IoU on unknown cells at thresholds 0.1-0.9, the share of unknown cells predicted as walls
 at 0.5 and the mean wall probability there, against the true share of walls.
@@ -48,8 +48,8 @@ from superex_deploy.evaluation import markdown_table, run_benchmark_episode, wri
 from superex_deploy.evaluation.known_distance import (DISTANCE_BINS_M, CalibrationCounts, counts_by_distance,
                                                       distance_bin_label, distance_to_known, lattice_strength,
                                                       LATTICE_MIN_CELLS, pool_counts)
-from superex_deploy.sim.episode import EpisodeState
-from superex_deploy.sim.metrics import evaluation_area, map_iou
+from superex_deploy.evaluation.episodes import EpisodeState
+from superex_deploy.evaluation.metrics import evaluation_area, map_iou
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.onboard.types import OCCUPIED, UNKNOWN

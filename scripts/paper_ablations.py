@@ -24,7 +24,7 @@ import numpy as np
 from superex_deploy.evaluation import markdown_table, read_json, save_figure, write_json, write_text
 from superex_deploy.evaluation.reports import pyplot
 from superex_deploy.pipeline import PIPELINES
-from superex_deploy.sim.suite import paired_summary, row_summary
+from superex_deploy.evaluation.summary import paired_summary, row_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 MEASURES = {"auc_first_half": ("first-half AUC, carved cells counted (points)", 100.0),
@@ -55,8 +55,8 @@ def _episodes(path: Path) -> list[dict]:
 
 
 def _compare(candidate: list[dict], reference: list[dict], steps: int) -> dict:
-    """Measure -> the paired difference of :func:`~superex_deploy.sim.suite.paired_summary` (scaled for the
-    table) with the candidate's mean (:func:`~superex_deploy.sim.suite.row_summary`) beside it."""
+    """Measure -> the paired difference of :func:`~superex_deploy.evaluation.summary.paired_summary` (scaled for the
+    table) with the candidate's mean (:func:`~superex_deploy.evaluation.summary.row_summary`) beside it."""
     summary, means = paired_summary(reference, candidate, steps), row_summary(candidate, steps)
     out = {}
     for measure, (_, scale) in MEASURES.items():

@@ -54,7 +54,7 @@ from superex_deploy.onboard.prediction.inference import (DEFAULT_MODEL_DIR, Lama
                                                          SessionConfig)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.pipeline import PROFILES
-from superex_deploy.sim.metrics import evaluation_area
+from superex_deploy.evaluation.metrics import evaluation_area
 from superex_deploy.sim.sensing import SpadSensing
 from superex_train.generate import heldout_buildings, random_start
 

@@ -25,7 +25,7 @@ from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Planner, Plann
 from superex_deploy.maps import load_map, random_start
 from superex_deploy.messages import MapFrame
 from superex_deploy.pipeline import build_explorer
-from superex_deploy.sim.episode import make_world_and_explorer
+from superex_deploy.evaluation.episodes import make_world_and_explorer
 
 __all__ = ["ExplorationEnv", "ENV_ID"]
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from superex_deploy.messages import check_map_size, max_map_cells
 
-__all__ = ["OccupancyGrid", "load_map", "list_maps", "start_poses", "map_building", "random_start",
+__all__ = ["OccupancyGrid", "coverage", "load_map", "list_maps", "start_poses", "map_building", "random_start",
            "largest_region_start", "DATA_DIR",
            "MAP_SERVER_MODES", "MAP_SERVER_FREE_THRESH"]
 
@@ -102,6 +102,24 @@ class OccupancyGrid:
         if self.occupied[r, c]:
             raise ValueError(f"pose (row, col) = {(r, c)} lies inside a wall of map {self.name!r}")
         return r, c
+
+
+def coverage(known: np.ndarray, valid: np.ndarray) -> float:
+    """Fraction of the valid area that is known: what the world reports while it runs
+    (:meth:`World.coverage <superex_deploy.sim.world.World.coverage>`) and the evaluation's coverage series read.
+
+    Args:
+        known: bool ``[H, W]`` cells known (seen free, seen wall or carved).
+        valid: bool ``[H, W]`` the area coverage is measured on (:attr:`OccupancyGrid.valid`).
+
+    Returns:
+        ``|known & valid| / |valid|`` in [0, 1]; 1.0 for an empty valid area.
+    """
+    known, valid = np.asarray(known), np.asarray(valid)
+    if known.shape != valid.shape:
+        raise ValueError(f"known has shape {known.shape}, valid has {valid.shape}")
+    total = np.count_nonzero(valid)
+    return np.count_nonzero(known & valid) / total if total else 1.0
 
 
 @lru_cache(maxsize=1)

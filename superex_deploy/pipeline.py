@@ -84,12 +84,12 @@ class RealtimeProfile(JsonConfig):
         return ExplorerConfig(prediction=schedule, reuse=self.reuse)
 
     def episode_config(self, clock: str = "simulated", **episode):
-        """A simulated episode's :class:`~superex_deploy.sim.episode.ExplorationConfig` under this profile: the
+        """A simulated episode's :class:`~superex_deploy.sim.exploration.ExplorationConfig` under this profile: the
         explorer of :meth:`explorer_config` on the simulated clock (the benchmarks: reproducible on any machine;
         ``clock="robot"``: the robot's schedule, as ``superex explore`` runs it) under the simulated benchmarks'
         finishing rules (:meth:`~superex_deploy.onboard.config.ExplorerConfig.for_simulation`), and ``episode``'s
         fields (``lidar``, ``iou_every``, ``iou_dense_until``) or their defaults."""
-        from superex_deploy.sim.episode import ExplorationConfig
+        from superex_deploy.sim.exploration import ExplorationConfig
 
         return ExplorationConfig(explorer=self.explorer_config(clock).for_simulation(), **episode)
 

@@ -145,7 +145,7 @@ class GifRecorder:
         self._trail: list[tuple[int, int]] = []
 
     def __call__(self, state) -> None:
-        """Record one step (an :class:`~superex_deploy.sim.episode.EpisodeState`; the episode's ``on_step``)."""
+        """Record one step (an :class:`~superex_deploy.evaluation.episodes.EpisodeState`; the episode's ``on_step``)."""
         self._trail.append(state.pose)
         if state.step % self.every:
             return
@@ -201,7 +201,8 @@ def save_suite_plots(out_dir: Path, rows: dict, steps: int) -> None:
     """The paper's two figures for ``superex benchmark --suite paper``: coverage.png (mean coverage with carving
     against step, per row, its bootstrap 95 % interval shaded) and iou_vs_coverage.png (mean map IoU per 5 %
     coverage bin, the interval over episodes shaded)."""
-    from superex_deploy.sim.suite import bootstrap_interval, coverage_curves
+    from superex_deploy.evaluation.metrics import coverage_curves
+    from superex_deploy.evaluation.summary import bootstrap_interval
 
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 5.5))

@@ -184,8 +184,8 @@ def calibration_maps(cfg: CalibrationConfig) -> list[str]:
 
 def _episode_samples(task: tuple[str, int, str, str, CalibrationConfig]) -> tuple[np.ndarray, np.ndarray]:
     """Member probabilities and truth on unknown cells of one episode (see :func:`collect_calibration_samples`)."""
-    from superex_deploy.sim.episode import EpisodeState, run_episode
-    from superex_deploy.sim.metrics import evaluation_area
+    from superex_deploy.evaluation.episodes import EpisodeState, run_episode
+    from superex_deploy.evaluation.metrics import evaluation_area
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
     from superex_deploy.sim.sensing import SpadSensing

@@ -29,7 +29,8 @@ from typing import Callable, Iterator, Optional, Sequence, Union
 
 import numpy as np
 
-from superex_deploy.sim.episode import EpisodeState, ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import EpisodeState, run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing

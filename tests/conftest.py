@@ -215,7 +215,7 @@ def old_recording(record_episode):
         from superex_deploy.onboard.planning.planners import make_planner
         from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
         from superex_deploy.pipeline import PROFILES
-        from superex_deploy.sim.episode import make_world_and_explorer
+        from superex_deploy.evaluation.episodes import make_world_and_explorer
 
         name = "50052750"
         cfg = PROFILES["full"].episode_config(iou_every=0)

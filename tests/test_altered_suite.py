@@ -13,7 +13,8 @@ from superex_deploy.commands.paper_benchmark import _table
 from superex_deploy.maps import start_poses
 from superex_deploy.sim.altered_floors import alteration_seed, floor_path, load_floor, make_floor
 from superex_deploy.sim.dead_ends import DeadEnd, dead_end_entries
-from superex_deploy.sim.suite import common_scenarios, paired_summary, row_summary, scenario_metrics
+from superex_deploy.evaluation.metrics import scenario_metrics
+from superex_deploy.evaluation.summary import common_scenarios, paired_summary, row_summary
 
 MAP = "50052750"
 

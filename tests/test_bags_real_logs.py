@@ -7,7 +7,7 @@ The scans are cast with the simulator's ray caster (:func:`superex_deploy.geomet
 a ray that meets no wall within it reads the scanner's no-echo code. Each ray may have its own pose (a scanner's
 mirror turns while the robot drives: ``time_increment``), which the de-skew test uses. Maps are compared in the
 floor's grid, wall IoU within a cell (a wall one cell off, diagonals included, counts:
-:func:`~superex_deploy.sim.metrics.wall_iou_tolerant` at 1.5 cells).
+:func:`~superex_deploy.evaluation.metrics.wall_iou_tolerant` at 1.5 cells).
 
 Helpers here serve ``tests/test_bags_*.py`` too."""
 
@@ -22,7 +22,7 @@ from superex_deploy.cli import main  # noqa: E402
 from superex_deploy.geometry import cast_rays  # noqa: E402
 from superex_deploy.maps import load_map, start_poses  # noqa: E402
 from superex_deploy.messages import grid_angles  # noqa: E402
-from superex_deploy.sim.metrics import wall_iou_tolerant  # noqa: E402
+from superex_deploy.evaluation.metrics import wall_iou_tolerant  # noqa: E402
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig, _float32_at_least  # noqa: E402
 from tests.test_bags import T, T0, _header, _write_items  # noqa: E402
 

@@ -244,7 +244,7 @@ def test_interruption_in_finds_a_signal_wrapped_by_a_c_callback():
 def test_explore_stopped_by_a_wrapped_signal_keeps_its_steps_like_the_signal(tmp_path, monkeypatch, capsys):
     """A SIGTERM that a C callback turned into a SystemError (seen under load in CI) ends the run as the signal
     does: exit 143, one stop line, the recording closed on its whole steps and replayable."""
-    import superex_deploy.sim.episode as episode
+    import superex_deploy.evaluation.episodes as episode
     from superex_deploy.recording import read_recording
 
     real = episode.run_episode

@@ -76,7 +76,7 @@ def _samples() -> dict:
     from superex_deploy.onboard.planning.visibility import VisibilityConfig
     from superex_deploy.onboard.prediction.inference.sessions import GraphOptimization, SessionConfig, ThreadBudget
     from superex_deploy.pipeline import PIPELINES, PROFILES
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
     from superex_deploy.sim.noise.lidar import LidarNoise
     from superex_deploy.sim.noise.pose import PoseNoise
     from superex_deploy.sim.world import LidarConfig, WorldConfig
@@ -199,7 +199,7 @@ def test_reading_is_strict_and_names_the_class():
 def test_values_are_written_as_json_types():
     from superex_deploy.onboard.planning.motion import MotionConfig
     from superex_deploy.onboard.prediction.inference.sessions import GraphOptimization, SessionConfig
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     written = SessionConfig(graph_optimization=GraphOptimization.EXTENDED).to_json()
     assert written["graph_optimization"] == "ORT_ENABLE_EXTENDED" and written["providers"] == ["CPUExecutionProvider"]

@@ -1,5 +1,5 @@
-"""Exploration episodes in the simulator (superex_deploy.sim.episode): whole episodes on hand-built and bundled maps,
-their determinism, the goal tiers, the IoU log and the checks of their inputs."""
+"""Exploration episodes in the simulator (superex_deploy.evaluation.episodes): whole episodes on hand-built and
+bundled maps, their determinism, the goal tiers, the IoU log and the checks of their inputs."""
 
 import json
 
@@ -18,8 +18,9 @@ from superex_deploy.onboard.planning.motion import MotionConfig
 from superex_deploy.onboard.planning.planners import MapexPlanner, NearestFrontier, make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, Planner, Prediction
-from superex_deploy.sim.episode import STAGES, ExplorationConfig, run_episode
-from superex_deploy.sim.metrics import summarise
+from superex_deploy.evaluation.episodes import STAGES, run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
+from superex_deploy.evaluation.summary import summary_table
 from superex_deploy.sim.oracle import OraclePredictor
 from superex_deploy.sim.sensing import SpadSensing
 from superex_deploy.spad_types import SpadConfig
@@ -191,6 +192,22 @@ def test_episodes_are_deterministic_on_a_bundled_map():
     assert a.goals == b.goals and a.iou == b.iou
 
 
+def test_the_episode_builds_its_explorer_with_build_explorer_and_its_checks(two_rooms):
+    """An evidence predictor without SPAD sensing is refused by pipeline.build_explorer, which builds the episode's
+    explorer; the planner and predictor objects are the explorer's, as given."""
+    grid = two_rooms()
+
+    class _ReadsEvidence(_CountingPredictor):
+        name = "evidence"
+
+    with pytest.raises(ValueError, match="reads the SPAD evidence"):
+        run_episode(grid, (5, 5), _Closest(), _ReadsEvidence(), steps=2)
+    planner, predictor = _Closest(), _CountingPredictor()
+    seen = []
+    run_episode(grid, (5, 5), planner, predictor, steps=2, on_observation=lambda o, c, e: seen.append(e))
+    assert seen[0].planner is planner and seen[0].predictor is predictor
+
+
 def test_bad_inputs_raise_value_error(two_rooms):
     grid = two_rooms()
     planner, predictor = _Closest(), _CountingPredictor()
@@ -290,7 +307,7 @@ def test_iou_is_evaluated_densely_only_below_the_coverage_threshold():
 
 @pytest.mark.parametrize("value", [-1, 2.5, True])
 def test_the_episode_config_refuses_a_bad_iou_interval(value):
-    from superex_deploy.sim.episode import ExplorationConfig
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     with pytest.raises(ValueError, match="iou_every must be an integer >= 0"):
         ExplorationConfig(iou_every=value)
@@ -329,8 +346,9 @@ def test_episode_finishes_when_everything_is_known(walled_box):
     grid = walled_box(12, 12)
     result = run_episode(grid, (6, 6), NearestFrontier(), ObservedAsPrediction(), steps=50)
     assert result.finished and result.coverage[-1] == 1.0
-    summary = summarise([result.to_json()])
-    assert summary[0]["planner"] == "nearest"
+    summary = summary_table([result.to_json()], 100)
+    assert summary[0]["planner"] == "nearest" and summary[0]["episodes"] == 1
+    assert summary[0]["coverage@100"] == {"mean": 1.0, "low": 1.0, "high": 1.0}  # an early end keeps its value
 
 
 def test_bad_inputs(small_map):
@@ -348,3 +366,31 @@ def test_bad_inputs(small_map):
         MotionConfig(step_m=0)
     with pytest.raises(ValueError, match="unknown planner"):
         make_planner("frontier")
+
+
+def _episode_digest(result) -> str:
+    """sha256 of an episode's per-step series (coverage, with carving, metres driven, poses), goals and IoU log."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for series in (result.coverage, result.coverage_with_carving, result.path_length_m, result.poses):
+        digest.update(np.ascontiguousarray(series).tobytes())
+    digest.update(json.dumps([list(map(int, goal)) for goal in result.goals]).encode())
+    digest.update(json.dumps(result.goal_steps).encode())
+    digest.update(json.dumps([float(value) for value in result.iou]).encode())
+    return digest.hexdigest()
+
+
+def test_a_short_episode_is_the_one_recorded_before_the_explorer_came_from_build_explorer(small_map):
+    """run_episode builds its explorer with pipeline.build_explorer (since 0.3; before, it called Explorer(...)
+    itself): the series and goals of two 40-step episodes, one with SPAD sensing, recorded before that change."""
+    nearest = run_episode(small_map, start_poses("50052750")[0], make_planner("nearest"), ObservedAsPrediction(),
+                          steps=40, seed=0)
+    assert [list(goal) for goal in nearest.goals] == [[43, 132], [83, 51]] and nearest.goal_steps == [0, 36]
+    assert float(nearest.coverage.sum()) == 3.11948469251138
+    assert _episode_digest(nearest) == "94465e5e0d043e35f6f5ccabff46bc2b9d46773876c5e5ac17324f73d837122b"
+    spad = run_episode(small_map, start_poses("50052750")[1], make_planner("superex"), OraclePredictor(small_map),
+                       steps=40, seed=0, sensing=SpadSensing(spad=_SMALL_SPAD))
+    assert [list(goal) for goal in spad.goals] == [[44, 349], [63, 336], [55, 169], [62, 138]]
+    assert spad.goal_steps == [0, 10, 18, 21] and float(spad.coverage_with_carving.sum()) == 2.3618458242837166
+    assert _episode_digest(spad) == "363317a46c78a26595b8065cabde0c771a687c59b0d66558c034c537dfc2dcb3"

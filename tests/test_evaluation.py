@@ -273,7 +273,8 @@ def test_the_runner_is_run_episode_with_the_pieces_made_by_name():
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.evaluation.episodes import run_episode
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     name, _, start = eval_scenarios()[0]
     cfg = ExplorationConfig(iou_every=0)

@@ -138,7 +138,8 @@ def test_bounds_survive_a_recorded_configuration():
 
 
 def test_an_episode_in_bounds_reports_coverage_inside_them_and_ends_when_they_are_explored(two_rooms):
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.evaluation.episodes import run_episode
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     grid = two_rooms()  # the left room: columns 1-19, x up to 2 m
     left = ((0.05, 0.05), (1.95, 0.05), (1.95, 2.95), (0.05, 2.95))
@@ -160,7 +161,8 @@ def test_an_episode_in_bounds_reports_coverage_inside_them_and_ends_when_they_ar
 
 
 def test_the_robot_returns_to_its_start_and_says_so(two_rooms):
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.evaluation.episodes import run_episode
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     statuses = []
     start = (5, 5)

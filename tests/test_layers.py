@@ -24,12 +24,15 @@ LAYERS = (
     ("recording", ("superex_deploy.recording",)),
     ("ros 2 wire", ("superex_deploy.ros",)),  # messages over DDS, QoS, transforms, the node's parameters
     ("sim", ("superex_deploy.sim",)),
-    ("pipeline", ("superex_deploy.pipeline", "superex_deploy.render")),
+    ("pipeline", ("superex_deploy.pipeline",)),
     # A recording's configurations, written and rebuilt into the pipeline's explorer, and the converter of old ones.
     ("recording format", ("superex_deploy.recording.metadata", "superex_deploy.recording.convert")),
     ("ros 2 node", ("superex_deploy.ros.core", "superex_deploy.ros.node")),  # builds its explorer by the pipeline
-    ("gym env", ("superex_deploy.gym_env",)),  # builds its explorer with pipeline.build_explorer
-    ("evaluation", ("superex_deploy.evaluation",)),  # the benchmarks' library: scenarios, runner, metrics, reports
+    # The benchmarks' library: scenarios, the episode runner (its explorers by pipeline.build_explorer), metrics,
+    # summaries, reports.
+    ("evaluation", ("superex_deploy.evaluation",)),
+    ("figures", ("superex_deploy.render",)),  # draws the evaluation's curves and intervals
+    ("gym env", ("superex_deploy.gym_env",)),  # the world and explorer of an episode (evaluation.episodes)
     ("commands", ("superex_deploy.commands",)),
     ("cli", ("superex_deploy.cli",)),
     ("train", ("superex_train",)),
@@ -130,7 +133,7 @@ def test_the_import_graph_is_read_from_every_module():
             "superex_train.commands.train"} <= set(graph)
     # Function-level, TYPE_CHECKING and relative imports count too.
     assert "superex_deploy.pipeline" in graph["superex_deploy.commands.benchmark"]
-    assert "superex_deploy.sim.episode" in graph["superex_deploy.gym_env"]
+    assert "superex_deploy.evaluation.episodes" in graph["superex_deploy.gym_env"]
     assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 

@@ -270,7 +270,7 @@ def test_an_episode_is_served_on_every_channel_and_each_message_decodes():
     websockets_client = pytest.importorskip("websockets.sync.client")
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     grid = load_map(MAP)
     explorers, observations = [], []
@@ -351,7 +351,7 @@ def test_grids_are_published_at_most_once_per_every_s_of_simulated_time():
     websockets_client = pytest.importorskip("websockets.sync.client")
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     grid = load_map(MAP)
     with LiveServer("127.0.0.1", 0, every_s=0.5) as server:
@@ -445,7 +445,7 @@ def test_a_client_that_stops_reading_holds_neither_the_episode_nor_the_stop():
     pytest.importorskip("websockets")
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     grid = load_map(MAP)
     threads = _threads()

@@ -124,7 +124,8 @@ def test_a_robot_standing_near_a_doorway_it_has_not_seen_through_is_not_finished
 
 
 def test_the_return_runs_once_the_default_finish_delay_has_passed():
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.evaluation.episodes import run_episode
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     cfg = ExplorationConfig(lidar=LidarConfig(range_m=10.0), explorer=ExplorerConfig(return_to_start=True),
                             iou_every=0)

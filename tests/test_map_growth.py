@@ -13,7 +13,8 @@ from superex_deploy.onboard.mapping.growth import MapGrowth, embed, grown_frame,
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, UNKNOWN, Prediction
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.sim.world import World, WorldConfig
 
 GROWTH = MapGrowth(margin_m=2.0, chunk_m=3.0)

@@ -11,7 +11,7 @@ from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D
 from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig, integrate_log_odds
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
-from superex_deploy.sim.metrics import coverage
+from superex_deploy.maps import coverage
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 from tests.naive import naive_integrate_log_odds
 

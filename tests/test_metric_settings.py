@@ -119,7 +119,7 @@ def test_a_recording_with_cell_count_settings_replays_once_converted(tmp_path, r
     """A recording of an earlier version carries ``step_cells``, ``frontier_min_cells``, ``min_changed_cells``
     (explorer and profile settings), the scan matcher's cell counts and ``expand_cells``: converted with the recording's
     grid (``superex convert-recording``), it replays the same goals."""
-    from superex_deploy.sim.episode import make_world_and_explorer
+    from superex_deploy.evaluation.episodes import make_world_and_explorer
 
     grid = load_map(MAP)
     cfg = PROFILES["full"].episode_config(iou_every=0)

@@ -1,11 +1,12 @@
-"""The simulator's metrics (superex_deploy.sim.metrics): the map IoU and the pairing of two runs' scenarios, on
-hand-built maps and logs."""
+"""The evaluation's metrics and summaries (superex_deploy.evaluation.metrics and .summary): the map IoU and the
+pairing of two runs' scenarios, on hand-built maps and logs."""
 
 import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.sim.metrics import map_iou, paired_differences
+from superex_deploy.evaluation.metrics import map_iou
+from superex_deploy.evaluation.summary import paired_differences
 
 
 def test_map_iou_definition():

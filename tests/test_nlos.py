@@ -12,7 +12,7 @@ from superex_deploy.onboard.nlos.back_projection import RING_PAD, _accumulate_vo
 from superex_deploy.onboard.nlos.carving import carve_sectors
 from superex_deploy.onboard.nlos.los import _los_and_first_late_bins, late_threshold
 from superex_deploy.onboard.nlos.normals import hit_normals
-from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
+from superex_deploy.evaluation.metrics import wall_iou, wall_iou_tolerant
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SpadConfig, SpadNoise, SparseHistograms
 from superex_deploy.sim.spad import simulate_scan

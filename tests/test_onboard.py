@@ -19,7 +19,8 @@ from superex_deploy.geometry import cast_rays, mark_ranges, mark_rays
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map, random_start, start_poses
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame
 from superex_deploy.onboard import Explorer, ExplorerConfig, SpadProcessing
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.recording.convert import PREVIOUS_DEFAULTS

@@ -18,7 +18,7 @@ from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer, make_sensing
 from superex_deploy.recording.convert import RETIRED
-from superex_deploy.sim.episode import run_episode
+from superex_deploy.evaluation.episodes import run_episode
 from superex_deploy.sim.oracle import OraclePredictor
 
 MAP = "50052750"

@@ -19,7 +19,8 @@ from superex_deploy.pipeline import (DEFAULT_PIPELINE, DEFAULT_PROFILE, EVIDENCE
                                      Pipeline, build_explorer, check_profile, make_predictor, make_sensing,
                                      resolve_profile)
 from superex_deploy.recording import read_recording
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 
 MAP = "50052750"
 
@@ -54,7 +55,7 @@ def test_each_named_pipeline_builds_its_explorer_and_runs(name, corridor_rooms):
 
 def test_the_table_is_the_profiles_rule_and_the_papers_rows():
     from superex_deploy.commands.paper_benchmark import _rows
-    from superex_deploy.sim.suite import REFERENCE_ROW
+    from superex_deploy.evaluation.summary import REFERENCE_ROW
 
     assert DEFAULT_PIPELINE == "superex" and PIPELINES[DEFAULT_PIPELINE].profile == DEFAULT_PROFILE
     superex = PIPELINES["superex"]

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.sim.episode import run_episode
+from superex_deploy.evaluation.episodes import run_episode
 from superex_deploy.onboard.planning.planners import (
     PLANNERS, HectorConfig, HectorPlanner, MapexConfig, MapexPlanner, NearestFrontier, UpenConfig, UpenPlanner,
     VisibilityConfig, connected_unknown_gains, grow_rrt, make_planner, predicted_visibility,

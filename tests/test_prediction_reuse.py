@@ -10,7 +10,8 @@ from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.prediction.reuse import (RAMPS, PredictionReuse, ReusingPredictor, _grow, changed_box,
                                                      feather_weights, merge_with_map)
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Prediction
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 
 
 class Recording:
@@ -396,7 +397,7 @@ def test_an_evaluation_between_requests_does_not_change_the_episode(corridor_roo
 def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(corridor_rooms, every, after, wait_first, mode):
     """Step t plans with the prediction of step k * every for the largest k with k * every + after <= t (with
     ``wait_first``, the first step's own prediction until then)."""
-    from superex_deploy.sim.episode import make_world_and_explorer
+    from superex_deploy.evaluation.episodes import make_world_and_explorer
 
     cfg = ExplorationConfig(iou_every=0, explorer=ExplorerConfig(
         prediction=PredictionSchedule(mode, every, after, wait_first=wait_first), reuse=PredictionReuse(crop_margin_m=1.0)))

@@ -223,7 +223,7 @@ def test_a_coarser_grid_is_repeated_to_the_model_and_pooled_back():
 def test_an_episode_on_a_0_05_m_copy_runs_the_models_at_their_scale():
     from superex_deploy.maps import OccupancyGrid
     from superex_deploy.pipeline import PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     grid = load_map(list_maps("train")[1])
     fine = OccupancyGrid(np.kron(grid.occupied, np.ones((2, 2), bool)), np.kron(grid.valid, np.ones((2, 2), bool)),

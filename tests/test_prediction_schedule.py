@@ -14,7 +14,8 @@ from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.reuse import PredictionReuse
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import UNKNOWN, Prediction
-from superex_deploy.sim.episode import ExplorationConfig, make_world_and_explorer
+from superex_deploy.evaluation.episodes import make_world_and_explorer
+from superex_deploy.sim.exploration import ExplorationConfig
 
 
 class _SizeDependent(ObservedAsPrediction):

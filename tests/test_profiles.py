@@ -77,7 +77,7 @@ def test_the_realtime_pipeline_replays_and_its_benchmark_episodes_are_reproducib
     from superex_deploy.maps import load_map, start_poses
     from superex_deploy.pipeline import make_sensing
     from superex_deploy.recording import read_recording
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     argv = ["explore", "--map", "50052750", "--start", "1", "--planner", "superex", "--predictor", "lama_bp", "--spad",
             "--steps", "40", "--gif-every", "100"]

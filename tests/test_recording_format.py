@@ -43,7 +43,7 @@ def _replay(tmp_path, path, name="replay") -> dict:
 # This format.
 
 def test_a_fresh_recording_replays_bit_for_bit(tmp_path):
-    from superex_deploy.sim.episode import make_world_and_explorer
+    from superex_deploy.evaluation.episodes import make_world_and_explorer
 
     grid = load_map(MAP)
     cfg = PROFILES["full"].episode_config(iou_every=0)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from superex_deploy.sim.episode import run_episode
+from superex_deploy.evaluation.episodes import run_episode
 from superex_deploy.onboard.planning.planners import NearestFrontier
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.sim.sensing import SpadSensing

@@ -16,11 +16,13 @@ from superex_deploy.onboard.nlos.los import estimate_los
 from superex_deploy.onboard.planning.planners import make_planner
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.nlos.processing import scan_from_frame
-from superex_deploy.sim.episode import ExplorationConfig, run_episode
+from superex_deploy.evaluation.episodes import run_episode
+from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.sim.kinematics import first_blocked
 from superex_deploy.sim.noise.lidar import LidarNoise, noisy_ranges
 from superex_deploy.sim.noise.pose import PoseErrorModel, PoseNoise
-from superex_deploy.sim.metrics import results_markdown, summarise
+from superex_deploy.evaluation.metrics import MAP_ERROR_KEYS
+from superex_deploy.evaluation.summary import summary_markdown, summary_table
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SPAD_PRESETS, SpadConfig, spad_preset
@@ -277,10 +279,13 @@ def test_a_short_noisy_episode_runs_and_is_deterministic():
     assert "pose_noise" not in exact.to_json()["config"] and "lidar_noise" not in exact.to_json()["config"]
     np.testing.assert_array_equal(exact.believed_poses, exact.true_poses)  # no noise: the truth is observed
     assert 0.0 < exact.explorer_map_iou <= 1.0 and exact.true_walls_held_free == 0 and exact.collisions == 0
-    rows = summarise([dict(exact.to_json(), start_index=0), dict(a.to_json(), start_index=0)], (50,),
-                     map_errors=True)
-    assert "map_iou" in rows[0] and "| collisions |" in results_markdown(rows)
-    assert "map_iou" not in summarise([exact.to_json()], (50,))[0]
+    rows = summary_table([dict(exact.to_json(), start_index=0), dict(a.to_json(), start_index=0)], 50,
+                         extra=MAP_ERROR_KEYS)
+    ious = sorted([exact.explorer_map_iou, a.explorer_map_iou])
+    assert rows[0]["map_iou"]["mean"] == pytest.approx(np.mean(ious))
+    assert ious[0] <= rows[0]["map_iou"]["low"] <= rows[0]["map_iou"]["high"] <= ious[1]
+    assert "| collisions |" in summary_markdown(rows, ["auc", *MAP_ERROR_KEYS])
+    assert "map_iou" not in summary_table([exact.to_json()], 50)[0]
 
 
 def test_the_noise_flags_are_parsed_and_checked():
@@ -334,7 +339,7 @@ def test_explore_and_benchmark_run_with_noise(tmp_path, capsys):
 
 def test_map_errors_tell_a_wall_held_one_cell_off_from_a_missing_one():
     from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
-    from superex_deploy.sim.metrics import explorer_map_errors
+    from superex_deploy.evaluation.metrics import explorer_map_errors
 
     occupied = np.zeros((10, 12), bool)
     occupied[:, 6] = True  # one true wall, a column

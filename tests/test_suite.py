@@ -8,7 +8,9 @@ import pytest
 from superex_deploy.cli import main
 from superex_deploy.onboard.prediction.baselines import EvidenceAsPrediction
 from superex_deploy.pipeline import PIPELINES
-from superex_deploy.sim.suite import bootstrap_interval, paired_summary, scenario_metrics
+from superex_deploy.evaluation.metrics import scenario_metrics
+from superex_deploy.evaluation.summary import (bootstrap_interval, paired_summary, row_intervals, row_summary,
+                                              summary_markdown, summary_table)
 
 
 def test_scenario_metrics_on_a_hand_built_log(episode_log):
@@ -49,6 +51,32 @@ def test_paired_summary_pairs_by_scenario_and_counts_better_and_worse(episode_lo
     assert paired["ratio"] == pytest.approx(0.35 / 0.3 - 1)
     with pytest.raises(ValueError, match="different scenarios"):
         paired_summary(reference, candidate[:2], steps=4)
+
+
+def test_the_one_summary_gives_each_rows_means_with_their_bootstrap_intervals(episode_log):
+    """summary_table: one row per planner, the means of row_summary, the intervals of row_intervals (the bootstrap
+    of bootstrap_interval over the episodes' values, seed 0 per metric), extra episode fields summarised too."""
+    episodes = []
+    for k, level in enumerate((0.1, 0.2, 0.4, 0.3)):
+        for planner, scale in (("b", 1.0), ("a", 0.5)):
+            episode = dict(episode_log([level * scale] * 4, start=k), planner=planner, collisions=k,
+                           path_length_m=[0.0, 1.0, 2.0 + k])
+            episodes.append(episode)
+    extra = ("collisions", "path_length_m")
+    table = summary_table(episodes, steps=4, extra=extra)
+    assert [row["planner"] for row in table] == ["a", "b"] and table[1]["episodes"] == 4
+    row_b = [e for e in episodes if e["planner"] == "b"]
+    means, intervals = row_summary(row_b, 4, extra), row_intervals(row_b, 4, extra)
+    assert table[1]["auc"] == {"mean": means["auc"], "low": intervals["auc"][0], "high": intervals["auc"][1]}
+    assert table[1]["auc"]["mean"] == pytest.approx(0.25) and table[1]["path_length_m"]["mean"] == pytest.approx(3.5)
+    assert intervals["auc"] == bootstrap_interval([0.1, 0.2, 0.4, 0.3])
+    assert 0.1 <= intervals["auc"][0] < 0.25 < intervals["auc"][1] <= 0.4
+    assert table[1]["collisions"]["mean"] == 1.5 and "collisions" not in row_summary(row_b, 4)
+    # Without extra fields the summary is row_summary's: the paper suite's committed numbers.
+    assert set(summary_table(row_b, 4)[0]) == {"planner", "episodes", *row_summary(row_b, 4)}
+    text = summary_markdown(table, ["auc", "final_iou", "collisions"])
+    assert text.splitlines()[0] == "| planner | episodes | auc | final_iou | collisions |"
+    assert text.splitlines()[3].startswith("| b | 4 | 25.0 [") and summary_markdown([]) == "(no results)\n"
 
 
 def test_the_evidence_predictor_reads_the_evidence_only_on_unknown_cells():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from superex_deploy.sim.episode import run_episode
+from superex_deploy.evaluation.episodes import run_episode
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.planning.motion import planning_map
 from superex_deploy.onboard.planning.planners import MapexPlanner, make_planner

@@ -110,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
                              f"--lidar-noise and --spad-noise (or run without --suite)")
 
         return run_paper(args)
-    from superex_deploy.sim.metrics import results_markdown, summarise
+    from superex_deploy.evaluation.metrics import MAP_ERROR_KEYS
+    from superex_deploy.evaluation.summary import summary_markdown, summary_table
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.maps import start_poses
     from superex_deploy.parallel import Interrupted, read_journal, run_tasks
@@ -160,21 +161,23 @@ def run(args: argparse.Namespace) -> int:
         stop.kept = (f"{len(read_journal(journal))} of {len(tasks)} episodes are in {journal}: rerun with --resume "
                      f"to finish")
         raise
-    checkpoints = tuple(s for s in (100, 250, 500, 1000) if s <= args.steps) or (args.steps,)
     noisy = noise_settings(noise)
-    table = summarise(results, checkpoints, map_errors=bool(noisy))
+    extra = ("path_length_m",) + (MAP_ERROR_KEYS if noisy else ())
+    table = summary_table(results, args.steps, extra=extra)
     write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,
                                                           "planner_options": options, "planner_configs": configs}))
-    table_text = results_markdown(table)
+    columns = [key for key in table[0] if key.startswith(("coverage@", "los_coverage@"))] if table else []
+    table_text = summary_markdown(table, columns + ["auc_first_half", "auc", "final_iou", *extra])
     settings = "".join(f", {k}={v}" for k, v in options.items())
     write_atomically(
         args.out / "results.md",
         f"Predictor: {args.predictor}{', SPAD sensing' if args.spad else ''}{settings}, profile {profile_name}; "
         f"{''.join(f'{key} {value}, ' for key, value in noisy.items())}"
         f"{len(names)} maps, "
-        f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean ± standard "
-        f"deviation over scenarios; coverage in percent of the valid area (carved: counting NLOS-carved cells), "
-        f"coverage_auc: mean coverage over the steps.\n\n"
+        f"{len(tasks) // max(len(planners), 1)} scenarios, {args.steps} steps, seed {args.seed}. Mean over "
+        f"scenarios [bootstrap 95 % interval]; coverage in percent of the valid area, counting NLOS-carved cells "
+        f"(los_: line of sight only); auc_first_half, auc: mean coverage over the first half of the steps, over all "
+        f"of them; final_iou: the prediction's map IoU at the last evaluation; path_length_m: metres driven.\n\n"
         f"{table_text}")
     save_benchmark_plots(args.out, results)
     print(table_text)

@@ -220,7 +220,7 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
 def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live):
     from tqdm import tqdm
 
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
 
     with tqdm(total=args.steps, desc=f"{grid.name} {args.planner}", unit="step") as bar:
         def on_step(state):

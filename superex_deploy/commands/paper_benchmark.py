@@ -25,8 +25,8 @@ from superex_deploy.commands.options import (check_jobs, check_output_folder, ev
                                              settings_differences)
 from superex_deploy.files import write_atomically
 from superex_deploy.pipeline import PIPELINES
-from superex_deploy.sim.suite import (CHECKPOINTS, DEAD_END_METRICS, IOU_BINS, IOU_LEVELS, REFERENCE_ROW,
-                                      common_scenarios, paired_summary, row_summary)
+from superex_deploy.evaluation.metrics import CHECKPOINTS, DEAD_END_METRICS, IOU_BINS, IOU_LEVELS
+from superex_deploy.evaluation.summary import REFERENCE_ROW, common_scenarios, paired_summary, row_summary
 
 IOU_SCHEDULE = {"iou_every": 10, "iou_dense_until": 0.35}
 """IoU every 10 steps while the coverage is below 35 % (the IoU metrics read that part), every 100 after."""

@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from superex_deploy.geometry import cell_centre, mark_rays
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.nlos import NlosConfig, process_scan
-    from superex_deploy.sim.metrics import wall_iou, wall_iou_tolerant
+    from superex_deploy.evaluation.metrics import wall_iou, wall_iou_tolerant
     from superex_deploy.sim.spad import nlos_ground_truth
     from superex_deploy.render import save_scan_figure
     from superex_deploy.spad_types import SpadNoise

@@ -36,7 +36,8 @@ def warm_up(models=None) -> float:
     from superex_deploy.maps import OccupancyGrid
     from superex_deploy.onboard.planning.planners import PLANNERS, make_planner
     from superex_deploy.pipeline import PREDICTORS, PROFILES, make_predictor, make_sensing
-    from superex_deploy.sim.episode import ExplorationConfig, run_episode
+    from superex_deploy.evaluation.episodes import run_episode
+    from superex_deploy.sim.exploration import ExplorationConfig
 
     started = time.perf_counter()
     walls = np.zeros((40, 60), bool)

@@ -128,9 +128,9 @@ class CalibrationCounts:
         """The measures, each None over no cells.
 
         ``iou``: wall IoU ``hits / (walls + predicted - hits)`` (1.0 when neither has a cell, as
-        :func:`superex_deploy.sim.metrics.map_iou`); ``wall_share``: true walls / cells; ``mean_p``: mean predicted
-        probability (calibrated: equal to ``wall_share``); ``predicted_share``: cells predicted walls / cells;
-        ``ece``: expected calibration error, ``sum_b cells_b / cells * |mean p_b - wall share_b|`` over the
+        :func:`superex_deploy.evaluation.metrics.map_iou`); ``wall_share``: true walls / cells; ``mean_p``: mean
+        predicted probability (calibrated: equal to ``wall_share``); ``predicted_share``: cells predicted walls /
+        cells; ``ece``: expected calibration error, ``sum_b cells_b / cells * |mean p_b - wall share_b|`` over the
         probability bins; ``nll``: mean negative log-likelihood (nats per cell); ``brier``: mean squared error.
         """
         if self.cells == 0:
@@ -163,7 +163,7 @@ def counts_by_distance(probability: np.ndarray, wall: np.ndarray, unknown: np.nd
         unknown: bool ``[H, W]`` cells unknown to the predictor (the only cells scored; distances are measured
             from the others).
         resolution_m: metres per cell.
-        area: bool ``[H, W]`` where to score (e.g. :func:`superex_deploy.sim.metrics.evaluation_area`); None:
+        area: bool ``[H, W]`` where to score (e.g. :func:`superex_deploy.evaluation.metrics.evaluation_area`); None:
             everywhere.
         bins: ``(low, high]`` metres, labelled by :func:`distance_bin_label`.
         threshold: probability from which a cell is predicted a wall.

@@ -27,7 +27,7 @@ class ScenarioTask:
         seed: the planner's seed and the SPAD noise's.
         planner_options: overrides of the planner's config (``--planner-option``).
         iou_every, iou_dense_until: when the map IoU is evaluated (see
-            :class:`~superex_deploy.sim.episode.ExplorationConfig`); by default every 50 steps.
+            :class:`~superex_deploy.sim.exploration.ExplorationConfig`); by default every 50 steps.
         profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); None (the default):
             :func:`~superex_deploy.pipeline.resolve_profile` (:data:`~superex_deploy.pipeline.DEFAULT_PROFILE` where
             the planner can use it). The paper suite names ``full``.
@@ -69,7 +69,7 @@ class ScenarioTask:
 
 def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Optional[tuple[float, float, float]],
                seed: int):
-    """The :class:`~superex_deploy.sim.episode.ExplorationConfig` ``cfg`` with the simulator's noise: the
+    """The :class:`~superex_deploy.sim.exploration.ExplorationConfig` ``cfg`` with the simulator's noise: the
     localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.noise.pose.PoseNoise.from_sigmas>` of
     ``pose_noise = (sigma_m, sigma_deg)`` and the LiDAR noise ``lidar_noise = (sigma_m, dropout, spurious)``, both
     seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None). With LiDAR noise the
@@ -117,7 +117,7 @@ def run_scenario(task: ScenarioTask) -> dict:
     from superex_deploy.messages import MapFrame
     from superex_deploy.onboard.planning.planners import make_planner
     from superex_deploy.pipeline import build_explorer, check_profile, make_sensing, resolve_profile
-    from superex_deploy.sim.episode import run_episode
+    from superex_deploy.evaluation.episodes import run_episode
     from superex_deploy.maps import load_map
 
     planner = make_planner(task.planner, **task.planner_options)

@@ -118,7 +118,7 @@ class ExplorerConfig(JsonConfig):
             self.bounds.check_holds(self.motion.robot_radius_m)
 
     def for_simulation(self) -> "ExplorerConfig":
-        """This configuration with the rules of the simulated benchmarks (:class:`~superex_deploy.sim.episode.
+        """This configuration with the rules of the simulated benchmarks (:class:`~superex_deploy.sim.exploration.
         ExplorationConfig`'s default and every profile's episode configuration): ``finished`` at the first step
         without a goal (``finish_after_s`` and ``finish_frontier_m`` 0), a locked goal kept until it is reached
         (``goal_policy.drop_resolved_m`` None: MapEx's locked frontier) and given up once reached

@@ -311,7 +311,7 @@ class LiveServer:
         return [topic for topic, channel in self._channels.items() if channel.has_sinks()]
 
     def publish(self, observation: Observation, command: Command, explorer) -> None:
-        """Publish one step (the ``on_observation`` callback of :func:`superex_deploy.sim.episode.run_episode`):
+        """Publish one step (the ``on_observation`` callback of :func:`superex_deploy.evaluation.episodes.run_episode`):
         each subscribed topic's message, stamped with the observation's time, and that time as the server's clock;
         first, wait until the step's time has come (``pace_hz``). Never waits for a client.
 

@@ -41,7 +41,6 @@ from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.planning.frontiers import Pockets, find_frontiers, open_frontiers
 from superex_deploy.onboard.planning.motion import MotionConfig, path_is_clear, planning_map
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
-from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.sim.noise.lidar import LidarNoise
 from superex_deploy.sim.noise.pose import PoseNoise
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig

@@ -24,9 +24,9 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.sim.metrics import coverage as coverage_of
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.maps import coverage as coverage_of
 from superex_deploy.onboard.checks import cells_within, check_real
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan

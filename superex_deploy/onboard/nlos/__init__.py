@@ -17,7 +17,7 @@ Stages, one module each
 - :mod:`.back_projection`: back-projection of the late photons (:func:`back_project`);
 - :mod:`.filters`: the Laplacian filter of the back-projection (:func:`laplacian_filter`);
 - here: :func:`process_scan`, all of them on one scan. The offline metrics of the results (wall IoU) are
-  evaluation, in :mod:`superex_deploy.sim.metrics`.
+  evaluation, in :mod:`superex_deploy.evaluation.metrics`.
 
 Cost
 ----
