@@ -42,7 +42,6 @@ MINIMUM = {
     "GoalPolicy", "PredictionSchedule", "PredictionReuse", "SessionConfig", "ThreadBudget",
     # the planners
     "SuperexConfig", "MapexConfig", "HectorConfig", "UpenConfig", "VisibilityConfig", "ExpectedVisibility",
-    "WallSupport",
     # NLOS and the SPAD sensor model
     "NlosConfig", "NlosSkips", "SpadConfig", "SpadNoise", "PhotonBudget",
     # the pipeline
@@ -67,7 +66,6 @@ def _samples() -> dict:
     from superex_deploy.onboard.mapping.mapper import OccupancyConfig
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.onboard.planning.bounds import ExplorationBounds
-    from superex_deploy.onboard.planning.expected_visibility import WallSupport
     from superex_deploy.onboard.planning.goal_policy import GoalPolicy
     from superex_deploy.onboard.planning.motion import MotionConfig
     from superex_deploy.onboard.planning.planners.hector import HectorConfig
@@ -113,8 +111,8 @@ def _samples() -> dict:
     samples["Pipeline"] += list(PIPELINES.values())
     samples["PhotonBudget"] += [budget for budget in SPAD_PRESETS.values() if budget is not None]
     samples["MapexConfig"].append(MapexConfig(visibility=VisibilityConfig(n_rays=90, accumulate=True),
-                                              wall_support=WallSupport(), min_distance_m=1.0))
-    samples["SuperexConfig"].append(SuperexConfig(wall_support=WallSupport(min_scale=0.5), drop_resolved_m=None))
+                                              min_distance_m=1.0))
+    samples["SuperexConfig"].append(SuperexConfig(gain="path", drop_resolved_m=2.0))
     samples["HectorConfig"] += [HectorConfig(visibility=None), HectorConfig(visibility=VisibilityConfig(n_rays=60))]
     samples["GoalPolicy"].append(GoalPolicy(no_progress_s=None, blacklist_expire_s=None, commit_margin=None))
     return samples

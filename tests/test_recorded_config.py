@@ -16,16 +16,17 @@ from superex_deploy.commands.recorded_config import (PREVIOUS_DEFAULTS, planner_
 from superex_deploy.spad_types import SpadConfig
 
 MAP = "50052750"
-OLD_SUPEREX = {"gain": "path", "transmittance": "independent"}  # SuperexConfig's defaults before 0.2
+OLD_SUPEREX = {"gain": "path"}  # SuperexConfig's default before 0.2 (its transmittance, read by the expected gains
+# only, was retired)
 
 
 def test_the_previous_defaults_are_those_that_changed():
     assert PREVIOUS_DEFAULTS["planners"] == {"superex": OLD_SUPEREX}
-    assert (SuperexConfig().gain, SuperexConfig().transmittance) == ("expected", "correlated")
+    assert SuperexConfig().gain == "expected"
     assert SpadConfig().n_secondary == 256 and PREVIOUS_DEFAULTS["sensor"] == {"n_secondary": 64}
     assert NlosConfig().sector_margin_deg == 20.0 and PREVIOUS_DEFAULTS["nlos"] == {"sector_margin_deg": 35.0}
     assert previous_planner_options("superex", {}) == OLD_SUPEREX
-    assert previous_planner_options("superex", {"gain": "goal"}) == {"gain": "goal", "transmittance": "independent"}
+    assert previous_planner_options("superex", {"gain": "goal"}) == {"gain": "goal"}
     assert previous_planner_options("mapex", {"gain": "expected"}) == {"gain": "expected"}
 
 
@@ -67,7 +68,7 @@ def test_the_planner_configuration_round_trips_through_a_recording(write_recordi
     from superex_deploy.pipeline import build_explorer
     from superex_deploy.recording import read_recording
 
-    planner = make_planner("superex", gain="goal", wall_support=0.3, drop_resolved_m=2.0)
+    planner = make_planner("superex", gain="goal", sense_every_m=1.2, drop_resolved_m=2.0)
     explorer_cfg = asdict(PROFILES["full"].episode_config(iou_every=0).explorer)
     metadata = {"planner": "superex", "planner_options": {}, "planner_config": planner_settings(planner),
                 "predictor": "observed", "seed": 0, "explorer": explorer_cfg}
@@ -75,7 +76,7 @@ def test_the_planner_configuration_round_trips_through_a_recording(write_recordi
     assert recording.metadata["planner_config"] == json.loads(json.dumps(asdict(planner.cfg)))
     # The recorded configuration wins over the options given (none here) and over this version's defaults.
     with build_explorer(**explorer_arguments(recording.metadata, recording.frame)) as explorer:
-        assert explorer.planner.cfg == planner.cfg and explorer.planner.cfg.wall_support.min_scale == 0.3
+        assert explorer.planner.cfg == planner.cfg and explorer.planner.cfg.sense_every_m == 1.2
     hector = make_planner("hector", visibility=None, info_gain_weight=50.0)
     metadata = {**metadata, "planner": "hector", "planner_config": planner_settings(hector)}
     recording = read_recording(write_recording(tmp_path / "h.mcap", metadata=metadata))
@@ -88,11 +89,11 @@ def test_explore_records_the_planners_whole_configuration_and_it_replays(tmp_pat
 
     record = tmp_path / "new.mcap"
     assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--start", "2", "--planner", "superex",
-                 "--planner-option", "wall_support=0.5", "--steps", "8", "--gif-every", "0",
+                 "--planner-option", "drop_resolved_m=0.5", "--steps", "8", "--gif-every", "0",
                  "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     metadata = read_recording(record).metadata
-    assert metadata["planner_options"] == {"wall_support": 0.5}
-    assert metadata["planner_config"] == json.loads(json.dumps(asdict(SuperexConfig(wall_support=0.5))))
+    assert metadata["planner_options"] == {"drop_resolved_m": 0.5}
+    assert metadata["planner_config"] == json.loads(json.dumps(asdict(SuperexConfig(drop_resolved_m=0.5))))
     assert metadata["planner_config"]["gain"] == "expected" and metadata["sensor"] is None
     assert main(["replay", str(record), "--out", str(tmp_path / "replay")]) == 0
     assert json.loads((tmp_path / "replay" / "metrics.json").read_text())["goals_match"]
@@ -124,7 +125,6 @@ def test_a_benchmark_of_the_superex_defaults_before_is_not_resumed_with_the_new_
     lines = [line for line in err.splitlines() if "error:" in line]
     assert len(lines) == 1, err
     assert "planner_configs.superex.gain: recorded 'path', now 'expected'" in lines[0]
-    assert "planner_configs.superex.transmittance: recorded 'independent', now 'correlated'" in lines[0]
     assert "the defaults of the versions before 0.2" in lines[0]
     assert json.loads((out / "settings.json").read_text())["planner_options"] == {}  # left as it was
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 1

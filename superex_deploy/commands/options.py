@@ -249,9 +249,8 @@ def add_planner_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
                              "straight-line divisor, or gain=path for the superex planner's count on the thresholded "
-                             f"prediction (its defaults: gain={SuperexConfig.gain}, "
-                             f"transmittance={SuperexConfig.transmittance}) (repeatable; numbers, true/false and none "
-                             "are converted)")
+                             f"prediction (its default: gain={SuperexConfig.gain}) (repeatable; numbers, true/false "
+                             "and none are converted)")
 
 
 def planner_options(pairs: list[str]) -> dict:

@@ -24,7 +24,7 @@ __all__ = ["PREVIOUS_DEFAULTS", "ADDED_EXPLORER_FIELDS", "recorded_explorer_fiel
            "previous_sensing", "sensing_settings", "default_sensing_settings"]
 
 PREVIOUS_DEFAULTS: dict = {
-    "planners": {"superex": {"gain": "path", "transmittance": "independent"}},
+    "planners": {"superex": {"gain": "path"}},
     "sensor": {"n_secondary": 64},
     "nlos": {"sector_margin_deg": 35.0},
 }

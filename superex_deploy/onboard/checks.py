@@ -224,7 +224,7 @@ def from_cells(config_class, values: Mapping[str, object], resolution_m: float) 
 
 def nested_configs(config_class, values: Mapping[str, object]) -> dict:
     """``values`` (the fields of a ``config_class`` recorded as JSON, e.g. a recording's ``planner_config``) with each
-    object that holds a field whose type is a config dataclass (``VisibilityConfig``, ``Optional[WallSupport]``)
+    object that holds a field whose type is a config dataclass (``VisibilityConfig``, ``Optional[VisibilityConfig]``)
     made that dataclass again (its own nested objects too); the other values as they are.
 
     Raises:
