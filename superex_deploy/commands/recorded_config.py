@@ -101,8 +101,8 @@ def default_sensing_settings(spad_noise: str = "off", previous: bool = False) ->
     """:func:`sensing_settings` of the default sensing a simulated episode runs
     (:func:`~superex_deploy.pipeline.make_sensing`) with the photon budget of ``spad_noise``; ``previous``: that of
     the versions before 0.2 (:func:`previous_sensing`), what a benchmark ran before its settings recorded it."""
-    from superex_deploy.evaluation.tasks import with_spad_noise
+    from superex_deploy.sim.noise.model import SimNoise
     from superex_deploy.sim.sensing import SpadSensing
 
     sensing = previous_sensing(SpadSensing()) if previous else SpadSensing()
-    return sensing_settings(with_spad_noise(sensing, spad_noise))
+    return sensing_settings(SimNoise(spad=spad_noise).sensing(sensing))
