@@ -48,6 +48,14 @@ class LamaEnsemble:
     theirs (one member: zero). (An ``agreement_stop``, which stopped after the first two members when they agreed,
     was measured in docs/benchmarks/realtime.md and retired.)
 
+    The committed members draw a faint grid of lines every ``size_multiple`` cells across large unknown regions
+    (their stride-2 transposed convolutions; docs/benchmarks/models.md, "The grid of lines far out"). With
+    ``lattice_filter`` (the default) each member's output goes through
+    :func:`~superex_deploy.onboard.prediction.inference.lattice.remove_lattice` on the padded grid before it is
+    cropped: the lines go, each ``size_multiple``-block's mean stays (map IoU and calibration unchanged to 0.001,
+    docs/benchmarks/models.md). It costs a few per cent of a prediction (``scripts/bench_lattice_cost.py``,
+    ``benchmarks/lattice/``); ``with_lattice_filter(False)`` gives the members' raw outputs.
+
     Args:
         paths: the members' ``.onnx`` files (all of one kind).
         expected_sha256: one hex sha256 per file, or None (not checked; :meth:`from_manifest` passes them).
@@ -72,7 +80,7 @@ class LamaEnsemble:
 
     def __init__(self, paths: Sequence[PathLike], expected_sha256: Optional[Sequence[str]] = None,
                  session: SessionConfig = SessionConfig(), keep_observed: bool = True,
-                 expected_resolution_m: Optional[float] = None, lattice_filter: bool = False):
+                 expected_resolution_m: Optional[float] = None, lattice_filter: bool = True):
         paths = list(paths)
         if not paths:
             raise ValueError("a LamaEnsemble needs at least one member file")
@@ -125,7 +133,7 @@ class LamaEnsemble:
     @classmethod
     def from_manifest(cls, kind: ModelKind, directory: PathLike = DEFAULT_MODEL_DIR,
                       session: SessionConfig = SessionConfig(), keep_observed: bool = True,
-                      lattice_filter: bool = False) -> "LamaEnsemble":
+                      lattice_filter: bool = True) -> "LamaEnsemble":
         """Every ``kind`` member listed in ``directory/manifest.json``, in member order, sha256 checked."""
         if kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
             raise ValueError(f"a LamaEnsemble is made of lama_bp or lama_los models, got {kind}")
