@@ -43,7 +43,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,16 +51,11 @@ from superex_deploy.evaluation import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from superex_deploy.onboard.explorer import PredictionSchedule  # noqa: E402
-from superex_deploy.onboard.prediction.inference import SessionConfig  # noqa: E402
 from superex_deploy.onboard.prediction.reuse import PredictionReuse  # noqa: E402
-from superex_deploy.onboard.nlos.processing import NlosSkips  # noqa: E402
 from superex_deploy.pipeline import DEFAULT_PROFILE, PIPELINES, PROFILES, RealtimeProfile  # noqa: E402
 
 TIMING_MAP, TIMING_START, TIMING_STEPS, PACE_HZ = "50015847", 0, 500, 10.0
-ASYNC_SESSION = SessionConfig(intra_op_threads=1, allow_spinning=False)
 CROP = PredictionReuse(crop_margin_m=6.4)
-ALL_NLOS_SKIPS = NlosSkips(without_unknown=True, when_still=True, filter_without_votes=True)
 
 SETTINGS: dict[str, RealtimeProfile] = {
     "full": PROFILES["full"],
@@ -71,42 +65,19 @@ SETTINGS: dict[str, RealtimeProfile] = {
     "changed_200": RealtimeProfile(reuse=PredictionReuse(min_changed_m2=2.0)),
     "members_1": RealtimeProfile(max_members=1),
     "members_2": RealtimeProfile(max_members=2),
-    "agreement_0.05": RealtimeProfile(agreement_stop=0.05),
-    "nlos_skips": RealtimeProfile(nlos_skips=ALL_NLOS_SKIPS),
-    "async_crop_5_3": RealtimeProfile(schedule=PredictionSchedule("thread", 5, 3), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_1_1": RealtimeProfile(schedule=PredictionSchedule("thread", 1, 1), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_2_1": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1), reuse=CROP, session=ASYNC_SESSION),
-    "async_crop_1_1_first": RealtimeProfile(schedule=PredictionSchedule("thread", 1, 1, wait_first=True), reuse=CROP,
-                                            session=ASYNC_SESSION),
-    "async_crop_2_1_first": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1, wait_first=True), reuse=CROP,
-                                            session=ASYNC_SESSION),
-    "async_crop_2_1_first_skips": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 1, wait_first=True),
-                                                  reuse=replace(CROP, min_changed_m2=0.5), nlos_skips=ALL_NLOS_SKIPS,
-                                                  session=ASYNC_SESSION),
-    "async_crop_2_2_first": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True), reuse=CROP,
-                                            session=ASYNC_SESSION),
-    "async_crop_2_2_first_members_1": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True),
-                                                      reuse=CROP, max_members=1, session=ASYNC_SESSION),
-    "async_crop_2_2_first_agreement": RealtimeProfile(schedule=PredictionSchedule("thread", 2, 2, wait_first=True),
-                                                      reuse=CROP, agreement_stop=0.05, session=ASYNC_SESSION),
-    "async_crop_10_10": RealtimeProfile(schedule=PredictionSchedule("thread", 10, 10), reuse=CROP,
-                                        session=ASYNC_SESSION),
-    "async_crop_5_3_skips": RealtimeProfile(schedule=PredictionSchedule("thread", 5, 3), reuse=CROP,
-                                            nlos_skips=ALL_NLOS_SKIPS, agreement_stop=0.05, session=ASYNC_SESSION),
-    "crop_skips": RealtimeProfile(reuse=replace(CROP, min_changed_m2=2.0), nlos_skips=ALL_NLOS_SKIPS,
-                                  agreement_stop=0.05),
     DEFAULT_PROFILE: PROFILES[DEFAULT_PROFILE],
 }
-"""Setting name -> profile: the unskipped pipeline, then one knob at a time, then combinations, then the default
-profile. The error runs use each profile's simulated clock (``RealtimeProfile.episode_config``) and the timing runs
-its robot clock; the historical asynchronous settings run the threaded deterministic mode on both (their error
-episodes are those of the simulated clock, bit for bit), so every error episode is independent of the machine
-except the free-running repeats (``SETTING@freeR``)."""
+"""Setting name -> profile: the unskipped pipeline, then one knob at a time, then the default profile. The error
+runs use each profile's simulated clock (``RealtimeProfile.episode_config``) and the timing runs its robot clock,
+so every error episode is independent of the machine except the free-running repeats (``SETTING@freeR``).
+The settings of retired options (``agreement_0.05``, ``nlos_skips``, ``crop_skips`` and the ``async_*`` settings of
+the threaded deterministic schedule) keep their committed rows in ``benchmarks/realtime/``; this script at commit
+1761b27 ran them (see that folder's README)."""
 
 CHOSEN = DEFAULT_PROFILE
 """The setting that ``pipeline.PROFILES[DEFAULT_PROFILE]`` is (marked in the plot): on the robot it never waits
-(``free``), in error runs it predicts on the simulated clock (the ``async_crop_2_2_first_members_1`` episodes, but
-for the SPAD evidence on every 2nd frame)."""
+(``free``), in error runs it predicts on the simulated clock (the committed ``async_crop_2_2_first_members_1``
+episodes, but for the SPAD evidence on every 2nd frame)."""
 
 FREE = "@free"
 """``NAME@freeR``: repeat R of setting NAME's error episodes on its robot clock (free-running: where the

@@ -73,13 +73,15 @@ def eval_scenarios(count: int) -> list[tuple[str, int, tuple[int, int]]]:
 
 def episode_task(scenario, planner: str, predictor: str, setting, steps: int):
     from superex_deploy.evaluation.tasks import ScenarioTask
+    from superex_deploy.sim.noise.model import SimNoise
 
     (map_name, start_index, start_rc), (pose, spad, lidar) = scenario, setting
+    noise = SimNoise.from_sigmas(pose=None if pose == (0.0, 0.0) else pose,
+                                 lidar=None if lidar == 0.0 else (lidar, LIDAR_DROPOUT, LIDAR_SPURIOUS),
+                                 spad=spad if predictor != "lama_los" else "off")
     return ScenarioTask(map_name=map_name, start_index=start_index, start_rc=tuple(start_rc), planner=planner,
                         predictor=predictor, spad=predictor != "lama_los", steps=steps, seed=start_index,
-                        profile="full", iou_every=25, pose_noise=None if pose == (0.0, 0.0) else pose,
-                        lidar_noise=None if lidar == 0.0 else (lidar, LIDAR_DROPOUT, LIDAR_SPURIOUS),
-                        spad_noise=spad if predictor != "lama_los" else "off")
+                        profile="full", iou_every=25, noise=noise)
 
 
 def run_episode_task(task) -> dict:

@@ -25,8 +25,9 @@ Part 2 also scores each ensemble by distance from known space
 calibration error over 10 probability bins, negative log-likelihood, Brier score). It measures the lattice the
 LaMa members draw far from known space (:func:`~superex_deploy.evaluation.known_distance.lattice_strength`,
 period the ensemble's ``size_multiple``) on the unknown cells more than :data:`LATTICE_DISTANCE_M` away, for
-each ensemble's mean and its strongest member. ``--lattice-filter`` scores each ensemble a second time with
-its lattice filter on (``lama_bp_filtered``, ``lama_los_filtered``).
+each ensemble's mean and its strongest member. The ensembles are scored with their members' raw outputs (the
+lattice filter off); ``--lattice-filter`` scores each a second time with the filter on, as the pipeline runs them
+since 0.3 (``lama_bp_filtered``, ``lama_los_filtered``).
 
 ``--models DIR`` scores another model folder (a ``manifest.json`` and its files, e.g. ``runs/training/candidate``);
 ``--maps N`` keeps the first N held-out maps (name order) for both parts, ``--filter-samples N`` the first N
@@ -141,10 +142,11 @@ def _episode(args: tuple[str, int, str, bool]) -> list[dict]:
     name, index, model_dir, lattice_filter = args
     session = SessionConfig(intra_op_threads=1)
     p2p = Pix2PixFilter.from_manifest(model_dir, session)
-    ensembles = {kind.value: LamaEnsemble.from_manifest(kind, model_dir, session)
+    # The members' raw outputs (the shipped ensembles filter the lattice: the *_filtered rows).
+    ensembles = {kind.value: LamaEnsemble.from_manifest(kind, model_dir, session, lattice_filter=False)
                  for kind in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS)}
     if lattice_filter:
-        ensembles.update({f"{k}_filtered": e.with_lattice_filter() for k, e in list(ensembles.items())})
+        ensembles.update({f"{k}_filtered": e.with_lattice_filter(True) for k, e in list(ensembles.items())})
     grid = load_map(name)
     rng = np.random.default_rng([777, index])
     start = random_start(grid, rng, 0.4)

@@ -106,7 +106,7 @@ def network_part(model_dir: Path, checkpoints: Path | None) -> dict:
     session = SessionConfig(intra_op_threads=1)
     out: dict = {"sides": {}, "shifts": {}}
     for kind in KINDS:
-        ensemble = LamaEnsemble.from_manifest(kind, model_dir, session)
+        ensemble = LamaEnsemble.from_manifest(kind, model_dir, session, lattice_filter=False)
         period = ensemble.size_multiple
 
         def members(observed):
@@ -238,7 +238,7 @@ def heldout_part(model_dir: Path, min_side: int, coverage: float, figure: Path |
     held = set(heldout_buildings())
     names = [n for n in list_maps("train") if map_building(n) in held and min(load_map(n).shape) >= min_side]
     session = SessionConfig(intra_op_threads=1)
-    ensembles = {kind: LamaEnsemble.from_manifest(kind, model_dir, session) for kind in KINDS}
+    ensembles = {kind: LamaEnsemble.from_manifest(kind, model_dir, session, lattice_filter=False) for kind in KINDS}
     # Each member's own lattice: its phase template on an all-unknown map (nothing but the lattice there).
     blank = np.full((256, 256), UNKNOWN, np.int8)
     centre = np.zeros(blank.shape, bool)
@@ -263,7 +263,7 @@ def heldout_part(model_dir: Path, min_side: int, coverage: float, figure: Path |
                 continue
             members = ensemble.predict_members(observed, seen["evidence"] if kind is ModelKind.LAMA_BP else None)
             if figure is not None and kind is ModelKind.LAMA_LOS:
-                draw(figure, name, observed, members, ensemble.with_lattice_filter().predict_members(observed))
+                draw(figure, name, observed, members, ensemble.with_lattice_filter(True).predict_members(observed))
                 figure = None
             period = ensemble.size_multiple
             rows, cols = np.nonzero(far)

@@ -38,7 +38,7 @@ VARIANTS = {
 
 
 def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar: float = 0.02) -> dict:
-    from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
+    from superex_deploy.sim.noise.model import SimNoise
     from superex_deploy.evaluation import first_half_auc, run_benchmark_episode
     from superex_deploy.maps import load_map
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
@@ -49,8 +49,10 @@ def run(map_name: str, start, steps: int, seed: int, pose, matching: dict, lidar
     cfg = profile.episode_config(iou_every=0)
     cfg = replace(cfg, explorer=replace(cfg.explorer, scan_matching=ScanMatchingConfig(**matching)))
     noisy = pose is not None
-    cfg = with_noise(cfg, pose, (lidar, 0.01, 0.001) if noisy and lidar > 0 else None, seed)
-    sensing = with_spad_noise(make_sensing("observed", True, seed, profile=profile), "realistic" if noisy else "off")
+    noise = SimNoise.from_sigmas(pose, (lidar, 0.01, 0.001) if noisy and lidar > 0 else None,
+                                 "realistic" if noisy else "off", seed)
+    cfg = noise.episode_config(cfg)
+    sensing = noise.sensing(make_sensing("observed", True, seed, profile=profile))
     estimates, accepted = [], []
 
     def on_observation(observation, command, explorer):

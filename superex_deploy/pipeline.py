@@ -44,7 +44,6 @@ class RealtimeProfile(JsonConfig):
         reuse: what is kept of the last prediction (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`).
         nlos_skips: SPAD frames and filter runs left out (:class:`~superex_deploy.onboard.nlos.processing.NlosSkips`).
         max_members: LaMa ensemble members run (None: all; see ``LamaEnsemble.with_members``).
-        agreement_stop: stop the ensemble after two members that agree within this (None: never).
         session: ONNX Runtime settings of the LaMa ensemble (an asynchronous predictor is best given one
             intra-op thread and no spinning, so that it leaves a core to the control loop); the Pix2Pix filter runs
             inside the step with the default settings.
@@ -55,7 +54,6 @@ class RealtimeProfile(JsonConfig):
     reuse: PredictionReuse = field(default_factory=PredictionReuse)
     nlos_skips: NlosSkips = field(default_factory=NlosSkips)
     max_members: Optional[int] = None
-    agreement_stop: Optional[float] = None
     session: SessionConfig = field(default_factory=SessionConfig)
 
     def __post_init__(self) -> None:
@@ -66,7 +64,7 @@ class RealtimeProfile(JsonConfig):
         if self.simulated_schedule is not None and not isinstance(self.simulated_schedule, PredictionSchedule):
             raise ValueError(f"simulated_schedule must be a PredictionSchedule or None, got "
                              f"{type(self.simulated_schedule).__name__}")
-        check_member_options(self.max_members, self.agreement_stop)
+        check_member_options(self.max_members)
 
     def explorer_config(self, clock: str = "robot") -> ExplorerConfig:
         """The explorer's configuration under this profile: its prediction schedule (``clock="robot"``:
@@ -258,8 +256,7 @@ def make_predictor(name: str, grid=None, models=None, profile: Optional[Realtime
         return OraclePredictor(grid)
     # The oracle without a grid and unknown names are refused there.
     profile = PROFILES[DEFAULT_PROFILE] if profile is None else profile
-    return make_onboard_predictor(name, models, profile.session_config(cores), profile.max_members,
-                                  profile.agreement_stop)
+    return make_onboard_predictor(name, models, profile.session_config(cores), profile.max_members)
 
 
 def make_sensing(predictor: str, spad: bool, seed: int, models=None, profile: Optional[RealtimeProfile] = None):

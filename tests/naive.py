@@ -289,43 +289,6 @@ def naive_draw_rings(apex, normals, votes, window, known):
     return bp
 
 
-def naive_readable_rings(apex, normals, window, known):
-    """Per wall point, the rings (floor(rho + 0.5), rho the distance from the apex to the cell centre) of the
-    unknown window cells in front of its wall, every cell tested (nlos.back_projection._readable_ring_bounds
-    bounds them): a list of sorted int arrays."""
-    r_lo, r_hi, c_lo, c_hi = window
-    rings = []
-    for u in range(apex.shape[0]):
-        found = set()
-        for r in range(r_lo, r_hi + 1):
-            for c in range(c_lo, c_hi + 1):
-                vy, vx = r + 0.5 - apex[u, 0], c + 0.5 - apex[u, 1]
-                if not known[r, c] and vy * normals[u, 0] + vx * normals[u, 1] > 0:
-                    found.add(int(np.sqrt(vy * vy + vx * vx) + 0.5))
-        rings.append(np.array(sorted(found), np.int64))
-    return rings
-
-
-def naive_voted_rings(row_start, bins, counts, los_bin, ray_wall, guard, threshold, bin_path_m, resolution_m,
-                      n_radii):
-    """Per ray, the rings its late detections vote on in nlos.back_projection._accumulate_votes (offset >= guard,
-    count > threshold, ring below n_radii), each detection tested: a list of sorted int arrays (empty for a ray
-    without a wall point)."""
-    rings = []
-    for i in range(len(row_start) - 1):
-        found = set()
-        if ray_wall[i] >= 0:
-            for j in range(row_start[i], row_start[i + 1]):
-                offset = bins[j] - los_bin[i]
-                if offset < guard or counts[j] <= threshold:
-                    continue
-                q = int(np.floor(offset * bin_path_m / 2.0 / resolution_m + 0.5))
-                if q < n_radii:
-                    found.add(q)
-        rings.append(np.array(sorted(found), np.int64))
-    return rings
-
-
 # --- explore ---
 
 # explore: core
@@ -650,13 +613,11 @@ def naive_score_poses(field, rho, angles, y0, x0, yaw, offsets):
 # --- expected visibility ---
 
 
-def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance=0.0, variance=None,
-                        correlated=False):
+def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance=0.0, variance=None):
     """Expected unknown cells seen from each group of viewpoint cells (expected_visibility.expected_visible_gains),
     from a sorted list of every grid-line crossing per ray (no DDA stepping): along each ray the transmittance
-    before a cell is the product of (1 - p) over the cells crossed (p = mean on unknown cells, 0 on known free,
-    1 on known walls), or with ``correlated`` 1 - max(p); a group's cell counts once with the largest
-    transmittance of any ray of any viewpoint."""
+    before a cell is 1 - max(p) over the cells crossed (p = mean on unknown cells, 0 on known free, 1 on known
+    walls); a group's cell counts once with the largest transmittance of any ray of any viewpoint."""
     n_rows, n_cols = mean.shape
     variance = np.zeros(mean.shape) if variance is None else variance
     out, out_variance = [], []
@@ -677,7 +638,7 @@ def naive_expected_gain(mean, observed, groups, n_rays, max_t, min_transmittance
                     if observed[r, c] == -1:
                         best[(r, c)] = max(best.get((r, c), 0.0), transmittance)
                         crossed.append(float(mean[r, c]))
-                        transmittance = 1.0 - max(crossed) if correlated else float(np.prod(1.0 - np.array(crossed)))
+                        transmittance = 1.0 - max(crossed)
                     if transmittance <= min_transmittance:
                         break
         out.append(sum(best.values()))

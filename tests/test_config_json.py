@@ -42,13 +42,12 @@ MINIMUM = {
     "GoalPolicy", "PredictionSchedule", "PredictionReuse", "SessionConfig", "ThreadBudget",
     # the planners
     "SuperexConfig", "MapexConfig", "HectorConfig", "UpenConfig", "VisibilityConfig", "ExpectedVisibility",
-    "WallSupport",
     # NLOS and the SPAD sensor model
     "NlosConfig", "NlosSkips", "SpadConfig", "SpadNoise", "PhotonBudget",
     # the pipeline
     "RealtimeProfile", "Pipeline",
     # the simulator
-    "ExplorationConfig", "WorldConfig", "LidarConfig", "PoseNoise", "LidarNoise", "AlterationConfig", "FloorLayout",
+    "ExplorationConfig", "WorldConfig", "LidarConfig", "PoseNoise", "LidarNoise", "SimNoise", "AlterationConfig", "FloorLayout",
     "RobotSimConfig",
     # the ROS 2 node
     "NodeParams",
@@ -67,7 +66,6 @@ def _samples() -> dict:
     from superex_deploy.onboard.mapping.mapper import OccupancyConfig
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.onboard.planning.bounds import ExplorationBounds
-    from superex_deploy.onboard.planning.expected_visibility import WallSupport
     from superex_deploy.onboard.planning.goal_policy import GoalPolicy
     from superex_deploy.onboard.planning.motion import MotionConfig
     from superex_deploy.onboard.planning.planners.hector import HectorConfig
@@ -78,6 +76,7 @@ def _samples() -> dict:
     from superex_deploy.pipeline import PIPELINES, PROFILES
     from superex_deploy.sim.exploration import ExplorationConfig
     from superex_deploy.sim.noise.lidar import LidarNoise
+    from superex_deploy.sim.noise.model import SimNoise
     from superex_deploy.sim.noise.pose import PoseNoise
     from superex_deploy.sim.world import LidarConfig, WorldConfig
     from superex_deploy.spad_types import SPAD_PRESETS, SpadConfig, SpadNoise
@@ -94,7 +93,7 @@ def _samples() -> dict:
         prediction=PredictionSchedule("simulated", 2, 2, True), reuse=PredictionReuse(crop_margin_m=6.4),
         occupancy=OccupancyConfig(footprint_clearing=False), scan_matching=ScanMatchingConfig(enabled=True),
         growth=MapGrowth(), bounds=bounds, return_to_start=True, goal_policy=GoalPolicy(no_progress_s=None))
-    pose_noise, lidar_noise = PoseNoise(sigma_xy_m=0.05, seed=3), LidarNoise(sigma_m=0.02, seed=4)
+    noise = SimNoise(pose=PoseNoise(sigma_xy_m=0.05, seed=3), lidar=LidarNoise(sigma_m=0.02, seed=4), spad="low")
     spad = SpadConfig(n_rays=90, noise=SpadNoise(enabled=True, ambient_per_bin=0.01))
     session = SessionConfig(intra_op_threads=1, providers=("CUDAExecutionProvider", "CPUExecutionProvider"),
                             graph_optimization=GraphOptimization.BASIC, allow_spinning=False)
@@ -102,10 +101,11 @@ def _samples() -> dict:
     samples["ExplorerConfig"] += [explorer, ExplorerConfig().for_simulation()]
     samples["ExplorationConfig"] += [
         ExplorationConfig(lidar=LidarConfig(n_rays=360, range_m=8.0), explorer=explorer, iou_every=5,
-                          pose_noise=pose_noise, lidar_noise=lidar_noise),
-        ExplorationConfig(pose_noise=pose_noise)]
+                          noise=noise),
+        ExplorationConfig(noise=SimNoise(pose=noise.pose))]
     samples["WorldConfig"].append(WorldConfig(lidar=LidarConfig(n_rays=360), spad=spad, step_m=0.2,
-                                              pose_noise=pose_noise, lidar_noise=lidar_noise))
+                                              noise=noise))
+    samples["SimNoise"] += [noise, SimNoise(lidar=noise.lidar)]
     samples["SpadConfig"].append(spad)
     samples["RealtimeProfile"] += list(PROFILES.values())
     samples["SessionConfig"].append(session)
@@ -113,8 +113,8 @@ def _samples() -> dict:
     samples["Pipeline"] += list(PIPELINES.values())
     samples["PhotonBudget"] += [budget for budget in SPAD_PRESETS.values() if budget is not None]
     samples["MapexConfig"].append(MapexConfig(visibility=VisibilityConfig(n_rays=90, accumulate=True),
-                                              wall_support=WallSupport(), min_distance_m=1.0))
-    samples["SuperexConfig"].append(SuperexConfig(wall_support=WallSupport(min_scale=0.5), drop_resolved_m=None))
+                                              min_distance_m=1.0))
+    samples["SuperexConfig"].append(SuperexConfig(gain="path", drop_resolved_m=2.0))
     samples["HectorConfig"] += [HectorConfig(visibility=None), HectorConfig(visibility=VisibilityConfig(n_rays=60))]
     samples["GoalPolicy"].append(GoalPolicy(no_progress_s=None, blacklist_expire_s=None, commit_margin=None))
     return samples
@@ -211,7 +211,7 @@ def test_values_are_written_as_json_types():
     with pytest.raises(ValueError, match="graph_optimization must be a GraphOptimization"):
         SessionConfig.from_json({"graph_optimization": "fastest"})
     # the noise entries of an episode's configuration only where noise is on
-    assert "pose_noise" not in ExplorationConfig().to_json()
+    assert "noise" not in ExplorationConfig().to_json()
     assert ExplorationConfig.from_json(ExplorationConfig().to_json()) == ExplorationConfig()
 
 

@@ -142,7 +142,7 @@ def test_lama_ensemble_predicts_mean_and_member_variance():
         assert prediction.variance[unknown].max() > 0.0 and prediction.variance.max() <= 0.25
 
 
-def test_fewer_members_and_the_agreement_stop():
+def test_fewer_members():
     rows, cols = 50, 77
     encoded = _realistic_input(ModelKind.LAMA_LOS, rows, cols, 3)
     observed = np.where(encoded[0, 1] > 0, UNKNOWN, np.where(encoded[0, 0] > 0, OCCUPIED, FREE)).astype(np.int8)
@@ -160,18 +160,8 @@ def test_fewer_members_and_the_agreement_stop():
     two = ensemble.with_members(max_members=2)
     np.testing.assert_allclose(two.predict(observed).variance[unknown], members[:2].var(0)[unknown], atol=1e-6)
 
-    agreeing = ensemble.with_members(agreement_stop=disagreement * 1.001)
-    stopped = agreeing.predict(observed)
-    assert agreeing.members_run == 2
-    np.testing.assert_allclose(stopped.mean[unknown], members[:2].mean(0)[unknown], atol=1e-6)
-    strict = ensemble.with_members(agreement_stop=disagreement * 0.999)
-    strict.predict(observed)
-    assert strict.members_run == 3
-
     with pytest.raises(ValueError, match=r"max_members must be an integer in 1..3 or None, got 4"):
         ensemble.with_members(max_members=4)
-    with pytest.raises(ValueError, match=r"agreement_stop must lie in \[0, 1\] or be None, got -0.1"):
-        ensemble.with_members(agreement_stop=-0.1)
 
 
 def test_pix2pix_filter_pastes_its_window_around_the_robot():

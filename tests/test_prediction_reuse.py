@@ -338,7 +338,7 @@ def test_bad_settings_and_inputs():
         feather_weights((0, 0, 5, 5), (1, 1, 4, 4), 1, "step")
     assert ReusingPredictor(Recording(), PredictionReuse(feather_m=0.3), 0.1)._feather == 3
     with pytest.raises(ValueError, match=r"wait_first must be True or False, got 'no'"):
-        PredictionSchedule("thread", 2, 2, wait_first="no")
+        PredictionSchedule("simulated", 2, 2, wait_first="no")
     assert ReusingPredictor(Recording(), PredictionReuse(crop_margin_m=1.1), 0.1)._margin == 11
     with pytest.raises(ValueError, match="cfg must be a PredictionReuse, got dict"):
         ReusingPredictor(Recording(), {}, 0.1)
@@ -393,14 +393,14 @@ def test_an_evaluation_between_requests_does_not_change_the_episode(corridor_roo
 
 @pytest.mark.parametrize("every,after,wait_first", [(5, 3, False), (4, 4, False), (2, 1, True), (1, 1, False),
                                                     (2, 2, True)])
-@pytest.mark.parametrize("mode", ["thread", "simulated"])
-def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(corridor_rooms, every, after, wait_first, mode):
+def test_the_deterministic_asynchronous_mode_keeps_its_staleness_bound(corridor_rooms, every, after, wait_first):
     """Step t plans with the prediction of step k * every for the largest k with k * every + after <= t (with
     ``wait_first``, the first step's own prediction until then)."""
     from superex_deploy.evaluation.episodes import make_world_and_explorer
 
     cfg = ExplorationConfig(iou_every=0, explorer=ExplorerConfig(
-        prediction=PredictionSchedule(mode, every, after, wait_first=wait_first), reuse=PredictionReuse(crop_margin_m=1.0)))
+        prediction=PredictionSchedule("simulated", every, after, wait_first=wait_first),
+        reuse=PredictionReuse(crop_margin_m=1.0)))
     world, explorer = make_world_and_explorer(corridor_rooms(), (40, 6), make_planner("mapex"), ObservedAsPrediction(),
                                               cfg=cfg)
     with explorer:

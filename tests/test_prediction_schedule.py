@@ -1,6 +1,5 @@
 """The prediction schedule's modes: the free-running mode never waits for an unfinished prediction, the
-simulated clock gives the threaded deterministic mode's episodes bit for bit, the commands carry the prediction's
-age, a replay follows a free run's recorded predictions exactly, and the explorer's thread budget."""
+simulated clock's episodes are reproducible, the commands carry the prediction's age, a replay follows a free run's recorded predictions exactly, and the explorer's thread budget."""
 
 import threading
 
@@ -78,11 +77,10 @@ def _same_commands(first, second):
 
 
 @pytest.mark.parametrize("every,after,wait_first", [(2, 2, True), (5, 3, False), (1, 1, False)])
-def test_the_simulated_clock_gives_the_threaded_deterministic_episode_bit_for_bit(corridor_rooms, every, after,
-                                                                                  wait_first):
-    threaded, _ = _episode(corridor_rooms(), PredictionSchedule("thread", every, after, wait_first))
+def test_the_simulated_clock_gives_the_same_episode_bit_for_bit(corridor_rooms, every, after, wait_first):
+    first, _ = _episode(corridor_rooms(), PredictionSchedule("simulated", every, after, wait_first))
     simulated, _ = _episode(corridor_rooms(), PredictionSchedule("simulated", every, after, wait_first))
-    _same_commands(threaded, simulated)
+    _same_commands(first, simulated)
     assert sum(c.new_goal for c in simulated) >= 3 and sum(c.prediction is not None for c in simulated) >= 40
 
 
@@ -194,21 +192,22 @@ def test_schedules_are_checked_and_older_ones_are_converted():
 
     assert older({"asynchronous": False, "every_steps": 10, "apply_after_steps": 1}) == PredictionSchedule()
     assert older({"asynchronous": True, "every_steps": 2, "apply_after_steps": 2, "wait_first": True}) == \
-        PredictionSchedule("thread", 2, 2, True)
+        PredictionSchedule("simulated", 2, 2, True)
     assert older({"asynchronous": True, "every_steps": 0}).mode == "free"
     assert PredictionSchedule.from_json({"mode": "free"}) == PredictionSchedule("free")
     with pytest.raises(ValueError, match="PredictionSchedule has no field 'asynchronous'"):
         PredictionSchedule.from_json({"asynchronous": False})
-    with pytest.raises(ValueError, match="mode must be one of inline, free, simulated, thread, got True"):
+    with pytest.raises(ValueError, match="mode must be one of inline, free, simulated, got True"):
         PredictionSchedule(True, 2, 2)
+    with pytest.raises(ValueError, match="mode must be one of inline, free, simulated, got 'thread'"):
+        PredictionSchedule.from_json({"mode": "thread"})  # the retired mode
     with pytest.raises(ValueError, match="every_steps must be >= 1 in simulated mode"):
         PredictionSchedule("simulated", 0)
     with pytest.raises(ValueError, match="either mode or the older asynchronous"):
         schedule_in_modes({"mode": "free", "asynchronous": True})
     with pytest.raises(ValueError, match="PredictionSchedule has no field 'every'"):
         PredictionSchedule.from_json({"every": 2})
-    assert [PredictionSchedule(m, 2, 1).threaded for m in ("inline", "free", "simulated", "thread")] == \
-        [False, True, False, True]
+    assert [PredictionSchedule(m, 2, 1).threaded for m in ("inline", "free", "simulated")] == [False, True, False]
 
 
 def test_the_thread_budget_splits_the_cores_between_loop_and_worker():
@@ -234,7 +233,7 @@ class _ThreadCounts(ObservedAsPrediction):
         return super().predict(observed, extra)
 
 
-@pytest.mark.parametrize("mode,cores", [("free", 2), ("thread", 2), ("simulated", 2), ("free", 1)])
+@pytest.mark.parametrize("mode,cores", [("free", 2), ("simulated", 2), ("free", 1)])
 def test_the_explorer_sets_numba_threads_in_its_loop_and_its_worker(corridor_rooms, mode, cores):
     launched = numba.config.NUMBA_NUM_THREADS
     predictor = _ThreadCounts()

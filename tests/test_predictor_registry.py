@@ -92,7 +92,7 @@ def test_a_kind_registered_later_is_built_by_name_and_checked_by_what_it_needs(m
         reads_evidence = True
 
         @classmethod
-        def build(cls, models=None, session=None, max_members=None, agreement_stop=None):
+        def build(cls, models=None, session=None, max_members=None):
             return Walls()
 
     monkeypatch.setitem(PREDICTORS, WallsKind.name, WallsKind)

@@ -20,6 +20,7 @@ from superex_deploy.evaluation.episodes import run_episode
 from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.sim.kinematics import first_blocked
 from superex_deploy.sim.noise.lidar import LidarNoise, noisy_ranges
+from superex_deploy.sim.noise.model import NOISE_PRESETS, SimNoise
 from superex_deploy.sim.noise.pose import PoseErrorModel, PoseNoise
 from superex_deploy.evaluation.metrics import MAP_ERROR_KEYS
 from superex_deploy.evaluation.summary import summary_markdown, summary_table
@@ -42,7 +43,7 @@ def _north_of(cell, n):
 # Belief-relative motion on hand-built grids.
 
 def test_a_belief_one_cell_off_drives_the_robot_one_cell_off_the_path(walled_box):
-    world = World(walled_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
+    world = World(walled_box(), (10, 5), WorldConfig(noise=SimNoise(pose=_EXACT)))
     truth = world.observe().pose
     assert (truth.x, truth.y, truth.yaw) == pytest.approx((0.55, 0.95, 0.0))
     world.belief = Pose2D(truth.x + 0.1, truth.y, 0.0)  # the robot believes it is one cell east
@@ -55,7 +56,7 @@ def test_a_belief_one_cell_off_drives_the_robot_one_cell_off_the_path(walled_box
 
 
 def test_a_wall_stops_the_robot_at_the_last_free_position_and_counts(walled_box):
-    world = World(walled_box(walls=[(8, 5)]), (10, 5), WorldConfig(pose_noise=_EXACT))
+    world = World(walled_box(walls=[(8, 5)]), (10, 5), WorldConfig(noise=SimNoise(pose=_EXACT)))
     truth = world.observe().pose
     world.belief = Pose2D(truth.x + 0.1, truth.y, 0.0)
     metres = world.apply(_command(world, _north_of((10, 6), 4)))  # column 6 is free, column 5 is not
@@ -68,7 +69,7 @@ def test_a_wall_stops_the_robot_at_the_last_free_position_and_counts(walled_box)
 
 
 def test_a_yaw_error_turns_the_displacement(walled_box):
-    world = World(walled_box(), (10, 10), WorldConfig(pose_noise=_EXACT))
+    world = World(walled_box(), (10, 10), WorldConfig(noise=SimNoise(pose=_EXACT)))
     truth = world.observe().pose
     world.belief = Pose2D(truth.x, truth.y, math.pi / 2)  # believes it faces north, faces east
     world.apply(_command(world, _north_of((10, 10), 3)))  # three cells ahead, as the robot sees it
@@ -77,7 +78,7 @@ def test_a_yaw_error_turns_the_displacement(walled_box):
 
 
 def test_with_pose_noise_no_command_is_refused_and_without_it_the_old_rules_hold(walled_box):
-    noisy = World(walled_box(), (10, 5), WorldConfig(pose_noise=PoseNoise.from_sigmas(0.05, 1.0)))
+    noisy = World(walled_box(), (10, 5), WorldConfig(noise=SimNoise(pose=PoseNoise.from_sigmas(0.05, 1.0))))
     noisy.observe()
     noisy.apply(_command(noisy, [(3, 3), (3, 4), (3, 6)]))  # elsewhere, and not 8-connected: still driven
     exact = World(walled_box(), (10, 5))
@@ -160,8 +161,8 @@ def test_the_default_drift_is_bounded_and_the_covariance_follows_it():
 def test_pose_noise_is_deterministic_per_seed():
     def trajectory(seed):
         world = World(load_map("50052750"), start_poses("50052750")[0],
-                      WorldConfig(pose_noise=PoseNoise.from_sigmas(0.05, 1.0, seed=seed),
-                                  lidar_noise=LidarNoise.from_sigma(0.02, seed=seed)))
+                      WorldConfig(noise=SimNoise(pose=PoseNoise.from_sigmas(0.05, 1.0, seed=seed),
+                                                 lidar=LidarNoise.from_sigma(0.02, seed=seed))))
         out = []
         for _ in range(3):
             observation = world.observe()
@@ -197,7 +198,7 @@ def test_lidar_noise_has_the_configured_rates():
 
 
 def test_the_world_sends_noisy_scans_with_a_minimum_range(walled_box):
-    world = World(walled_box(), (10, 10), WorldConfig(lidar_noise=LidarNoise.from_sigma(0.02, seed=1)))
+    world = World(walled_box(), (10, 10), WorldConfig(noise=SimNoise(lidar=LidarNoise.from_sigma(0.02, seed=1))))
     scan = world.observe().scan
     assert scan.range_min == pytest.approx(0.05) and np.isnan(scan.ranges).any()
     clean = World(walled_box(), (10, 10)).observe().scan
@@ -207,7 +208,7 @@ def test_the_world_sends_noisy_scans_with_a_minimum_range(walled_box):
 
 
 def test_the_scan_turns_with_the_robot(walled_box):
-    world = World(walled_box(), (10, 5), WorldConfig(pose_noise=_EXACT))
+    world = World(walled_box(), (10, 5), WorldConfig(noise=SimNoise(pose=_EXACT)))
     world.observe()
     world.apply(_command(world, _north_of((10, 5), 3)))  # heading north now, at the centre of (7, 5)
     scan = world.observe().scan
@@ -228,7 +229,7 @@ def test_the_spad_scan_is_cast_from_the_true_continuous_pose(walled_box):
     np.testing.assert_array_equal(centre.histograms, same.histograms)
     with pytest.raises(ValueError, match="outside the robot cell"):
         simulate_scan(grid, (10, 10), small, origin_yx=(11.2, 10.5))
-    world = World(grid, (10, 5), WorldConfig(spad=small, pose_noise=_EXACT))
+    world = World(grid, (10, 5), WorldConfig(spad=small, noise=SimNoise(pose=_EXACT)))
     world.observe()
     world.apply(_command(world, [(10, 5), (9, 6), (8, 7), (7, 8)]))  # 0.3 m diagonally: off the centres, turned
     assert world.pose.yaw == pytest.approx(math.pi / 4) and world.pose_rc == (8, 7)
@@ -259,24 +260,25 @@ def test_the_photon_budgets_set_the_noise_and_the_onboard_threshold(walled_box):
 
 # Episodes, the command line and the results.
 
-def _short_noisy_episode(**cfg):
+def _short_noisy_episode(noise=SimNoise()):
     grid = load_map("50052750")
     return run_episode(grid, start_poses("50052750")[0], make_planner("nearest"), ObservedAsPrediction(), steps=50,
-                       seed=0, cfg=ExplorationConfig(**cfg))
+                       seed=0, cfg=ExplorationConfig(noise=noise))
 
 
 def test_a_short_noisy_episode_runs_and_is_deterministic():
-    noisy = dict(pose_noise=PoseNoise.from_sigmas(0.05, 1.0), lidar_noise=LidarNoise.from_sigma(0.02))
-    a, b = _short_noisy_episode(**noisy), _short_noisy_episode(**noisy)
+    noisy = SimNoise(pose=PoseNoise.from_sigmas(0.05, 1.0), lidar=LidarNoise.from_sigma(0.02))
+    a, b = _short_noisy_episode(noisy), _short_noisy_episode(noisy)
     assert a.steps >= 1 and np.array_equal(a.true_poses, b.true_poses) and a.goals == b.goals
     np.testing.assert_array_equal(a.coverage, b.coverage)
     error = np.hypot(*(a.true_poses[:, :2] - a.believed_poses[:, :2]).T)
     assert 0.0 < error.mean() < 0.2
     log = json.loads(json.dumps(a.to_json()))
     assert {"collisions", "true_walls_held_free", "true_walls_carved", "map_iou"} <= set(log)
-    assert log["config"]["pose_noise"]["sigma_xy_m"] == 0.05 and log["config"]["lidar_noise"]["sigma_m"] == 0.02
+    noise = log["config"]["noise"]
+    assert noise["pose"]["sigma_xy_m"] == 0.05 and noise["lidar"]["sigma_m"] == 0.02 and noise["spad"] == "off"
     exact = _short_noisy_episode()
-    assert "pose_noise" not in exact.to_json()["config"] and "lidar_noise" not in exact.to_json()["config"]
+    assert "noise" not in exact.to_json()["config"]
     np.testing.assert_array_equal(exact.believed_poses, exact.true_poses)  # no noise: the truth is observed
     assert 0.0 < exact.explorer_map_iou <= 1.0 and exact.true_walls_held_free == 0 and exact.collisions == 0
     rows = summary_table([dict(exact.to_json(), start_index=0), dict(a.to_json(), start_index=0)], 50,
@@ -304,6 +306,37 @@ def test_the_noise_flags_are_parsed_and_checked():
 
     with pytest.raises(ValueError, match="add --spad"):
         noise_options(Namespace(pose_noise=None, lidar_noise=None, spad_noise="low", spad=False))
+    # One noise object: what the flags ask for, recorded as before, seeded per episode.
+    noise = noise_options(Namespace(pose_noise="0.05,1", lidar_noise="0.02", spad_noise="low", spad=True))
+    assert noise == SimNoise.from_sigmas((0.05, 1.0), (0.02, 0.01, 0.001), "low")
+    assert noise.settings() == {"pose_noise": [0.05, 1.0], "lidar_noise": [0.02, 0.01, 0.001], "spad_noise": "low"}
+    assert noise.seeded(7).pose.seed == noise.seeded(7).lidar.seed == 7 and noise.pose.seed == 0
+    assert SimNoise().settings() == {} and not SimNoise().on and NOISE_PRESETS["off"] == SimNoise()
+    assert NOISE_PRESETS["robot"].settings()["spad_noise"] == "realistic"
+
+
+def test_noise_models_refuse_bad_values_naming_the_field():
+    for bad, message in [({"sigma_m": -1.0}, "LidarNoise.sigma_m must be finite and >= 0"),
+                         ({"dropout_prob": 1.0}, r"LidarNoise.dropout_prob must lie in \[0, 1\)"),
+                         ({"seed": -1}, "LidarNoise.seed must be an integer >= 0"),
+                         ({"range_min_m": float("nan")}, "LidarNoise.range_min_m")]:
+        with pytest.raises(ValueError, match=message):
+            LidarNoise(**bad)
+    for bad, message in [({"sigma_xy_m": -0.1}, "PoseNoise.sigma_xy_m must be finite and >= 0"),
+                         ({"sigma_yaw_deg": True}, "PoseNoise.sigma_yaw_deg"),
+                         ({"max_drift_xy_m": -1.0}, "PoseNoise.max_drift_xy_m"),
+                         ({"seed": 1.5}, "PoseNoise.seed must be an integer >= 0")]:
+        with pytest.raises(ValueError, match=message):
+            PoseNoise(**bad)
+    assert PoseNoise(max_drift_xy_m=float("inf")).drift_bound_xy_m == math.inf  # an unbounded walk
+    with pytest.raises(ValueError, match="spad must be 'off'"):
+        SimNoise(spad="dim")
+    with pytest.raises(ValueError, match="pose must be a PoseNoise or None"):
+        SimNoise(pose=(0.05, 1.0))
+    with pytest.raises(ValueError, match="noise must be a SimNoise"):
+        ExplorationConfig(noise=None)
+    with pytest.raises(ValueError, match="noise must be a SimNoise"):
+        WorldConfig(noise={"pose": None})
 
 
 @pytest.mark.parametrize("argv, message", [

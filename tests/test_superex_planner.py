@@ -142,7 +142,6 @@ def test_superex_episodes_run_and_are_deterministic():
 
 @pytest.mark.parametrize("field, value, message", [
     ("gain", "view", "gain must be 'path', 'goal', 'expected' or 'expected_goal'"),
-    ("wall_support", "yes", "wall_support must be None, a WallSupport"),
     ("wall_threshold", 0.0, "wall_threshold must lie in"),
     ("sense_every_m", 0.0, "sense_every_m must be positive"),
     ("drop_resolved_m", -1.0, "drop_resolved_m must be None"),

@@ -16,7 +16,7 @@ from pathlib import Path
 from superex_deploy.evaluation.tasks import ScenarioTask, run_scenario
 from superex_deploy.commands.options import (add_noise_options, add_parallel_options, add_planner_option,
                                              add_profile_option, check_jobs, check_output_folder, eval_maps,
-                                             make_backend, name_list, noise_options, noise_settings,
+                                             make_backend, name_list, noise_options,
                                              non_negative_int, planner_options, predictor_help,
                                              settings_differences)
 from superex_deploy.onboard.planning.planners import PLANNERS
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     if args.suite in ("paper", "altered"):
         from superex_deploy.commands.paper_benchmark import run_paper
 
-        if noise_settings(noise):
+        if noise.on:
             raise ValueError(f"--suite {args.suite} runs the paper's noise-free protocol: drop --pose-noise, "
                              f"--lidar-noise and --spad-noise (or run without --suite)")
 
@@ -140,8 +140,7 @@ def run(args: argparse.Namespace) -> int:
         check_profile(profile_name, instance, args.predictor)
     tasks = [ScenarioTask(map_name=name, start_index=k, start_rc=pose, planner=planner, predictor=args.predictor,
                           spad=args.spad, steps=args.steps, seed=args.seed, planner_options=options, iou_every=50,
-                          profile=profile_name, pose_noise=noise["pose_noise"], lidar_noise=noise["lidar_noise"],
-                          spad_noise=noise["spad_noise"])
+                          profile=profile_name, noise=noise)
              for name in names for k, pose in enumerate(start_poses(name)) for planner in planners]
     keys = [f"{task.map_name}/{task.start_index}/{task.planner}" for task in tasks]
     from superex_deploy.evaluation.tasks import default_sensing_settings
@@ -150,9 +149,9 @@ def run(args: argparse.Namespace) -> int:
     configs = {planner: planner_settings(instance) for planner, instance in zip(planners, instances)}
     settings = {"maps": names, "planners": planners, "planner_options": options, "planner_configs": configs,
                 "predictor": args.predictor, "spad": args.spad,
-                "sensing": default_sensing_settings(noise["spad_noise"]) if args.spad else None,
+                "sensing": default_sensing_settings(noise.spad) if args.spad else None,
                 "steps": args.steps, "seed": args.seed, "profile": profile_name,
-                "profile_settings": PROFILES[profile_name].to_json(), **noise_settings(noise)}
+                "profile_settings": PROFILES[profile_name].to_json(), **noise.settings()}
     backend = make_backend(args)
     journal = prepare_output(args.out, settings, args.resume)
     try:
@@ -161,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         stop.kept = (f"{len(read_journal(journal))} of {len(tasks)} episodes are in {journal}: rerun with --resume "
                      f"to finish")
         raise
-    noisy = noise_settings(noise)
+    noisy = noise.settings()
     extra = ("path_length_m",) + (MAP_ERROR_KEYS if noisy else ())
     table = summary_table(results, args.steps, extra=extra)
     write_atomically(args.out / "results.json", json.dumps({"episodes": results, "summary": table,

@@ -21,7 +21,7 @@ from pathlib import Path
 from superex_deploy.commands.options import (add_live_options, add_noise_options, add_planner_option,
                                              add_profile_option, bounds_polygon, check_output_file,
                                              check_output_folder, folders_made, load_floor,
-                                             noise_options, noise_settings, non_negative_int, planner_options,
+                                             noise_options, non_negative_int, planner_options,
                                              predictor_help, resolve_start)
 from superex_deploy.onboard.planning.planners import PLANNERS
 from superex_deploy.onboard.prediction.registry import kind_of
@@ -125,7 +125,6 @@ def summary_line(result) -> str:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from superex_deploy.evaluation.tasks import with_noise, with_spad_noise
     from superex_deploy.messages import MapFrame
 
     # Every check first: nothing is created before the last of them.
@@ -133,21 +132,20 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     options = planner_options(args.planner_option)
     pipeline, planner = chosen_pipeline(args, options)  # before the noise: --spad-noise needs the SPAD
-    noise = noise_options(args)
+    noise = noise_options(args).seeded(args.seed)
     check_output_folder(args.out)
     if args.record is not None:
         check_output_file(args.record, "--record", made=folders_made(args.out))
     grid, start = load_floor(args.map, args.resolution, args.start, args.pose, seed=args.seed,
                              command="superex explore")
     profile = check_profile(args.profile, planner, args.predictor)
-    sensing = with_spad_noise(make_sensing(args.predictor, args.spad, args.seed, args.models, profile),
-                              noise["spad_noise"])
+    sensing = noise.sensing(make_sensing(args.predictor, args.spad, args.seed, args.models, profile))
     if sensing is not None and not pipeline.carving:  # the ablation without carving: the evidence as with it
         if args.record is not None:
             raise ValueError(f"--record: the {pipeline.name} pipeline turns the carving off, which a replay does not "
                              f"rerun; record another pipeline")
         sensing = replace(sensing, skips=replace(sensing.skips, carving=True))
-    cfg = with_noise(profile.episode_config(clock="robot"), noise["pose_noise"], noise["lidar_noise"], args.seed)
+    cfg = noise.episode_config(profile.episode_config(clock="robot"))
     cfg = with_operations(cfg, args.bounds, args.return_to_start)
     if args.bounds is not None:  # the start inside the polygon, before anything is created
         args.bounds.check_contains(*MapFrame(grid.shape, grid.resolution_m).centre_xy(start))
@@ -191,7 +189,7 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
                 predictor=args.predictor, seed=args.seed, sensor=None if sensing is None else sensing.spad,
                 nlos_cfg=None if sensing is None else sensing.nlos_cfg, explorer_cfg=cfg.explorer,
                 profile=args.profile, models=args.models)
-            metadata.update(noise_settings(noise))  # the simulator's noise, where on (the sensor model: "sensor")
+            metadata.update(noise.settings())  # the simulator's noise, where on (the sensor model: "sensor")
             record = EpisodeRecorder(args.record, MapFrame(grid.shape, grid.resolution_m), metadata)
         result = _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live)
         if record is not None:
@@ -214,7 +212,7 @@ def _explore(args, grid, start, options, planner, sensing, cfg, noise, live) -> 
     from superex_deploy.parallel import signals_deferred
 
     with signals_deferred():  # a signal now waits until every output is whole, then ends the run as usual
-        return _write_outputs(args, grid, start, result, gif, record, noise_settings(noise))
+        return _write_outputs(args, grid, start, result, gif, record, noise.settings())
 
 
 def _run_episode(args, grid, start, explorer, cfg, sensing, gif, done, record, live):

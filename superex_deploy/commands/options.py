@@ -21,7 +21,7 @@ __all__ = ["add_planner_option", "planner_options", "predictor_help", "add_profi
            "check_jobs", "make_backend", "positive_int", "non_negative_int", "name_list", "eval_maps",
            "check_output_folder", "check_output_file", "folders_made", "resolve_start", "START_CLEARANCE_M",
            "settings_differences", "add_noise_options", "load_floor", "parse_pose_noise", "parse_lidar_noise",
-           "noise_options", "noise_settings", "add_live_options"]
+           "noise_options", "add_live_options"]
 
 
 def _integer(text: str, low: int) -> int:
@@ -249,9 +249,8 @@ def add_planner_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--planner-option", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a field of the planner's config, e.g. distance=euclidean for MapEx's "
                              "straight-line divisor, or gain=path for the superex planner's count on the thresholded "
-                             f"prediction (its defaults: gain={SuperexConfig.gain}, "
-                             f"transmittance={SuperexConfig.transmittance}) (repeatable; numbers, true/false and none "
-                             "are converted)")
+                             f"prediction (its default: gain={SuperexConfig.gain}) (repeatable; numbers, true/false "
+                             "and none are converted)")
 
 
 def planner_options(pairs: list[str]) -> dict:
@@ -407,33 +406,24 @@ def parse_lidar_noise(text: Optional[str]) -> Optional[tuple[float, float, float
     return None if sigma_m == dropout == spurious == 0.0 else (sigma_m, dropout, spurious)
 
 
-def noise_options(args: argparse.Namespace) -> dict:
-    """The noise the command line asks for, checked: ``{"pose_noise": (sigma_m, sigma_deg) or None,
-    "lidar_noise": (sigma_m, dropout, spurious) or None, "spad_noise": preset name}``.
+def noise_options(args: argparse.Namespace):
+    """The noise the command line asks for, checked, as one :class:`~superex_deploy.sim.noise.model.SimNoise`
+    (unseeded: an episode seeds it, :meth:`SimNoise.seeded <superex_deploy.sim.noise.model.SimNoise.seeded>`);
+    ``noise.settings()`` is what a run records.
 
     Raises:
         ValueError: a malformed value (see :func:`parse_pose_noise`, :func:`parse_lidar_noise`), or
             ``--spad-noise`` other than off without ``--spad``.
     """
+    from superex_deploy.sim.noise.model import SimNoise
+
     spad_noise = getattr(args, "spad_noise", "off")
     if spad_noise not in SPAD_NOISE_CHOICES:
         raise ValueError(f"--spad-noise must be one of {', '.join(SPAD_NOISE_CHOICES)}, got {spad_noise!r}")
     if spad_noise != "off" and not getattr(args, "spad", False):
         raise ValueError(f"--spad-noise {spad_noise} sets the SPAD LiDAR's photon budget: add --spad")
-    return {"pose_noise": parse_pose_noise(getattr(args, "pose_noise", None)),
-            "lidar_noise": parse_lidar_noise(getattr(args, "lidar_noise", None)), "spad_noise": spad_noise}
-
-
-def noise_settings(noise: dict) -> dict:
-    """The entries of :func:`noise_options`' answer that are on, as JSON values (empty without noise: settings
-    and metadata of a noise-free run read as before)."""
-    settings = {}
-    for key in ("pose_noise", "lidar_noise"):
-        if noise.get(key) is not None:
-            settings[key] = list(noise[key])
-    if noise.get("spad_noise", "off") != "off":
-        settings["spad_noise"] = noise["spad_noise"]
-    return settings
+    return SimNoise.from_sigmas(parse_pose_noise(getattr(args, "pose_noise", None)),
+                                parse_lidar_noise(getattr(args, "lidar_noise", None)), spad_noise)
 
 
 def _live_address(text: str) -> tuple[str, int]:

@@ -59,21 +59,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from superex_deploy.commands.options import check_output_folder, load_floor, noise_options
-    from superex_deploy.sim.noise.lidar import LidarNoise
-    from superex_deploy.sim.noise.pose import PoseNoise
     from superex_deploy.sim.robot import RobotSimConfig
-    from superex_deploy.spad_types import SpadConfig
+    from superex_deploy.spad_types import SpadConfig, spad_preset
 
     grid, start = load_floor(args.map, args.resolution, args.start, args.pose, seed=args.seed,
                              command="superex robot-sim")
-    noise = noise_options(args)
-    pose, lidar = noise["pose_noise"], noise["lidar_noise"]
+    noise = noise_options(args).seeded(args.seed)
+    spad = None
+    if args.spad:
+        spad = SpadConfig() if noise.spad == "off" else spad_preset(noise.spad, SpadConfig())
     cfg = RobotSimConfig(scan_hz=args.scan_rate, tf_hz=args.tf_rate, map_period_s=args.map_period,
-                         speed_m_s=args.speed, goal_failure_rate=args.goal_failure_rate,
-                         spad=SpadConfig() if args.spad else None, seed=args.seed,
-                         pose_noise=None if pose is None else PoseNoise.from_sigmas(*pose, seed=args.seed),
-                         lidar_noise=None if lidar is None else LidarNoise(sigma_m=lidar[0], dropout_prob=lidar[1],
-                                                                           spurious_prob=lidar[2], seed=args.seed))
+                         speed_m_s=args.speed, goal_failure_rate=args.goal_failure_rate, spad=spad, seed=args.seed,
+                         noise=noise)
     if not (math.isfinite(args.judge_every) and args.judge_every >= 0):
         raise ValueError(f"--judge-every must be a number of seconds >= 0, got {args.judge_every}")
     out = None if args.out is None else check_output_folder(args.out)

@@ -90,8 +90,8 @@ class EpisodeResult:
         goal_steps, goals: the steps where a new goal was chosen, and the goal cells.
         finished: True when the planner found no goal before the budget ran out.
         config: the :class:`ExplorationConfig` as a dict (``lidar``, ``explorer``: ``motion``,
-            ``frontier_min_m``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``; ``pose_noise``
-            and ``lidar_noise`` where set).
+            ``frontier_min_m``, ``prediction``, ``reuse``; ``iou_every``, ``iou_dense_until``; ``noise`` where
+            on).
         final_observed: int8 ``[H, W]`` observed map at the end.
         final_carved: bool ``[H, W]`` carved cells at the end.
         final_prediction: the last prediction computed (for the final figure), or None.
@@ -221,7 +221,7 @@ def make_world_and_explorer(grid: OccupancyGrid, start_rc, planner: Optional[Pla
     world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=None if sensing is None else sensing.spad,
                                               step_m=cfg.explorer.motion.step_m,
                                               seed=0 if sensing is None else sensing.seed,
-                                              pose_noise=cfg.pose_noise, lidar_noise=cfg.lidar_noise))
+                                              noise=cfg.noise))
     if cfg.explorer.bounds is not None:  # refused here, before the explorer is built
         cfg.explorer.bounds.check_contains(world.pose.x, world.pose.y)
     if explorer is None:

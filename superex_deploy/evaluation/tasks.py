@@ -6,8 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
-__all__ = ["ScenarioTask", "run_scenario", "make_altered_floor", "with_noise", "with_spad_noise",
-           "default_sensing_settings"]
+from superex_deploy.sim.noise.model import SimNoise
+
+__all__ = ["ScenarioTask", "run_scenario", "make_altered_floor", "default_sensing_settings"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -24,16 +25,16 @@ class ScenarioTask:
         carving: with ``spad``, write the carved cells into the map (False: the ablation "without carving"; the
             evidence is made as with it, :attr:`NlosSkips.carving <superex_deploy.onboard.nlos.processing.NlosSkips>`).
         steps: step budget.
-        seed: the planner's seed and the SPAD noise's.
+        seed: the planner's seed and the noise's (:meth:`SimNoise.seeded
+            <superex_deploy.sim.noise.model.SimNoise.seeded>`).
         planner_options: overrides of the planner's config (``--planner-option``).
         iou_every, iou_dense_until: when the map IoU is evaluated (see
             :class:`~superex_deploy.sim.exploration.ExplorationConfig`); by default every 50 steps.
         profile: the real-time profile's name (:data:`superex_deploy.pipeline.PROFILES`); None (the default):
             :func:`~superex_deploy.pipeline.resolve_profile` (:data:`~superex_deploy.pipeline.DEFAULT_PROFILE` where
             the planner can use it). The paper suite names ``full``.
-        pose_noise: ``(sigma_m, sigma_deg)`` of the localisation error, or None (see :func:`with_noise`).
-        lidar_noise: ``(sigma_m, dropout, spurious)`` of the LiDAR, or None.
-        spad_noise: the SPAD photon budget's preset name (:data:`superex_deploy.spad_types.SPAD_PRESETS`).
+        noise: the simulator's noise (:class:`~superex_deploy.sim.noise.model.SimNoise`: localisation error, LiDAR
+            noise, SPAD photon budget), seeded with ``seed`` for the episode.
         alteration_seed: None (the default): the bundled floor as it is. Else the episode runs on the floor altered
             with this seed (:func:`superex_deploy.sim.alterations.alter_floor`; ``superex benchmark --suite
             altered`` passes :func:`~superex_deploy.sim.altered_floors.alteration_seed`), cached under
@@ -56,48 +57,15 @@ class ScenarioTask:
     iou_every: int = 50
     iou_dense_until: float = 1.0
     profile: Optional[str] = None
-    pose_noise: Optional[tuple[float, float]] = None
-    lidar_noise: Optional[tuple[float, float, float]] = None
-    spad_noise: str = "off"
+    noise: SimNoise = SimNoise()
     alteration_seed: Optional[int] = None
     floors_dir: Optional[str] = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.noise, SimNoise):
+            raise ValueError(f"ScenarioTask: noise must be a SimNoise, got {type(self.noise).__name__}")
         if self.alteration_seed is not None and not self.floors_dir:
             raise ValueError("ScenarioTask: an alteration_seed needs floors_dir (where the altered floors are cached)")
-
-
-def with_noise(cfg, pose_noise: Optional[tuple[float, float]], lidar_noise: Optional[tuple[float, float, float]],
-               seed: int):
-    """The :class:`~superex_deploy.sim.exploration.ExplorationConfig` ``cfg`` with the simulator's noise: the
-    localisation error :meth:`PoseNoise.from_sigmas <superex_deploy.sim.noise.pose.PoseNoise.from_sigmas>` of
-    ``pose_noise = (sigma_m, sigma_deg)`` and the LiDAR noise ``lidar_noise = (sigma_m, dropout, spurious)``, both
-    seeded with ``seed``; None leaves that noise off (``cfg`` unchanged when both are None). With LiDAR noise the
-    explorer's map is told the sensor's range sigma (``OccupancyConfig.range_sigma_m``: the robot's calibration is
-    the simulated sensor's sigma), as a robot's configuration would be."""
-    from superex_deploy.sim.noise.lidar import LidarNoise
-    from superex_deploy.sim.noise.pose import PoseNoise
-
-    if pose_noise is None and lidar_noise is None:
-        return cfg
-    if lidar_noise is not None:
-        explorer = cfg.explorer
-        cfg = replace(cfg, explorer=replace(explorer, occupancy=replace(explorer.occupancy,
-                                                                        range_sigma_m=float(lidar_noise[0]))))
-    return replace(cfg, pose_noise=None if pose_noise is None else PoseNoise.from_sigmas(*pose_noise, seed=seed),
-                   lidar_noise=None if lidar_noise is None else LidarNoise(
-                       sigma_m=lidar_noise[0], dropout_prob=lidar_noise[1], spurious_prob=lidar_noise[2], seed=seed))
-
-
-def with_spad_noise(sensing, preset: str):
-    """The episode's :class:`~superex_deploy.sim.sensing.SpadSensing` (or None) with the sensor model of the
-    photon-budget ``preset`` (:func:`superex_deploy.spad_types.spad_preset`), on both the simulator's and the
-    onboard processing's side; unchanged for ``off``."""
-    from superex_deploy.spad_types import spad_preset
-
-    if sensing is None or preset == "off":
-        return sensing
-    return replace(sensing, spad=spad_preset(preset, sensing.spad))
 
 
 def default_sensing_settings(spad_noise: str = "off") -> dict:
@@ -107,7 +75,7 @@ def default_sensing_settings(spad_noise: str = "off") -> dict:
     from superex_deploy.recording.metadata import sensing_settings
     from superex_deploy.sim.sensing import SpadSensing
 
-    sensing = with_spad_noise(SpadSensing(), spad_noise)
+    sensing = SimNoise(spad=spad_noise).sensing(SpadSensing())
     return sensing_settings(sensing.spad, sensing.nlos_cfg)
 
 
@@ -131,9 +99,9 @@ def run_scenario(task: ScenarioTask) -> dict:
 
         grid, dead_ends, meta = load_floor(task.map_name, task.start_rc, task.floors_dir, seed=task.alteration_seed)
         alteration = {"seed": meta["seed"], "dead_ends": len(dead_ends), "kept_fraction": meta["kept_fraction"]}
-    cfg = with_noise(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until),
-                     task.pose_noise, task.lidar_noise, task.seed)
-    sensing = with_spad_noise(make_sensing(task.predictor, task.spad, task.seed, profile=profile), task.spad_noise)
+    noise = task.noise.seeded(task.seed)
+    cfg = noise.episode_config(profile.episode_config(iou_every=task.iou_every, iou_dense_until=task.iou_dense_until))
+    sensing = noise.sensing(make_sensing(task.predictor, task.spad, task.seed, profile=profile))
     if sensing is not None and not task.carving:
         sensing = replace(sensing, skips=replace(sensing.skips, carving=True))
     explorer = build_explorer(MapFrame(grid.shape, grid.resolution_m), planner, task.predictor, profile=profile_name,

@@ -109,10 +109,6 @@ class PlanningContext:
         predict: returns the current :class:`Prediction`; computed on first call and cached by the caller, so
             planners that never call it never pay for it.
         rng: the episode's random generator (for sampling planners such as UPEN's RRT).
-        evidence: float32 ``[H, W]`` the NLOS evidence the prediction was asked with (the filtered
-            back-projection), or None when the caller does not pass it (then
-            :func:`~superex_deploy.onboard.planning.expected_visibility.context_evidence` asks ``predict`` for it). Only
-            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` reads it.
     """
 
     observed: np.ndarray
@@ -123,7 +119,6 @@ class PlanningContext:
     resolution_m: float
     predict: Callable[[], Prediction]
     rng: np.random.Generator
-    evidence: Optional[np.ndarray] = None
 
 
 class Planner(ABC):

@@ -52,13 +52,20 @@ new name and the power of the cell size that converts it (1: metres, 2: square m
 RETIRED: dict = {
     "superex": ("docs/benchmarks/better-map.md", {"choice": "greedy", "candidates": 5, "rollout_goals": 4,
                                                   "horizon_m": 60.0, "rollout_cell_m": 0.3,
-                                                  "rollout_frontier_cells": 3, "tour_frontiers": 18}),
+                                                  "rollout_frontier_cells": 3, "tour_frontiers": 18,
+                                                  "wall_support": None, "transmittance": "correlated"}),
+    "mapex": ("docs/benchmarks/better-map.md", {"wall_support": None, "transmittance": "independent"}),
     "scan_matching": ("docs/on-a-robot.md", {"match_sigma_cells": 0.0, "match_sigma_deg": 0.0,
                                              "start_after_scans": 0}),
+    "profile": ("docs/benchmarks/realtime.md", {"agreement_stop": None}),
+    "nlos_skips": ("docs/benchmarks/realtime.md", {"without_unknown": False, "when_still": False,
+                                                  "filter_without_votes": False, "rays_without_unknown": False,
+                                                  "filter_same_input": False}),
 }
 """Per configuration: the page that measured the retired options, and each option's old default."""
 
 PREVIOUS_DEFAULTS: dict = {"superex": {"gain": "path", "transmittance": "independent"}}
+# transmittance "independent" was retired since (RETIRED): a run of superex made before 0.2 cannot be reproduced.
 """Per planner: the defaults before 0.2 of the fields whose default changed since, which a recording made before
 ``planner_config`` (the options given only) ran."""
 
@@ -104,7 +111,8 @@ def _without_retired(section: str, values: dict) -> dict:
 
 def schedule_in_modes(fields) -> dict:
     """A prediction schedule written before its modes (``asynchronous``: False is ``inline``; True with
-    ``every_steps`` 0 is ``free``, with ``every_steps >= 1`` ``thread``) in this version's form; others as given."""
+    ``every_steps`` 0 is ``free``, with ``every_steps >= 1`` the retired thread mode, whose predictions landed where
+    ``simulated``'s do) in this version's form; others as given."""
     if not isinstance(fields, dict) or "asynchronous" not in fields:
         return fields
     fields = dict(fields)
@@ -113,7 +121,7 @@ def schedule_in_modes(fields) -> dict:
     asynchronous = fields.pop("asynchronous")
     if not isinstance(asynchronous, bool):
         raise ValueError(f"asynchronous must be True or False, got {asynchronous!r}")
-    fields["mode"] = ("thread" if fields.get("every_steps", 10) else "free") if asynchronous else "inline"
+    fields["mode"] = ("simulated" if fields.get("every_steps", 10) else "free") if asynchronous else "inline"
     return fields
 
 
@@ -174,7 +182,9 @@ def _profile_settings(settings, profile: str, resolution_m: float):
 
     if settings is None:
         return PROFILES[profile].to_json() if profile in PROFILES else {}  # a replay names the unknown profile
-    settings = {**RealtimeProfile().to_json(), **settings}
+    settings = {**RealtimeProfile().to_json(), **_without_retired("profile", settings)}
+    if isinstance(settings.get("nlos_skips"), dict):
+        settings["nlos_skips"] = _without_retired("nlos_skips", settings["nlos_skips"])
     for key in ("schedule", "simulated_schedule"):
         settings[key] = schedule_in_modes(settings[key])
     if isinstance(settings["reuse"], dict):

@@ -57,6 +57,7 @@ from scipy import ndimage
 
 from superex_deploy.configs import JsonConfig
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.onboard.checks import check_int, check_real
 from superex_deploy.onboard.planning.motion import dijkstra
 from superex_deploy.sim.dead_ends import DeadEnd, face_hidden_from, measure_dead_end, robot_cells
 
@@ -115,24 +116,19 @@ class AlterationConfig(JsonConfig):
     max_candidates: int = 150
 
     def __post_init__(self) -> None:
+        # Checked, not converted: the values stay as given (the altered floors' cache records them).
         for name in ("alterations", "max_candidates"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"AlterationConfig.{name} must be an integer >= 0, got {value!r}")
+            check_int(f"AlterationConfig.{name}", getattr(self, name), 0)
         for name, value in self.__dict__.items():
-            if name in ("alterations", "max_candidates"):
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"AlterationConfig.{name} must be a finite number >= 0, got {value!r}")
+            if name not in ("alterations", "max_candidates"):
+                check_real(f"AlterationConfig.{name}", value, 0.0)
         if not 0.0 < self.door_max_half_width_m <= self.corridor_max_half_width_m <= self.room_max_half_width_m:
             raise ValueError("AlterationConfig: need 0 < door_max_half_width_m <= corridor_max_half_width_m <= "
                              f"room_max_half_width_m, got {self.door_max_half_width_m}, "
                              f"{self.corridor_max_half_width_m}, {self.room_max_half_width_m}")
         for name in ("min_kept_fraction", "max_pocket_fraction"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"AlterationConfig.{name} must lie in [0, 1], got {getattr(self, name)}")
-        if not 1.0 < self.facing_ratio <= 2.0:
-            raise ValueError(f"AlterationConfig.facing_ratio must lie in (1, 2], got {self.facing_ratio}")
+            check_real(f"AlterationConfig.{name}", getattr(self, name), 0.0, 1.0)
+        check_real("AlterationConfig.facing_ratio", self.facing_ratio, 1.0, 2.0, low_open=True)
         for name in ("level_step_m", "sight_range_m", "wall_thickness_m", "max_dead_end_m"):
             if getattr(self, name) <= 0.0:
                 raise ValueError(f"AlterationConfig.{name} must be > 0, got {getattr(self, name)}")

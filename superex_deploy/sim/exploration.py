@@ -4,12 +4,11 @@ episode runner (:func:`superex_deploy.evaluation.episodes.run_episode`) evaluate
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 from superex_deploy.configs import JsonConfig
+from superex_deploy.onboard.checks import check_int
 from superex_deploy.onboard.explorer import ExplorerConfig
-from superex_deploy.sim.noise.lidar import LidarNoise
-from superex_deploy.sim.noise.pose import PoseNoise
+from superex_deploy.sim.noise.model import SimNoise
 from superex_deploy.sim.world import LidarConfig
 
 __all__ = ["ExplorationConfig"]
@@ -30,33 +29,30 @@ class ExplorationConfig(JsonConfig):
         iou_dense_until: above this coverage (with carving) the IoU is evaluated only every ``10 * iou_every``
             steps: the benchmark's IoU metrics read the low-coverage part of the curve (up to 30 %), and each
             evaluation runs the predictor.
-        pose_noise: the world's localisation error (:class:`~superex_deploy.sim.noise.pose.PoseNoise`), or None.
-        lidar_noise: the world's LiDAR noise (:class:`~superex_deploy.sim.noise.lidar.LidarNoise`), or None.
+        noise: the world's noise (:class:`~superex_deploy.sim.noise.model.SimNoise`: localisation error, LiDAR
+            noise; its SPAD budget is the sensing's, :meth:`SimNoise.sensing
+            <superex_deploy.sim.noise.model.SimNoise.sensing>`).
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
     explorer: ExplorerConfig = field(default_factory=lambda: ExplorerConfig().for_simulation())
     iou_every: int = 25
     iou_dense_until: float = 1.0
-    pose_noise: Optional[PoseNoise] = None
-    lidar_noise: Optional[LidarNoise] = None
+    noise: SimNoise = SimNoise()
 
     def __post_init__(self) -> None:
         for name, kind in (("lidar", LidarConfig), ("explorer", ExplorerConfig)):
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}")
-        for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
-            if getattr(self, name) is not None and not isinstance(getattr(self, name), kind):
-                raise ValueError(f"{name} must be a {kind.__name__} or None, got {type(getattr(self, name)).__name__}")
-        if isinstance(self.iou_every, bool) or int(self.iou_every) != self.iou_every or self.iou_every < 0:
-            raise ValueError(f"iou_every must be an integer >= 0, got {self.iou_every!r}")
+        if not isinstance(self.noise, SimNoise):
+            raise ValueError(f"noise must be a SimNoise, got {type(self.noise).__name__}")
+        object.__setattr__(self, "iou_every", check_int("iou_every", self.iou_every, 0))
 
     def to_json(self) -> dict:
-        """The configuration as JSON values (:meth:`~superex_deploy.configs.JsonConfig.to_json`); the noise entries
-        only where noise is on (a noise-free configuration reads as it did before they existed; :meth:`from_json`
-        reads a left-out entry as None)."""
+        """The configuration as JSON values (:meth:`~superex_deploy.configs.JsonConfig.to_json`); ``noise`` only
+        where noise is on (a noise-free configuration reads as it did before it existed; :meth:`from_json` reads a
+        left-out entry as no noise)."""
         config = super().to_json()
-        for name in ("pose_noise", "lidar_noise"):
-            if config[name] is None:
-                del config[name]
+        if not self.noise.on:
+            del config["noise"]
         return config

@@ -20,7 +20,7 @@ import numpy as np
 
 from superex_deploy.configs import JsonConfig
 from superex_deploy.maps import OccupancyGrid
-from superex_deploy.onboard.checks import check_real
+from superex_deploy.onboard.checks import check_int, check_real
 
 __all__ = ["FloorLayout", "generate_floor", "upsampled", "named_floor"]
 
@@ -62,9 +62,7 @@ class FloorLayout(JsonConfig):
         if self.door_m >= self.room_width_m[0]:
             raise ValueError(f"FloorLayout: door_m ({self.door_m}) must be narrower than the narrowest room "
                              f"({self.room_width_m[0]} m)")
-        if not isinstance(self.cross_corridors, (int, np.integer)) or isinstance(self.cross_corridors, bool) \
-                or self.cross_corridors < 1:
-            raise ValueError(f"FloorLayout.cross_corridors must be an integer >= 1, got {self.cross_corridors!r}")
+        check_int("FloorLayout.cross_corridors", self.cross_corridors, 1)
         band = 2 * self.room_depth_m[1] + self.corridor_m + 4 * self.wall_m
         if self.height_m < band or self.width_m < self.cross_corridors * (self.corridor_m + self.room_width_m[1]):
             raise ValueError(f"FloorLayout: a {self.width_m} m x {self.height_m} m floor is too small for one band "

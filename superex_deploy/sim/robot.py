@@ -41,8 +41,7 @@ from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.planning.frontiers import Pockets, find_frontiers, open_frontiers
 from superex_deploy.onboard.planning.motion import MotionConfig, path_is_clear, planning_map
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
-from superex_deploy.sim.noise.lidar import LidarNoise
-from superex_deploy.sim.noise.pose import PoseNoise
+from superex_deploy.sim.noise.model import SimNoise
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
 
@@ -69,8 +68,8 @@ class RobotSimConfig(JsonConfig):
             next goal), in ``[0, 1]``.
         lidar: the line-of-sight LiDAR.
         spad: the SPAD sensor model, or None (no SPAD frames).
-        pose_noise: the localisation error (:class:`~superex_deploy.sim.noise.pose.PoseNoise`), or None (exact).
-        lidar_noise: the LiDAR's noise, or None.
+        noise: the localisation error and the LiDAR's noise (:class:`~superex_deploy.sim.noise.model.SimNoise`;
+            its ``spad`` budget is applied to ``spad`` by whoever makes it: :meth:`SimNoise.sensing`).
         map_margin_m: unknown space kept around the published map's known cells.
         seed: seed of the sensors' noise and of the goal failures.
     """
@@ -84,8 +83,7 @@ class RobotSimConfig(JsonConfig):
     goal_failure_rate: float = 0.0
     lidar: LidarConfig = field(default_factory=LidarConfig)
     spad: Optional[SpadConfig] = None
-    pose_noise: Optional[PoseNoise] = None
-    lidar_noise: Optional[LidarNoise] = None
+    noise: SimNoise = SimNoise()
     map_margin_m: float = 1.0
     seed: int = 0
 
@@ -96,6 +94,8 @@ class RobotSimConfig(JsonConfig):
         object.__setattr__(self, "goal_failure_rate", check_real("goal_failure_rate", self.goal_failure_rate, 0.0,
                                                                  1.0))
         object.__setattr__(self, "map_margin_m", check_real("map_margin_m", self.map_margin_m, 0.0))
+        if not isinstance(self.noise, SimNoise):
+            raise ValueError(f"noise must be a SimNoise, got {type(self.noise).__name__}")
         ratio = self.tf_hz / self.scan_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(f"tf_hz must be a whole multiple of scan_hz, got {self.tf_hz} and {self.scan_hz}")
@@ -230,8 +230,7 @@ class SimulatedRobot:
             raise ValueError(f"cfg must be a RobotSimConfig, got {type(cfg).__name__}")
         self.cfg = cfg
         self.world = World(grid, start_rc, WorldConfig(lidar=cfg.lidar, spad=cfg.spad, seed=cfg.seed,
-                                                       step_s=1.0 / cfg.scan_hz, pose_noise=cfg.pose_noise,
-                                                       lidar_noise=cfg.lidar_noise))
+                                                       step_s=1.0 / cfg.scan_hz, noise=cfg.noise))
         self.slam = Mapper(grid.shape)
         self.follower = GoalFollower(cfg, self.world.frame, motion)
         self.ticks = self.scans = 0

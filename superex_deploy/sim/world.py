@@ -5,14 +5,14 @@ The world owns the truth; the explorer (:mod:`superex_deploy.onboard`) sees only
 the simulated robot is holonomic and moves on grid cells; its pose is the centre of its cell with yaw 0 (the
 scanners are aligned with the map frame), and the observations carry it exactly.
 
-Imperfection, all off by default (:class:`WorldConfig`):
+Imperfection, all off by default (:class:`WorldConfig`'s ``noise``, a :class:`~superex_deploy.sim.noise.model.SimNoise`):
 
-* ``pose_noise`` (:class:`~superex_deploy.sim.noise.pose.PoseNoise`): the observation's pose is the truth plus a
+* ``noise.pose`` (:class:`~superex_deploy.sim.noise.pose.PoseNoise`): the observation's pose is the truth plus a
   localisation error and carries its covariance; the robot then moves continuously (:mod:`.kinematics`: position
   off the cell centres, heading along the direction of travel) and follows each command from where it believes it
   is. The scans are cast from the true pose.
-* ``lidar_noise`` (:class:`~superex_deploy.sim.noise.lidar.LidarNoise`): range noise, dropouts, spurious returns.
-* The SPAD's photon noise is the sensor's own (:class:`~superex_deploy.spad_types.SpadNoise`, presets in
+* ``noise.lidar`` (:class:`~superex_deploy.sim.noise.lidar.LidarNoise`): range noise, dropouts, spurious returns.
+* The SPAD's photon noise is the sensor's own (``noise.spad`` names its budget for the episode's sensing) (:class:`~superex_deploy.spad_types.SpadNoise`, presets in
   :data:`~superex_deploy.spad_types.SPAD_PRESETS`).
 """
 
@@ -31,8 +31,9 @@ from superex_deploy.onboard.checks import cells_within, check_real
 from superex_deploy.messages import Command, LaserScan, MapFrame, Observation, Pose2D, SpadFrame, grid_angles
 from superex_deploy.spad_types import SpadConfig, SpadScan
 from superex_deploy.sim.kinematics import drive_belief_relative
-from superex_deploy.sim.noise.lidar import LidarNoise, noisy_ranges
-from superex_deploy.sim.noise.pose import PoseErrorModel, PoseNoise
+from superex_deploy.sim.noise.lidar import noisy_ranges
+from superex_deploy.sim.noise.model import SimNoise
+from superex_deploy.sim.noise.pose import PoseErrorModel
 from superex_deploy.sim.spad import simulate_scan
 
 __all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "advance"]
@@ -67,10 +68,11 @@ class WorldConfig(JsonConfig):
             path of cells, the most cells that fit in it (:attr:`World.step_cells`, at least one).
         seed: seed of the SPAD noise generator (used only when ``spad.noise.enabled``).
         step_s: simulated time per step (seconds; the observations' time stamps).
-        pose_noise: the localisation error (None: the observations carry the true pose, and the robot moves from
-            cell centre to cell centre). With it the robot moves continuously and drives
-            ``World.step_cells * resolution`` metres per step.
-        lidar_noise: the LiDAR's noise, or None (exact ranges).
+        noise: the simulator's noise (:class:`~superex_deploy.sim.noise.model.SimNoise`): ``noise.pose`` the
+            localisation error (None: the observations carry the true pose, and the robot moves from cell centre to
+            cell centre; with it the robot moves continuously and drives ``World.step_cells * resolution`` metres
+            per step), ``noise.lidar`` the LiDAR's noise (None: exact ranges). Its ``spad`` part is the sensing's
+            (``spad`` here is the sensor model as the sensing made it).
     """
 
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -78,8 +80,7 @@ class WorldConfig(JsonConfig):
     step_m: float = 0.3
     seed: int = 0
     step_s: float = 0.1
-    pose_noise: Optional[PoseNoise] = None
-    lidar_noise: Optional[LidarNoise] = None
+    noise: SimNoise = SimNoise()
 
     def __post_init__(self) -> None:
         if not isinstance(self.lidar, LidarConfig):
@@ -87,11 +88,9 @@ class WorldConfig(JsonConfig):
         if self.spad is not None and not isinstance(self.spad, SpadConfig):
             raise ValueError(f"spad must be a SpadConfig or None, got {type(self.spad).__name__}")
         object.__setattr__(self, "step_m", check_real("step_m", self.step_m, 0.0, low_open=True))
-        if not (float(self.step_s) > 0.0 and np.isfinite(self.step_s)):
-            raise ValueError(f"step_s must be positive and finite, got {self.step_s}")
-        for name, kind in (("pose_noise", PoseNoise), ("lidar_noise", LidarNoise)):
-            if getattr(self, name) is not None and not isinstance(getattr(self, name), kind):
-                raise ValueError(f"{name} must be a {kind.__name__} or None, got {type(getattr(self, name)).__name__}")
+        object.__setattr__(self, "step_s", check_real("step_s", self.step_s, 0.0, low_open=True))
+        if not isinstance(self.noise, SimNoise):
+            raise ValueError(f"noise must be a SimNoise, got {type(self.noise).__name__}")
 
 
 def _float32_at_least(values_m: np.ndarray) -> np.ndarray:
@@ -173,8 +172,8 @@ class World:
         self.pose_rc = start
         self.step_cells = max(1, cells_within(cfg.step_m, grid.resolution_m))
         self.belief: Optional[Pose2D] = None
-        self.pose_error = None if cfg.pose_noise is None else PoseErrorModel(cfg.pose_noise)
-        self._lidar_rng = None if cfg.lidar_noise is None else cfg.lidar_noise.generator()
+        self.pose_error = None if cfg.noise.pose is None else PoseErrorModel(cfg.noise.pose)
+        self._lidar_rng = None if cfg.noise.lidar is None else cfg.noise.lidar.generator()
         self.driven_m = 0.0
         self.steps = 0
         self.collisions = 0
@@ -210,7 +209,7 @@ class World:
         resolution = self.grid.resolution_m
         hits = cast_rays(self.grid.occupied, origin, grid_angles(pose.yaw, self._scan_angles),
                          self._range_max / resolution)
-        noise = self.cfg.lidar_noise
+        noise = self.cfg.noise.lidar
         if noise is None:
             return laser_scan_from_distances(hits.distance_cells, hits.hit_mask, resolution, 0.0,
                                              self._angle_increment, self._range_max)

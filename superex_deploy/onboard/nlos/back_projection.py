@@ -8,12 +8,6 @@ are first summed per (wall cell, radius bin) over every ray that shares the wall
 half-disc is swept once (every cell adds the summed vote of the ring it lies on), only inside a window around
 the robot and only on cells not already known (runs of known cells are jumped over). The cost is about one
 visit per (wall cell, unknown window cell in its half-disc), independent of the number of rays and bins.
-
-A ray whose late bins span no ring that an unknown window cell in front of its wall lies on adds nothing:
-:func:`rays_reaching_unknown` finds the rays that may add something, and leaving the others out gives the same
-back-projection to the last bit (every cell still adds the same votes in the same order; the votes left out are
-ones no cell reads). While exploring it leaves out few rays, since the window is mostly
-unknown and the rings of late light are wide (measured in docs/benchmarks/realtime.md, "SPAD skips").
 """
 
 from __future__ import annotations
@@ -28,10 +22,6 @@ from superex_deploy.onboard.nlos.config import ROW_BLOCK, GridPatch, LosEstimate
 from superex_deploy.onboard.nlos.los import late_threshold
 from superex_deploy.spad_types import SpadScan
 
-
-READ_BLOCK = 16
-"""The per-ray skip (:func:`rays_reaching_unknown`) bounds the rings a wall point can read from blocks of this many
-window rows and columns (an unknown cell anywhere in a block counts the whole block)."""
 
 RING_PAD = 3
 """Zero columns past the last radius in the vote table: a cell a little beyond a wall point's outermost ring, or
@@ -82,77 +72,6 @@ def _accumulate_votes(row_start, bins, counts, los_bin, ray_wall, d1_m, first_bi
                 votes[u, q] += (count - background) * d1 * d2 * d2
                 last = q
             q_max[u] = max(q_max[u], last)
-
-
-@numba.njit(cache=True)
-def _readable_ring_bounds(apex, normals, window, known, ring_lo, ring_hi):
-    """Per wall point ``u``: ``[ring_lo[u], ring_hi[u]]`` (int64, written) holds the ring of every unknown cell of
-    ``window`` ``(r0, r1, c0, c1)`` (inclusive) that lies in front of the wall, i.e. every ring :func:`_draw_rings`
-    can add a vote of ``u`` to; ``ring_lo[u] > ring_hi[u]`` when there is none.
-
-    The window is cut into :data:`READ_BLOCK`-cell blocks; a block holding an unknown cell counts whole: its cell
-    centres span a rectangle, in front of the wall if one of its corners is (the test is linear), at distances from
-    the apex between the rectangle's nearest point and its farthest corner. The ring ``floor(rho + 0.5)`` is
-    monotone in ``rho``; the bounds are widened by a ring so the rounding of the square roots cannot matter."""
-    r_lo, r_hi, c_lo, c_hi = window[0], window[1], window[2], window[3]
-    n_block_rows = (r_hi - r_lo) // READ_BLOCK + 1
-    n_block_cols = (c_hi - c_lo) // READ_BLOCK + 1
-    open_block = np.zeros((n_block_rows, n_block_cols), np.bool_)
-    for r in range(r_lo, r_hi + 1):
-        for c in range(c_lo, c_hi + 1):
-            if not known[r, c]:
-                open_block[(r - r_lo) // READ_BLOCK, (c - c_lo) // READ_BLOCK] = True
-    for u in range(apex.shape[0]):
-        ay = apex[u, 0]
-        ax = apex[u, 1]
-        ny = normals[u, 0]
-        nx = normals[u, 1]
-        nearest2 = np.inf
-        farthest2 = -1.0
-        for i in range(n_block_rows):
-            y0 = r_lo + i * READ_BLOCK + 0.5 - ay
-            y1 = min(r_lo + (i + 1) * READ_BLOCK - 1, r_hi) + 0.5 - ay
-            for j in range(n_block_cols):
-                if not open_block[i, j]:
-                    continue
-                x0 = c_lo + j * READ_BLOCK + 0.5 - ax
-                x1 = min(c_lo + (j + 1) * READ_BLOCK - 1, c_hi) + 0.5 - ax
-                if max(y0 * ny, y1 * ny) + max(x0 * nx, x1 * nx) <= -1e-9:
-                    continue  # every cell centre of the block lies behind the wall (with a margin for rounding)
-                dy = y0 if y0 > 0.0 else (-y1 if y1 < 0.0 else 0.0)
-                dx = x0 if x0 > 0.0 else (-x1 if x1 < 0.0 else 0.0)
-                nearest2 = min(nearest2, dy * dy + dx * dx)
-                fy = max(abs(y0), abs(y1))
-                fx = max(abs(x0), abs(x1))
-                farthest2 = max(farthest2, fy * fy + fx * fx)
-        if farthest2 < 0.0:
-            ring_lo[u] = 1
-            ring_hi[u] = 0
-        else:
-            ring_lo[u] = np.int64(np.sqrt(nearest2) + 0.5) - 1
-            ring_hi[u] = np.int64(np.sqrt(farthest2) + 0.5) + 1
-
-
-@numba.njit(cache=True)
-def _rays_reaching_rings(row_start, bins, los_bin, ray_wall, first_bin_offset, bin_path_m, resolution_m, n_radii,
-                         ring_lo, ring_hi, keep):
-    """``keep[i]`` (bool, written): ray ``i`` has a wall point ``u = ray_wall[i] >= 0`` and its late bins (those
-    :func:`_accumulate_votes` may read: offsets from ``first_bin_offset`` after ``los_bin[i]`` up to its last
-    detected bin, radii below ``n_radii``) span rings that meet ``[ring_lo[u], ring_hi[u]]``. The span is taken
-    from the ray's first and last detected bins only (a superset of the rings it votes on), with the same float
-    operations as :func:`_accumulate_votes`."""
-    for i in range(row_start.shape[0] - 1):
-        keep[i] = False
-        u = ray_wall[i]
-        if u < 0 or row_start[i + 1] == row_start[i]:
-            continue
-        first = max(bins[row_start[i]] - los_bin[i], first_bin_offset)
-        last = bins[row_start[i + 1] - 1] - los_bin[i]
-        if last < first:
-            continue  # no late bin
-        q_first = int(np.floor(first * bin_path_m / 2.0 / resolution_m + 0.5))
-        q_last = min(int(np.floor(last * bin_path_m / 2.0 / resolution_m + 0.5)), n_radii - 1)
-        keep[i] = q_first <= ring_hi[u] and q_last >= ring_lo[u] and q_first < n_radii
 
 
 @numba.njit(cache=True)
@@ -302,48 +221,12 @@ def _n_radii(scan: SpadScan) -> int:
     return int(np.ceil(scan.config.range_m / scan.resolution_m)) + 1
 
 
-def rays_reaching_unknown(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(),
-                          known: Optional[np.ndarray] = None) -> np.ndarray:
-    """bool ``[n_rays]``: the rays whose late (three-bounce) light may vote on an unknown cell of the
-    back-projection window; every other ray adds nothing to :func:`back_project`, so leaving them out
-    (``back_project_patch(..., keep_rays=...)``) gives the same back-projection to the last bit.
-
-    A ray votes on the rings about its wall point whose radii its late bins cover, only on unknown cells of the
-    window in front of the wall; it is kept when that span of rings meets the rings the wall point's unknown
-    window cells lie on (bounded per block of :data:`READ_BLOCK` cells, so a few rays that reach nothing are kept
-    too). Rays without a wall point are never kept (they do not vote).
-
-    Args:
-        scan, los: the scan and its :func:`~superex_deploy.onboard.nlos.los.estimate_los`.
-        cfg: processing parameters (``window_m``, ``false_alarm_rate``).
-        known: optional bool ``[H, W]`` of cells already known.
-    """
-    known = _checked_known(scan, known)
-    n_walls = len(los.wall_cells)
-    ring_lo = np.empty(n_walls, np.int64)
-    ring_hi = np.empty(n_walls, np.int64)
-    _readable_ring_bounds(los.wall_apex, los.wall_normal, _window(scan, cfg), known, ring_lo, ring_hi)
-    _, guard = late_threshold(scan, cfg, scan.n_bins)
-    keep = np.empty(len(los.los_bin), np.bool_)
-    detections = los.detections
-    _rays_reaching_rings(detections.row_start, detections.bins, los.los_bin, los.ray_wall, guard, scan.bin_path_m,
-                         scan.resolution_m, _n_radii(scan), ring_lo, ring_hi, keep)
-    return keep
-
-
-def back_project_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, known: Optional[np.ndarray],
-                       keep_rays: Optional[np.ndarray] = None) -> GridPatch:
-    """:func:`back_project` as a patch of the window; ``keep_rays``: optional bool ``[n_rays]``, only these rays
-    vote (:func:`rays_reaching_unknown`)."""
+def back_project_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, known: Optional[np.ndarray]
+                       ) -> GridPatch:
+    """:func:`back_project` as a patch of the window."""
     shape = scan.grid_shape
     known = _checked_known(scan, known)
     ray_wall = los.ray_wall
-    if keep_rays is not None:
-        keep_rays = np.asarray(keep_rays)
-        if keep_rays.dtype != np.bool_ or keep_rays.shape != ray_wall.shape:
-            raise ValueError(f"keep_rays must be a bool array of shape {ray_wall.shape}, got {keep_rays.dtype} "
-                             f"{keep_rays.shape}")
-        ray_wall = np.where(keep_rays, ray_wall, -1)
     window = _window(scan, cfg)
     drawn = np.zeros((window[1] - window[0] + 1, window[3] - window[2] + 1))
     if (ray_wall >= 0).any():

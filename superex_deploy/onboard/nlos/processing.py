@@ -17,7 +17,7 @@ import numpy as np
 from superex_deploy.configs import JsonConfig
 from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame, grid_angles
 from superex_deploy.onboard.nlos import NlosConfig, carve, carve_radius_cap_m, estimate_los, process_scan
-from superex_deploy.onboard.nlos.back_projection import back_project_patch, rays_reaching_unknown
+from superex_deploy.onboard.nlos.back_projection import back_project_patch
 from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
 from superex_deploy.onboard.prediction.scale import (at_resolution, filter_area, model_resolution, scale_factors,
                                                      upsample_linear)
@@ -65,49 +65,29 @@ class NlosSkips(JsonConfig):
     """Work the SPAD processing may leave out (all off by default: every frame is processed in full).
 
     Attributes:
-        without_unknown: skip a frame when no unknown cell lies within the reach of its light
-            (:meth:`SpadProcessing.reach_cells`: the sensor's range plus the carving cap, or the back-projection
-            window if larger): nothing unknown could be carved and the raw back-projection, which skips known
-            cells, is empty. Exact for the map (carved cells there are known already; :attr:`Mapper.carved` does
-            not get them again) and for the Laplacian evidence; with a learned filter it also leaves out the
-            filter's output on that empty window, as ``filter_without_votes`` does.
-        when_still: skip a frame taken from the same cell with the same heading as the last processed one: it
-            repeats that frame's carving and evidence up to photon noise.
-        filter_without_votes: skip the Pix2Pix filter when the back-projection window holds no vote: its output
-            on an empty window is the network's bias (up to 0.86 wall probability with the committed model), not
-            evidence, and the running maximum would keep it.
-        rays_without_unknown: leave out of the back-projection the rays whose late light cannot vote on an unknown
-            cell of its window (:func:`~superex_deploy.onboard.nlos.back_projection.rays_reaching_unknown`).
-            Exact: the back-projection is the same to the last bit.
-        filter_same_input: skip the learned filter when the back-projection (window, position and values) and the
-            robot cell are those of the last filter run: the output would be the same, and the running maximum
-            holds it already. Exact.
         evidence_every: back-project and filter only every this many frames (1: every frame); the frames between
-            are still carved. Not exact: the evidence misses those frames' glimpses (``scripts/bench_nlos_skips.py``
-            measures the error).
+            are still carved. Not exact: the evidence misses those frames' glimpses (measured in
+            docs/benchmarks/realtime.md, "SPAD skips"; the ``realtime`` profile takes 2).
         carving: leave the carving out (no cell is ever carved; the evidence is made as with carving on): the paper
             suite's ablation "without carving", which measures what the carved cells add.
+
+    Five exact skips (frames with no unknown cell in reach, frames from a still robot, the filter on an empty or an
+    unchanged window, rays that reach no unknown cell) were measured there and retired: on real episodes they
+    cost about what they saved.
     """
 
-    without_unknown: bool = False
-    when_still: bool = False
-    filter_without_votes: bool = False
-    rays_without_unknown: bool = False
-    filter_same_input: bool = False
     evidence_every: int = 1
     carving: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("without_unknown", "when_still", "filter_without_votes", "rays_without_unknown",
-                     "filter_same_input", "carving"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        every = self.evidence_every
-        if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or every < 1:
-            raise ValueError(f"evidence_every must be an integer >= 1, got {every!r}")
+        from superex_deploy.onboard.checks import check_int
+
+        if not isinstance(self.carving, bool):
+            raise ValueError(f"carving must be True or False, got {self.carving!r}")
+        object.__setattr__(self, "evidence_every", check_int("evidence_every", self.evidence_every, 1))
 
 
-COUNTS = ("frames", "no_unknown", "still", "no_votes", "evidence_skipped", "same_input", "rays", "rays_skipped")
+COUNTS = ("frames", "evidence_skipped")
 """The keys of :attr:`SpadProcessing.counts`."""
 
 
@@ -131,10 +111,8 @@ class SpadProcessing:
             :func:`~superex_deploy.onboard.prediction.scale.at_resolution` repeats the cells; unchanged at its own
             resolution.
         skips: work left out (:class:`NlosSkips`).
-        counts: since :meth:`reset`: ``frames`` seen; frames skipped whole (``no_unknown``, ``still``); frames
-            whose evidence was skipped (``evidence_skipped``: ``evidence_every``); filter runs skipped
-            (``no_votes``, ``same_input``); ``rays`` with a wall point in the back-projected frames and
-            ``rays_skipped`` of them (``rays_without_unknown``).
+        counts: since :meth:`reset`: ``frames`` seen; frames whose evidence was skipped (``evidence_skipped``:
+            ``evidence_every``).
     """
 
     sensor: SpadConfig = field(default_factory=SpadConfig)
@@ -142,8 +120,6 @@ class SpadProcessing:
     bp_filter: Optional[Callable[[np.ndarray, tuple[int, int]], np.ndarray]] = None
     skips: NlosSkips = field(default_factory=NlosSkips)
     _evidence: Optional[np.ndarray] = field(default=None, init=False, repr=False, compare=False)
-    _last_view: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
-    _last_filter_input: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
     _scaled_filter: Optional[tuple] = field(default=None, init=False, repr=False, compare=False)
     counts: dict = field(default_factory=lambda: dict.fromkeys(COUNTS, 0), init=False, compare=False)
 
@@ -185,18 +161,13 @@ class SpadProcessing:
 
     def regrid(self, regrid) -> None:
         """Move to a larger grid (a :class:`~superex_deploy.onboard.mapping.growth.Regrid`): the evidence keeps its
-        values at the new indices (0 in new cells); the last frame's view and filter input, kept in cells, are
-        forgotten (the next frame is processed in full)."""
+        values at the new indices (0 in new cells)."""
         if self._evidence is not None:
             self._evidence = regrid.embed(self._evidence, 0.0)
-        self._last_view = None
-        self._last_filter_input = None
 
     def reset(self) -> None:
-        """Forget the evidence and the last frame of an earlier episode."""
+        """Forget the evidence and the frame count of an earlier episode."""
         self._evidence = None
-        self._last_view = None
-        self._last_filter_input = None
         self.counts = dict.fromkeys(COUNTS, 0)
 
     def reach_cells(self, resolution_m: float) -> int:
@@ -206,19 +177,6 @@ class SpadProcessing:
         carve_m = self.sensor.range_m + carve_radius_cap_m(self.sensor.n_secondary, resolution_m)
         return max(int(np.ceil(carve_m / resolution_m)) + 1, int(np.ceil(self.nlos_cfg.window_m / resolution_m)))
 
-    def _skip(self, scan: SpadScan, known: np.ndarray) -> Optional[str]:
-        """Why this frame may be left out (a key of :attr:`counts`), or None."""
-        view = (tuple(int(v) for v in scan.pose_rc), float(scan.angles[0]) if len(scan.angles) else 0.0)
-        still = self._last_view == view
-        if self.skips.when_still and still:
-            return "still"
-        self._last_view = view
-        if self.skips.without_unknown:
-            reach, (r, c) = self.reach_cells(scan.resolution_m), view[0]
-            if known[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1].all():
-                return "no_unknown"
-        return None
-
     def process_scan(self, scan: SpadScan, known: np.ndarray, pose_sigma=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """Carving and evidence of one scan (simulated or built by :func:`scan_from_frame`); ``known``: bool
         ``[H, W]`` cells the explorer already knows; ``pose_sigma``: ``(sigma_xy_m, sigma_yaw_rad)`` of the pose
@@ -226,10 +184,6 @@ class SpadProcessing:
         if self._evidence is None or self._evidence.shape != tuple(scan.grid_shape):
             self._evidence = np.zeros(scan.grid_shape, np.float32)
         self.counts["frames"] += 1
-        reason = self._skip(scan, np.asarray(known))
-        if reason is not None:
-            self.counts[reason] += 1
-            return np.zeros(scan.grid_shape, bool), self._evidence
         frame_index = self.counts["frames"] - 1
         if frame_index % self.skips.evidence_every:
             self.counts["evidence_skipped"] += 1
@@ -237,7 +191,7 @@ class SpadProcessing:
                 return np.zeros(scan.grid_shape, bool), self._evidence
             los = estimate_los(scan, self.nlos_cfg)
             return self._carve(scan, los, pose_sigma), self._evidence
-        if self.bp_filter is None and not self.skips.rays_without_unknown and not self.skips.carving:
+        if self.bp_filter is None and not self.skips.carving:
             result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
@@ -254,12 +208,7 @@ class SpadProcessing:
         # grid the back-projection itself is drawn on the model's cells (model_scan), as the filter would pool it.
         model, k = self._model_scan(scan, los, known)
         bp = self._back_projection(*model)
-        if self.skips.filter_without_votes and not bp.values.any():
-            self.counts["no_votes"] += 1
-        elif self.skips.filter_same_input and self._same_filter_input(bp, model[0].pose_rc):
-            self.counts["same_input"] += 1
-        else:
-            self._filter_into_evidence(model[0], bp, k)
+        self._filter_into_evidence(model[0], bp, k)
         return self._carve(scan, los, pose_sigma), self._evidence
 
     def _carve(self, scan: SpadScan, los, pose_sigma) -> np.ndarray:
@@ -311,24 +260,8 @@ class SpadProcessing:
         np.maximum(area, filtered, out=area)
 
     def _back_projection(self, scan: SpadScan, los, known: np.ndarray):
-        """The raw back-projection patch, the rays that cannot vote on an unknown cell left out if asked."""
-        if not self.skips.rays_without_unknown:
-            return back_project_patch(scan, los, self.nlos_cfg, known)
-        keep = rays_reaching_unknown(scan, los, self.nlos_cfg, known)
-        voting = int((los.ray_wall >= 0).sum())
-        self.counts["rays"] += voting
-        self.counts["rays_skipped"] += voting - int(keep.sum())
-        return back_project_patch(scan, los, self.nlos_cfg, known, keep_rays=keep)
-
-    def _same_filter_input(self, bp, pose_rc) -> bool:
-        """Whether the filter's input (the back-projection patch and the robot cell) is the last run's; if not,
-        it becomes the last run's."""
-        key = (bp.top, bp.left, tuple(int(v) for v in pose_rc))
-        last = self._last_filter_input
-        if last is not None and last[0] == key and np.array_equal(last[1], bp.values):
-            return True
-        self._last_filter_input = (key, bp.values)
-        return False
+        """The raw back-projection patch of the window."""
+        return back_project_patch(scan, los, self.nlos_cfg, known)
 
     def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray,
                  pose_covariance: Optional[PoseCovariance] = None) -> tuple[np.ndarray, np.ndarray]:

@@ -4,23 +4,19 @@ The thresholded gain of :mod:`~superex_deploy.onboard.planning.visibility` turns
 ray when its wall probability reaches a threshold) and counts what that map shows. Here the prediction is read as
 what it is, a probability per cell (the ensembles are calibrated: the mean is the expected wall indicator):
 
-* every cell has a wall probability ``p``: known free cells 0, known walls 1, unknown cells the prediction's mean
-  (optionally shrunk by :class:`WallSupport` where nothing but the prior supports a predicted wall);
-* along ray ``k`` the **transmittance** to a cell is the product of ``1 - p`` over the cells the ray crossed
-  before it: the probability that the ray reaches the cell when cells are walls independently;
+* every cell has a wall probability ``p``: known free cells 0, known walls 1, unknown cells the prediction's mean;
+* along ray ``k`` the cells are walls together (comonotone: one uniform draw ``u`` per ray, a cell is a wall when
+  ``u < p``), so the **transmittance** to a cell, the probability that the ray reaches it, is ``1 - max p`` over
+  the cells the ray crossed before it: the largest probability any dependence between the cells allows (Frechet);
 * a cell reached is revealed, wall or free (seeing a wall is information too), so an unknown cell contributes
-  the transmittance *up to and including it*, i.e. the product over the cells before it, not ``(1 - p)`` of
-  the cell itself;
+  the transmittance *up to and including it*, i.e. over the cells before it, not of the cell itself;
 * each unknown cell counts once per viewpoint (and once per group of viewpoints, the pathwise gain), with the
   **largest** transmittance of the rays that reach it: ``P(seen) ~ max_k P(ray k reaches the cell)``.
 
-Ray ``k`` reaches the cell when every uncertain cell ``U_k`` it crosses before it is free. The max is a lower
-bound of the exact ``P(at least one ray reaches the cell)`` (a union is at least as likely as each of its events)
-and equals it when one ray's ``U_k`` is contained in every other ray's (its event then contains theirs): in
-particular when a single uncertain cell, or none, lies in front of the cell on every ray, as along a corridor
-(``tests/test_expected_visibility.py`` checks both cases, and the bound, against a brute-force enumeration of every
-wall configuration). Rays that leave the robot side by side cross the same cells near it, so their events are
-strongly correlated: the product rule ``1 - prod(1 - T_k)`` would treat them as independent and overcount.
+Rays that leave the robot side by side cross the same cells near it, so their events are strongly correlated: the
+product rule ``1 - prod(1 - T_k)`` would treat them as independent and overcount. Where a single uncertain cell,
+or none, lies in front of a cell on every ray, the gain is exact whatever the dependence
+(``tests/test_expected_visibility.py`` checks it against a brute-force enumeration of every wall configuration).
 
 The rays are those of the thresholded cast (``n_rays`` over a full turn from the viewpoint cell's centre, out to
 ``range_m``; Amanatides-Woo stepping), without the polygon fill: a cell between two rays far from the viewpoint
@@ -30,14 +26,10 @@ probability 1 if unknown; a viewpoint on a known wall sees nothing. A ray stops 
 ``min_transmittance`` (default 1e-3: what it could still add is below a thousandth of a cell per cell) or
 leaves the grid.
 
-``transmittance="correlated"`` replaces the independence of the cells along a ray by the opposite extreme: the
-cells are walls together (comonotone: one uniform draw ``u`` per ray, a cell is a wall when ``u < p``), so a ray
-reaches a cell with probability ``1 - max p`` over the cells before it, the largest probability any dependence
-allows (Frechet). A learned prediction spreads a little wall probability over every unknown cell, and the
-independent product of ``1 - p`` over many such cells soon vanishes (over 60 cells of 0.05 it is 0.05), so the
-independent model cuts rays much shorter than the thresholded cast; measured in docs/benchmarks/better-map.md,
-"Reading predictions as probabilities". The brute-force test checks the independent model only,
-the slow twin both.
+The cells of a ray taken as independent walls (the product of ``1 - p``) was measured and retired: a learned
+prediction spreads a little wall probability over every unknown cell, and the product over many such cells soon
+vanishes (over 60 cells of 0.05 it is 0.05), so it cut the rays much shorter than the thresholded cast
+(docs/benchmarks/better-map.md, "Reading predictions as probabilities").
 """
 
 from __future__ import annotations
@@ -47,19 +39,13 @@ from typing import Optional
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from superex_deploy.configs import JsonConfig
 from superex_deploy.geometry import dda_start, dda_step
-from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, PlanningContext, Prediction, check_observed
+from superex_deploy.onboard.types import check_observed
 from superex_deploy.onboard.planning.visibility import MAX_RAYS, check_cells, check_map
 
-__all__ = ["TRANSMITTANCES", "ExpectedVisibility", "WallSupport", "check_wall_support", "expected_visible_gains",
-           "supported_prediction", "context_evidence"]
-
-
-TRANSMITTANCES = ("independent", "correlated")
-"""How a ray's transmittance combines the wall probabilities it crosses (see the module docstring)."""
+__all__ = ["ExpectedVisibility", "expected_visible_gains"]
 
 
 @dataclass(frozen=True)
@@ -71,8 +57,6 @@ class ExpectedVisibility(JsonConfig):
         range_m: ray range in metres (positive, finite).
         min_transmittance: a ray stops once its transmittance is at most this, in ``[0, 1)`` (0: only a certain
             wall or the range stops it).
-        transmittance: ``"independent"`` (the product of ``1 - p`` over the cells crossed) or ``"correlated"``
-            (``1 - max p``; see the module docstring).
 
     Raises:
         ValueError: a field of another type or out of its range, named.
@@ -81,12 +65,9 @@ class ExpectedVisibility(JsonConfig):
     n_rays: int = 250
     range_m: float = 20.0
     min_transmittance: float = 1e-3
-    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
-        from superex_deploy.onboard.checks import check_choice, check_int, check_real
-
-        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
+        from superex_deploy.onboard.checks import check_int, check_real
 
         object.__setattr__(self, "n_rays", check_int("n_rays", self.n_rays, 3, MAX_RAYS))
         object.__setattr__(self, "range_m", check_real("range_m", self.range_m, 0.0, low_open=True))
@@ -94,66 +75,11 @@ class ExpectedVisibility(JsonConfig):
                                                                  1.0, high_open=True))
 
 
-@dataclass(frozen=True)
-class WallSupport(JsonConfig):
-    """How much a predicted wall is believed, from what supports it.
-
-    An unknown cell's wall probability ``p`` becomes ``p * s`` with
-
-        ``s = min_scale + (1 - min_scale) * max(min(evidence / evidence_full, 1), near_wall)``
-
-    where ``evidence`` is the NLOS back-projection evidence at the cell (the Pix2Pix-filtered running maximum the
-    predictor reads, in [0, 1]; 0 without SPAD) and ``near_wall`` is 1 when an observed wall lies within
-    ``radius_m`` (Chebyshev distance, cells) of the cell, else 0. A wall predicted from the prior alone (no NLOS
-    evidence, no observed structure near it) is shrunk towards 0, the value of a prediction without prior (the
-    observed map: unknown = free); one that the evidence or a nearby observed wall supports keeps its
-    probability. Known cells are not touched.
-
-    Attributes:
-        min_scale: the scale of an unsupported wall, in ``[0, 1]`` (1: no shrinking at all).
-        evidence_full: evidence at which a wall counts as fully supported (positive, finite).
-        radius_m: how near an observed wall supports a predicted one (metres, >= 0).
-
-    Raises:
-        ValueError: a field of another type or out of its range, named.
-    """
-
-    min_scale: float = 0.5
-    evidence_full: float = 0.5
-    radius_m: float = 1.0
-
-    def __post_init__(self) -> None:
-        from superex_deploy.onboard.checks import check_real
-
-        object.__setattr__(self, "min_scale", check_real("min_scale", self.min_scale, 0.0, 1.0))
-        object.__setattr__(self, "evidence_full", check_real("evidence_full", self.evidence_full, 0.0,
-                                                             low_open=True))
-        object.__setattr__(self, "radius_m", check_real("radius_m", self.radius_m, 0.0))
-
-
-def check_wall_support(name: str, value) -> Optional[WallSupport]:
-    """A planner's ``wall_support`` option: None, a :class:`WallSupport`, or a number, read as
-    ``WallSupport(min_scale=value)`` (what ``--planner-option wall_support=0.5`` passes).
-
-    Raises:
-        ValueError: anything else, or a number outside [0, 1] (named ``name``).
-    """
-    if value is None or isinstance(value, WallSupport):
-        return value
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        try:
-            return WallSupport(min_scale=value)
-        except ValueError as error:
-            raise ValueError(f"{name}: {error}") from None
-    raise ValueError(f"{name} must be None, a WallSupport or its min_scale in [0, 1], got {type(value).__name__} "
-                     f"{value!r}")
-
-
 @numba.njit(cache=True)
-def _cast_expected(mean, observed, rows, cols, n_rays, max_t, min_transmittance, correlated, stamp, slot):
+def _cast_expected(mean, observed, rows, cols, n_rays, max_t, min_transmittance, stamp, slot):
     """Per viewpoint ``v`` (cell ``rows[v], cols[v]``), the unknown cells its rays reach and the largest
-    transmittance to each (the product of ``1 - p`` over the cells a ray crossed before the cell; ``p`` = 0 on
-    known free cells, 1 on known walls, ``mean`` on unknown ones; with ``correlated``, ``1 - max p`` instead). The
+    transmittance to each (``1 - max p`` over the cells a ray crossed before the cell; ``p`` = 0 on known free
+    cells, 1 on known walls, ``mean`` on unknown ones). The
     viewpoint's own cell, unless a known wall (then nothing is seen), is seen with transmittance 1.
 
     ``stamp`` (int32 ``[H, W]``, all -1) and ``slot`` (int64 ``[H, W]``) are scratch: a cell stamped ``v`` holds
@@ -192,7 +118,7 @@ def _cast_expected(mean, observed, rows, cols, n_rays, max_t, min_transmittance,
             r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c = dda_start(
                 y0, x0, np.sin(angle), np.cos(angle))
             transmittance = 1.0
-            blocked = 0.0  # correlated: the largest wall probability crossed so far
+            blocked = 0.0  # the largest wall probability crossed so far
             while True:
                 r, c, t_next_r, t_next_c, t, _ = dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c,
                                                           t_delta_c)
@@ -210,11 +136,8 @@ def _cast_expected(mean, observed, rows, cols, n_rays, max_t, min_transmittance,
                         n += 1
                     elif transmittance > trans[slot[r, c]]:
                         trans[slot[r, c]] = transmittance
-                    if correlated:
-                        blocked = max(blocked, mean[r, c])
-                        transmittance = 1.0 - blocked
-                    else:
-                        transmittance *= 1.0 - mean[r, c]
+                    blocked = max(blocked, mean[r, c])
+                    transmittance = 1.0 - blocked
                     if transmittance <= min_transmittance:
                         break
         offsets[v + 1] = n
@@ -290,55 +213,8 @@ def expected_visible_gains(mean: np.ndarray, observed: np.ndarray, viewpoints: l
     unique = np.array(list(index), np.int64).reshape(-1, 2)
     stamp = np.full(mean.shape, -1, np.int32)
     cells, trans, offsets = _cast_expected(mean, observed, unique[:, 0].copy(), unique[:, 1].copy(), cfg.n_rays,
-                                           cfg.range_m / float(resolution_m), cfg.min_transmittance,
-                                           cfg.transmittance == "correlated", stamp,
+                                           cfg.range_m / float(resolution_m), cfg.min_transmittance, stamp,
                                            np.empty(mean.shape, np.int64))
     stamp.fill(-1)
     return _union_expected(cells, trans, offsets, np.array(members, np.int64), np.array(group_offsets, np.int64),
                            variance.ravel(), stamp.ravel(), np.empty(mean.size, np.float64))
-
-
-def supported_prediction(prediction: Prediction, observed: np.ndarray, evidence: Optional[np.ndarray],
-                         resolution_m: float, cfg: WallSupport) -> Prediction:
-    """The prediction with each unknown cell's wall probability scaled by its support (:class:`WallSupport`).
-
-    Args:
-        prediction: float32 ``[H, W]`` mean and variance.
-        observed: int8 ``[H, W]`` observed map.
-        evidence: float ``[H, W]`` NLOS evidence in the map frame, or None (no SPAD: no evidence anywhere).
-        resolution_m: metres per cell.
-        cfg: the support rule.
-
-    Returns:
-        A new :class:`Prediction`: ``mean`` float32, scaled on unknown cells, unchanged elsewhere; the same
-        ``variance``.
-
-    Raises:
-        ValueError: arrays of another dtype or shape.
-    """
-    mean = check_map("prediction.mean", prediction.mean, np.float32)
-    observed = check_observed(observed, mean.shape)
-    support = np.zeros(mean.shape, np.float32)
-    if evidence is not None:
-        evidence = np.asarray(evidence)
-        if evidence.shape != mean.shape or not np.issubdtype(evidence.dtype, np.floating):
-            raise ValueError(f"evidence must be a float {mean.shape} array, got {evidence.dtype} {evidence.shape}")
-        support = np.clip(np.nan_to_num(evidence, nan=0.0) / np.float32(cfg.evidence_full), 0.0, 1.0).astype(
-            np.float32)
-    walls = observed == OCCUPIED
-    if walls.any():
-        radius = int(round(cfg.radius_m / float(resolution_m)))
-        near = ndimage.maximum_filter(walls, size=2 * radius + 1, mode="constant") if radius else walls
-        support = np.maximum(support, near.astype(np.float32))
-    scale = np.float32(cfg.min_scale) + np.float32(1.0 - cfg.min_scale) * support
-    return Prediction(mean=np.where(observed == UNKNOWN, mean * scale, mean).astype(np.float32),
-                      variance=prediction.variance)
-
-
-def context_evidence(ctx: PlanningContext) -> Optional[np.ndarray]:
-    """The NLOS evidence behind a planning step: ``ctx.evidence`` when the caller filled it, else the evidence the
-    step's prediction was asked with (the explorer's synchronous :class:`~superex_deploy.onboard.prediction.schedule
-    .LazyPrediction` keeps it), else None (no SPAD, or an asynchronous prediction)."""
-    if ctx.evidence is not None:
-        return ctx.evidence
-    return getattr(ctx.predict, "evidence", None)

@@ -47,8 +47,7 @@ class PredictorKind:
     never on the robot, in the Gymnasium environment or in a recording."""
 
     @classmethod
-    def build(cls, models=None, session: SessionConfig = SessionConfig(), max_members: Optional[int] = None,
-              agreement_stop: Optional[float] = None):
+    def build(cls, models=None, session: SessionConfig = SessionConfig(), max_members: Optional[int] = None):
         """The predictor (a :class:`~superex_deploy.onboard.types.MapPredictor`), with the arguments of
         :func:`make_onboard_predictor`.
 
@@ -64,7 +63,7 @@ class ObservedKind(PredictorKind):
     name, summary = ObservedAsPrediction.name, "unknown = free (honest baseline)"
 
     @classmethod
-    def build(cls, models=None, session=SessionConfig(), max_members=None, agreement_stop=None):
+    def build(cls, models=None, session=SessionConfig(), max_members=None):
         return ObservedAsPrediction()
 
 
@@ -76,7 +75,7 @@ class OracleKind(PredictorKind):
     reads_truth = True
 
     @classmethod
-    def build(cls, models=None, session=SessionConfig(), max_members=None, agreement_stop=None):
+    def build(cls, models=None, session=SessionConfig(), max_members=None):
         raise ValueError(f"the {cls.name} predictor reads the ground truth: it needs the grid (simulation only)")
 
 
@@ -87,9 +86,9 @@ class LamaKind(PredictorKind):
     ensemble = True
 
     @classmethod
-    def build(cls, models=None, session=SessionConfig(), max_members=None, agreement_stop=None):
+    def build(cls, models=None, session=SessionConfig(), max_members=None):
         (model,) = cls.models
-        return exported_model(model.value, models_dir(models), session).with_members(max_members, agreement_stop)
+        return exported_model(model.value, models_dir(models), session).with_members(max_members)
 
 
 class LamaLosKind(LamaKind):
@@ -110,7 +109,7 @@ class EvidenceKind(PredictorKind):
     reads_evidence = True
 
     @classmethod
-    def build(cls, models=None, session=SessionConfig(), max_members=None, agreement_stop=None):
+    def build(cls, models=None, session=SessionConfig(), max_members=None):
         return EvidenceAsPrediction()
 
 
@@ -169,7 +168,7 @@ def models_dir(models) -> str:
 
 
 def make_onboard_predictor(name: str, models=None, session: SessionConfig = SessionConfig(),
-                           max_members: Optional[int] = None, agreement_stop: Optional[float] = None):
+                           max_members: Optional[int] = None):
     """The map predictor called ``name`` (one of :data:`PREDICTORS` but those of :data:`TRUTH_PREDICTORS`):
     its kind's :meth:`PredictorKind.build`.
 
@@ -177,10 +176,10 @@ def make_onboard_predictor(name: str, models=None, session: SessionConfig = Sess
         name: the predictor.
         models: folder of exported models (default: :func:`models_dir`'s).
         session: ONNX Runtime settings of a LaMa ensemble.
-        max_members, agreement_stop: a LaMa ensemble's member limits (``LamaEnsemble.with_members``).
+        max_members: a LaMa ensemble's member limit (``LamaEnsemble.with_members``).
 
     Raises:
         ValueError: an unknown name, ``oracle`` (it reads the ground truth), models that are missing or do not
             match.
     """
-    return predictor_kind(name).build(models, session, max_members, agreement_stop)
+    return predictor_kind(name).build(models, session, max_members)

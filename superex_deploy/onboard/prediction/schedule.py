@@ -20,7 +20,7 @@ __all__ = ["MODES", "PredictionSchedule", "LazyPrediction", "StalePrediction", "
            "set_numba_threads", "weak_prediction_runner"]
 
 
-MODES = ("inline", "free", "simulated", "thread")
+MODES = ("inline", "free", "simulated")
 """The schedule's modes (see :class:`PredictionSchedule`)."""
 
 
@@ -37,18 +37,16 @@ class PredictionSchedule(JsonConfig):
             and ``superex replay`` follows them).
             ``"simulated"``: the benchmarks' mode, no thread. The map (and evidence) of every step ``k N`` is kept
             and its prediction is computed inside step ``k N + apply_after_steps`` and applied there: the worker's
-            latency is a fixed number of steps, so episodes are reproducible on any machine.
-            ``"thread"``: the same schedule as ``"simulated"`` in a worker thread; step ``k N + apply_after_steps``
-            waits for the prediction if it is not done. Its results are bit for bit those of ``"simulated"`` (the
-            tests check it); kept for that check and for timing the deterministic schedule.
+            latency is a fixed number of steps, so episodes are reproducible on any machine. (A ``"thread"`` mode,
+            this schedule in a worker thread, bit for bit the same results, measured the deterministic schedule's
+            timing in docs/benchmarks/realtime.md, "History", and was retired.)
             In every mode but ``inline`` the planners read the newest applied prediction, with the cells known
             since overwritten by the current map (:func:`merge_with_map`).
-        every_steps: ``N``, for ``simulated`` and ``thread`` (ignored otherwise): the map of every step ``k N`` is
-            predicted.
-        apply_after_steps: ``L``, for ``simulated`` and ``thread``: the delay in steps (``1 <= L <= N``).
+        every_steps: ``N``, for ``simulated`` (ignored otherwise): the map of every step ``k N`` is predicted.
+        apply_after_steps: ``L``, for ``simulated``: the delay in steps (``1 <= L <= N``).
         wait_first: in every mode but ``inline``: the first step applies the prediction of its own map (in
-            ``free`` and ``thread`` mode it waits for it: the one wait a never-waiting schedule allows, taken while
-            the robot stands at its start). Without it the planners and the first evaluations see no prediction at
+            ``free`` mode it waits for it: the one wait a never-waiting schedule allows, taken while the robot
+            stands at its start). Without it the planners and the first evaluations see no prediction at
             all until one lands, which costs map IoU early in the episode (docs/benchmarks/realtime.md).
     """
 
@@ -80,13 +78,13 @@ class PredictionSchedule(JsonConfig):
 
     @property
     def threaded(self) -> bool:
-        """Whether the explorer runs a prediction worker thread (``free`` and ``thread``)."""
-        return self.mode in ("free", "thread")
+        """Whether the explorer runs a prediction worker thread (``free``)."""
+        return self.mode == "free"
 
     @property
     def deterministic(self) -> bool:
-        """Whether the steps at which predictions land are fixed (``simulated`` and ``thread``)."""
-        return self.mode in ("simulated", "thread")
+        """Whether the steps at which predictions land are fixed (``simulated``)."""
+        return self.mode == "simulated"
 
 
 class LazyPrediction:
@@ -99,11 +97,6 @@ class LazyPrediction:
         self._predictor, self._observed, self._evidence = predictor, observed, evidence
         self.value: Optional[Prediction] = None
         self.seconds = 0.0
-
-    @property
-    def evidence(self) -> Optional[np.ndarray]:
-        """The evidence the prediction is asked with (float32 ``[H, W]``), or None (read it, do not modify it)."""
-        return self._evidence
 
     def __call__(self) -> Prediction:
         return self._compute(commit=True)
@@ -159,7 +152,7 @@ class ScheduledPredictions:
     """Runs the predictor of an explorer whose schedule is not ``inline``, and holds the newest applied prediction.
 
     Args:
-        schedule: the :class:`PredictionSchedule` (``free``, ``simulated`` or ``thread``).
+        schedule: the :class:`PredictionSchedule` (``free`` or ``simulated``).
         predict: ``predict(observed, evidence) -> Prediction``, called in the worker thread or inline.
         worker_threads: numba threads of the worker thread (set in it when it starts); unused without a worker.
 
@@ -167,16 +160,15 @@ class ScheduledPredictions:
         latest: the newest applied prediction, or None.
         latest_step: the step whose map it was made from, or -1.
         blocking_waits: steps that waited for an unfinished prediction (``free`` mode: at most the first, with
-            ``wait_first``, and a step whose grid grew while one was in progress; ``thread`` mode: whenever the
-            worker is slower than the schedule, and at a growth).
+            ``wait_first``, and a step whose grid grew while one was in progress).
         last_wait_s: seconds the latest step waited for the predictor: blocked on an unfinished prediction
-            (``free``, ``thread``) or computing one inline (``simulated``, a followed recording); 0 otherwise.
+            (``free``) or computing one inline (``simulated``, a followed recording); 0 otherwise.
         last_regrid_wait_s: the same for the latest move to a larger grid (:meth:`regrid`).
     """
 
     def __init__(self, schedule: PredictionSchedule, predict: Callable, worker_threads: int = 1):
         if not schedule.asynchronous:
-            raise ValueError("ScheduledPredictions runs the free, simulated and thread schedules, not inline")
+            raise ValueError("ScheduledPredictions runs the free and simulated schedules, not inline")
         self.schedule, self._predict = schedule, predict
         self._worker: Optional[ThreadPoolExecutor] = None
         if schedule.threaded:
@@ -251,8 +243,6 @@ class ScheduledPredictions:
             self._advance_recorded(t, observed, evidence)
         elif self.schedule.mode == "free":
             self._advance_free(t, observed, evidence)
-        elif self.schedule.mode == "thread":
-            self._advance_thread(t, observed, evidence)
         else:
             self._advance_simulated(t, observed, evidence)
         return time.perf_counter() - clock
@@ -282,18 +272,9 @@ class ScheduledPredictions:
             if t == 0 and self.schedule.wait_first:  # the start-up exception: the robot stands at its start
                 self._take()
 
-    def _advance_thread(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
-        schedule = self.schedule
-        if self._pending is not None and t >= self._pending_step + schedule.apply_after_steps:
-            self._take()  # waits if the worker is slower than the schedule
-        if self._pending is None and t % schedule.every_steps == 0:
-            self._submit(t, observed, evidence)
-            if t == 0 and schedule.wait_first:
-                self._take()
-
     def _advance_simulated(self, t: int, observed: np.ndarray, evidence: Optional[np.ndarray]) -> None:
-        # The thread mode's schedule with the worker's latency as apply_after_steps steps: computed inline on the
-        # kept map at the step it would have been taken, so the results are the thread mode's, bit for bit.
+        # A worker's schedule with its latency as apply_after_steps steps: the map of step k N is kept and its
+        # prediction computed inline at step k N + apply_after_steps, where it is applied.
         schedule = self.schedule
         due = [s for s in self._kept if t >= s + schedule.apply_after_steps]
         for step in due:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
+from superex_deploy.onboard.checks import check_int, check_real
 
 __all__ = ["LidarNoise", "noisy_ranges", "DEFAULT_DROPOUT_PROB", "DEFAULT_SPURIOUS_PROB"]
 
@@ -52,20 +53,12 @@ class LidarNoise(JsonConfig):
     range_min_m: float = 0.05
 
     def __post_init__(self) -> None:
-        for name in ("sigma_m", "dropout_prob", "spurious_prob", "range_min_m"):
-            value = getattr(self, name)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise ValueError(f"LidarNoise.{name} must be a number, got {value!r}")
-            object.__setattr__(self, name, float(value))
-        if not (np.isfinite(self.sigma_m) and self.sigma_m >= 0.0):
-            raise ValueError(f"LidarNoise.sigma_m must be finite and >= 0, got {self.sigma_m}")
-        if not (np.isfinite(self.range_min_m) and self.range_min_m >= 0.0):
-            raise ValueError(f"LidarNoise.range_min_m must be finite and >= 0, got {self.range_min_m}")
+        for name in ("sigma_m", "range_min_m"):
+            object.__setattr__(self, name, check_real(f"LidarNoise.{name}", getattr(self, name), 0.0))
         for name in ("dropout_prob", "spurious_prob"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"LidarNoise.{name} must lie in [0, 1), got {getattr(self, name)}")
-        if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"LidarNoise.seed must be a non-negative integer, got {self.seed!r}")
+            object.__setattr__(self, name, check_real(f"LidarNoise.{name}", getattr(self, name), 0.0, 1.0,
+                                                      high_open=True))
+        object.__setattr__(self, "seed", check_int("LidarNoise.seed", self.seed, 0))
 
     @classmethod
     def from_sigma(cls, sigma_m: float, seed: int = 0) -> "LidarNoise":

@@ -38,6 +38,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
+from superex_deploy.onboard.checks import check_int, check_real
 from superex_deploy.messages import Pose2D, PoseCovariance
 
 __all__ = ["PoseNoise", "PoseErrorModel", "DRIFT_FRACTION_PER_SQRT_M", "DRIFT_BOUND_SIGMAS"]
@@ -51,12 +52,11 @@ _STREAM = 0x706F7365  # "pose": keeps this generator's stream apart from the oth
 
 
 def _non_negative(name: str, value, allow_inf: bool = False) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"PoseNoise.{name} must be a number, got {value!r}")
-    value = float(value)
-    if not (value >= 0.0 and (np.isfinite(value) or (allow_inf and value == math.inf))):
-        raise ValueError(f"PoseNoise.{name} must be finite and >= 0, got {value}")
-    return value
+    """``value`` as a finite float >= 0 (or ``inf`` with ``allow_inf``), named ``PoseNoise.NAME`` in the error."""
+    if allow_inf and not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.floating)) \
+            and value == math.inf:
+        return math.inf
+    return check_real(f"PoseNoise.{name}", value, 0.0)
 
 
 @dataclass(frozen=True)
@@ -89,8 +89,7 @@ class PoseNoise(JsonConfig):
         for name in ("max_drift_xy_m", "max_drift_yaw_deg"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, _non_negative(name, getattr(self, name), allow_inf=True))
-        if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"PoseNoise.seed must be a non-negative integer, got {self.seed!r}")
+        object.__setattr__(self, "seed", check_int("PoseNoise.seed", self.seed, 0))
 
     @classmethod
     def from_sigmas(cls, sigma_xy_m: float, sigma_yaw_deg: float, seed: int = 0) -> "PoseNoise":

@@ -8,9 +8,7 @@ from typing import Optional
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
-                                                        check_wall_support, context_evidence,
-                                                        expected_visible_gains, supported_prediction)
+from superex_deploy.onboard.planning.expected_visibility import ExpectedVisibility, expected_visible_gains
 from superex_deploy.onboard.checks import check_choice, check_instance, check_real, in_cells
 from superex_deploy.onboard.types import Frontier, Planner, PlanningContext, Prediction, frontiers_at, scores_by_cell
 from superex_deploy.onboard.planning.viewpoint_gains import visible_gains
@@ -32,16 +30,10 @@ class MapexConfig(JsonConfig):
             goal tolerance (1 m) are never offered, so it only guards against a zero distance.
         gain: ``"visible"`` (MapEx): the cells of the thresholded raycast's filled polygon; ``"expected"``: every
             unknown cell weighted by the probability that a ray reaches it through the predicted walls
-            (:func:`~superex_deploy.onboard.planning.expected_visibility.expected_visible_gains`, with ``visibility``'s
+            (``1 - max p`` over the cells it crossed:
+            :func:`~superex_deploy.onboard.planning.expected_visibility.expected_visible_gains`, with ``visibility``'s
             rays and range; its threshold and ``accumulate`` are then unused): the expected variance, or the
             expected count without variance.
-        wall_support: None reads the prediction as it is; a
-            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
-            scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
-            first.
-        transmittance: how ``gain="expected"`` combines the wall probabilities along a ray: ``"independent"``
-            (the product of ``1 - p``) or ``"correlated"`` (``1 - max p``; see
-            :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Raises:
         ValueError: a field of another type or out of its range, named (see
@@ -52,15 +44,11 @@ class MapexConfig(JsonConfig):
     distance: str = "travel"
     min_distance_m: float = 0.1
     gain: str = "visible"
-    wall_support: Optional[WallSupport] = None
-    transmittance: str = "independent"
 
     def __post_init__(self) -> None:
         check_instance("visibility", self.visibility, VisibilityConfig)
         check_choice("distance", self.distance, ("travel", "euclidean"))
         check_choice("gain", self.gain, ("visible", "expected"))
-        object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
-        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         object.__setattr__(self, "min_distance_m",
                            check_real("min_distance_m", self.min_distance_m, 0.0, low_open=True))
 
@@ -92,8 +80,7 @@ class MapexPlanner(Planner):
         """float64 ``[N]``: visible-unknown variance of each viewpoint, or the visible unknown count when the
         prediction has no variance anywhere (both expected ones with ``cfg.gain="expected"``)."""
         if self.cfg.gain == "expected":
-            rays = ExpectedVisibility(n_rays=self.cfg.visibility.n_rays, range_m=self.cfg.visibility.range_m,
-                                      transmittance=self.cfg.transmittance)
+            rays = ExpectedVisibility(n_rays=self.cfg.visibility.n_rays, range_m=self.cfg.visibility.range_m)
             cells = np.asarray(cells_rc, np.int64).reshape(-1, 2)
             counts, var_sums = expected_visible_gains(prediction.mean, observed, [[cell] for cell in cells], rays,
                                                       resolution_m, prediction.variance)
@@ -111,9 +98,6 @@ class MapexPlanner(Planner):
             return [], costs, np.zeros(0)
         cells = np.array([f.cell_rc for f in frontiers], np.float64)
         prediction = ctx.predict()
-        if self.cfg.wall_support is not None:
-            prediction = supported_prediction(prediction, ctx.observed, context_evidence(ctx), ctx.resolution_m,
-                                              self.cfg.wall_support)
         information = self.information(prediction, ctx.observed, cells.astype(np.int64), ctx.resolution_m)
         if self.cfg.distance == "euclidean":
             distance = np.hypot(cells[:, 0] - ctx.pose_rc[0], cells[:, 1] - ctx.pose_rc[1])

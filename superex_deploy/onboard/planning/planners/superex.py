@@ -11,21 +11,19 @@ reached or blocked (MapEx's locked goal).
 The gain reads the prediction as probabilities (``gain="expected"``,
 :mod:`~superex_deploy.onboard.planning.expected_visibility`): each unknown cell counts with the probability that a
 ray reaches it, the largest over the path's viewpoints, and a ray passes the cells it crosses with probability
-``1 - max p`` over their predicted wall probabilities (``transmittance="correlated"``: the cells of one predicted
-wall are one event). Measured in docs/benchmarks/better-map.md, "Reading predictions as probabilities"
-(``scripts/bench_expected_gain.py``): a count on the thresholded prediction (``gain="path"``) pays for every wrong
-predicted wall, and the product of ``1 - p`` (``"independent"``) cuts the rays short where a learned prediction
-spreads a little wall probability over every unknown cell.
+``1 - max p`` over their predicted wall probabilities (correlated transmittance: the cells of one predicted wall
+are one event). Measured in docs/benchmarks/better-map.md, "Reading predictions as probabilities"
+(``benchmarks/expected_gain/``): a count on the thresholded prediction (``gain="path"``) pays for every wrong
+predicted wall. Measured there and retired: the product of ``1 - p`` along a ray (cells independent), which cuts the
+rays short where a learned prediction spreads a little wall probability over every unknown cell, and a "wall
+support" that shrank predicted walls neither NLOS evidence nor an observed wall supported.
 
 Options a user may choose (measured on the train floors, docs/benchmarks/better-map.md):
 
 * ``gain="path"``: the count of unknown cells visible along the path on the prediction thresholded at
   ``wall_threshold`` (rays stop at cells predicted walls at or above it); ``"goal"``: the same from the goal cell
   only (MapEx's gain); ``"expected_goal"``: the expected gain from the goal cell only;
-* ``transmittance="independent"``: each ray's transmittance the product of ``1 - p`` over the cells it crosses;
-* ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it;
-* ``wall_support``: a :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` shrinks each predicted
-  wall that neither NLOS evidence nor an observed wall nearby supports, before any gain reads the prediction.
+* ``drop_resolved_m``: drop the goal as soon as no unknown cell is left within this distance of it.
 """
 
 from __future__ import annotations
@@ -37,9 +35,7 @@ import numba
 import numpy as np
 
 from superex_deploy.configs import JsonConfig
-from superex_deploy.onboard.planning.expected_visibility import (TRANSMITTANCES, ExpectedVisibility, WallSupport,
-                                                        check_wall_support, context_evidence,
-                                                        expected_visible_gains, supported_prediction)
+from superex_deploy.onboard.planning.expected_visibility import ExpectedVisibility, expected_visible_gains
 from superex_deploy.onboard.checks import check_choice, check_instance, check_int, check_real
 from superex_deploy.onboard.planning.viewpoint_gains import union_visible_unknown_flat, visible_gains
 from superex_deploy.onboard.planning.visibility import (MAX_RAYS, VisibilityConfig, check_cells, check_map,
@@ -56,7 +52,8 @@ class SuperexConfig(JsonConfig):
 
     Attributes:
         gain: ``"expected"`` / ``"expected_goal"``: the expected number of unknown cells seen along the path to
-            the goal / from the goal (transmittance through the predicted wall probabilities, no threshold);
+            the goal / from the goal (transmittance ``1 - max p`` through the predicted wall probabilities, no
+            threshold);
             ``"path"``: unknown cells visible from the goal or along the path to it on the prediction thresholded
             at ``wall_threshold``; ``"goal"``: the same from the goal cell only (MapEx). ``n_rays`` and
             ``range_m`` serve all four.
@@ -69,13 +66,6 @@ class SuperexConfig(JsonConfig):
         n_rays: rays of each visibility cast (over a full turn).
         drop_resolved_m: None keeps a goal until it is reached or blocked (MapEx); a distance drops it as soon as
             no unknown cell is left that close to it.
-        wall_support: None reads the prediction as it is; a
-            :class:`~superex_deploy.onboard.planning.expected_visibility.WallSupport` (or a number: its ``min_scale``)
-            scales each unknown cell's wall probability by its support (NLOS evidence, observed walls nearby)
-            first, for every gain.
-        transmittance: how the expected gains combine the wall probabilities along a ray: ``"correlated"``
-            (``1 - max p``) or ``"independent"`` (the product of ``1 - p``; see
-            :mod:`~superex_deploy.onboard.planning.expected_visibility`).
 
     Every distance is finite and positive (``drop_resolved_m``: None or finite and >= 0), ``n_rays`` an integer in
     ``[3, MAX_RAYS]``. The rollout and tour choices were measured and retired (docs/benchmarks/better-map.md).
@@ -91,13 +81,9 @@ class SuperexConfig(JsonConfig):
     range_m: float = 20.0
     n_rays: int = 250
     drop_resolved_m: Optional[float] = None
-    wall_support: Optional[WallSupport] = None
-    transmittance: str = "correlated"
 
     def __post_init__(self) -> None:
         check_choice("gain", self.gain, ("path", "goal", "expected", "expected_goal"))
-        object.__setattr__(self, "wall_support", check_wall_support("wall_support", self.wall_support))
-        check_choice("transmittance", self.transmittance, TRANSMITTANCES)
         values = {"wall_threshold": check_real("wall_threshold", self.wall_threshold, 0.0, 1.0, low_open=True),
                   "drop_resolved_m": check_real("drop_resolved_m", self.drop_resolved_m, 0.0, allow_none=True),
                   "n_rays": check_int("n_rays", self.n_rays, 3, MAX_RAYS)}
@@ -239,8 +225,7 @@ class SuperexPlanner(Planner):
             every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
             cells, offsets = path_viewpoints(ctx.travel_cost, goals, every)
         if self.cfg.gain in ("expected", "expected_goal"):
-            rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
-                                      transmittance=self.cfg.transmittance)
+            rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m)
             viewpoints = [cells[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
             return expected_visible_gains(prediction.mean, ctx.observed, viewpoints, rays, ctx.resolution_m)[0]
         visibility = VisibilityConfig(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m,
@@ -258,9 +243,6 @@ class SuperexPlanner(Planner):
         if not frontiers:
             return [], costs, np.zeros(0)
         prediction = ctx.predict()
-        if self.cfg.wall_support is not None:
-            prediction = supported_prediction(prediction, ctx.observed, context_evidence(ctx), ctx.resolution_m,
-                                              self.cfg.wall_support)
         gains = self.gains(ctx, prediction, frontiers)
         return frontiers, costs, gains / np.maximum(costs, 1.0)
 

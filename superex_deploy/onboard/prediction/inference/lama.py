@@ -22,21 +22,16 @@ from superex_deploy.onboard.types import OCCUPIED, UNKNOWN, Prediction
 __all__ = ["LamaEnsemble", "check_member_options"]
 
 
-def check_member_options(max_members: Optional[int], agreement_stop: Optional[float],
-                         members: Optional[int] = None) -> None:
-    """Validate :meth:`LamaEnsemble.with_members`'s options (``members``: the ensemble's size, None: not known yet).
+def check_member_options(max_members: Optional[int], members: Optional[int] = None) -> None:
+    """Validate :meth:`LamaEnsemble.with_members`'s option (``members``: the ensemble's size, None: not known yet).
 
     Raises:
-        ValueError: ``max_members`` not an integer in 1..members (or >= 1), ``agreement_stop`` not in [0, 1].
+        ValueError: ``max_members`` not an integer in 1..members (or >= 1).
     """
     if max_members is not None and (not isinstance(max_members, (int, np.integer)) or isinstance(max_members, bool)
                                     or max_members < 1 or (members is not None and max_members > members)):
         allowed = f"in 1..{members}" if members is not None else ">= 1"
         raise ValueError(f"max_members must be an integer {allowed} or None, got {max_members!r}")
-    if agreement_stop is not None and not (isinstance(agreement_stop, (int, float, np.floating))
-                                           and not isinstance(agreement_stop, bool)
-                                           and 0.0 <= agreement_stop <= 1.0):
-        raise ValueError(f"agreement_stop must lie in [0, 1] or be None, got {agreement_stop!r}")
 
 
 class LamaEnsemble:
@@ -49,9 +44,17 @@ class LamaEnsemble:
     simulation); only unknown cells carry the networks' predictions. The members are separate files (each with
     its own member index), so they run one after the other, each on all ``intra_op_threads``.
 
-    Two settings trade members for time (:meth:`with_members`): ``max_members`` runs only the first members, and
-    ``agreement_stop`` stops after the first two when they agree: their mean absolute difference over the
-    unknown cells is at most that (wall probability). The variance is then the two members' (one member: zero).
+    ``max_members`` trades members for time (:meth:`with_members`): only the first members run, and the variance is
+    theirs (one member: zero). (An ``agreement_stop``, which stopped after the first two members when they agreed,
+    was measured in docs/benchmarks/realtime.md and retired.)
+
+    The committed members draw a faint grid of lines every ``size_multiple`` cells across large unknown regions
+    (their stride-2 transposed convolutions; docs/benchmarks/models.md, "The grid of lines far out"). With
+    ``lattice_filter`` (the default) each member's output goes through
+    :func:`~superex_deploy.onboard.prediction.inference.lattice.remove_lattice` on the padded grid before it is
+    cropped: the lines go, each ``size_multiple``-block's mean stays (map IoU and calibration unchanged to 0.001,
+    docs/benchmarks/models.md). It costs a few per cent of a prediction (``scripts/bench_lattice_cost.py``,
+    ``benchmarks/lattice/``); ``with_lattice_filter(False)`` gives the members' raw outputs.
 
     Args:
         paths: the members' ``.onnx`` files (all of one kind).
@@ -69,7 +72,6 @@ class LamaEnsemble:
         name: ``"lama_bp"`` or ``"lama_los"`` (the predictor's name in episode logs).
         size_multiple, min_size: padding targets (cells).
         max_members: members run per prediction (None: all).
-        agreement_stop: see above (None: never stop early).
         lattice_filter: whether members' outputs go through the lattice filter (see above).
         members_run: how many members the latest prediction ran.
     """
@@ -78,7 +80,7 @@ class LamaEnsemble:
 
     def __init__(self, paths: Sequence[PathLike], expected_sha256: Optional[Sequence[str]] = None,
                  session: SessionConfig = SessionConfig(), keep_observed: bool = True,
-                 expected_resolution_m: Optional[float] = None, lattice_filter: bool = False):
+                 expected_resolution_m: Optional[float] = None, lattice_filter: bool = True):
         paths = list(paths)
         if not paths:
             raise ValueError("a LamaEnsemble needs at least one member file")
@@ -108,21 +110,17 @@ class LamaEnsemble:
         self.keep_observed = bool(keep_observed)
         self.lattice_filter = bool(lattice_filter)
         self.max_members: Optional[int] = None
-        self.agreement_stop: Optional[float] = None
         self.members_run = 0
 
-    def with_members(self, max_members: Optional[int] = None, agreement_stop: Optional[float] = None
-                     ) -> "LamaEnsemble":
-        """This ensemble (sharing its sessions) running at most ``max_members`` members, stopping after two that
-        agree within ``agreement_stop`` (see the class docstring).
+    def with_members(self, max_members: Optional[int] = None) -> "LamaEnsemble":
+        """This ensemble (sharing its sessions) running at most ``max_members`` members (None: all).
 
         Raises:
-            ValueError: ``max_members`` outside 1..members, ``agreement_stop`` not in [0, 1].
+            ValueError: ``max_members`` outside 1..members.
         """
-        check_member_options(max_members, agreement_stop, len(self._members))
+        check_member_options(max_members, len(self._members))
         view = copy.copy(self)
         view.max_members = None if max_members is None else int(max_members)
-        view.agreement_stop = None if agreement_stop is None else float(agreement_stop)
         view.members_run = 0
         return view
 
@@ -135,7 +133,7 @@ class LamaEnsemble:
     @classmethod
     def from_manifest(cls, kind: ModelKind, directory: PathLike = DEFAULT_MODEL_DIR,
                       session: SessionConfig = SessionConfig(), keep_observed: bool = True,
-                      lattice_filter: bool = False) -> "LamaEnsemble":
+                      lattice_filter: bool = True) -> "LamaEnsemble":
         """Every ``kind`` member listed in ``directory/manifest.json``, in member order, sha256 checked."""
         if kind not in (ModelKind.LAMA_BP, ModelKind.LAMA_LOS):
             raise ValueError(f"a LamaEnsemble is made of lama_bp or lama_los models, got {kind}")
@@ -155,7 +153,7 @@ class LamaEnsemble:
 
     def predict_members(self, observed: np.ndarray, extra: Optional[np.ndarray] = None) -> np.ndarray:
         """Each member's wall probability: float32 ``[M, H, W]`` in [0, 1] (before ``keep_observed``, after the
-        lattice filter when it is on); ``M`` is the members run (see ``max_members`` and ``agreement_stop``)."""
+        lattice filter when it is on); ``M`` is the members run (see ``max_members``)."""
         encoded = encode_map(observed, extra, self.kind)
         height, width = observed.shape
         rows, cols = self.padded_shape((height, width))
@@ -164,17 +162,11 @@ class LamaEnsemble:
         padded[:, :, :height, :width] = encoded
         members = self._members if self.max_members is None else self._members[:self.max_members]
         out = np.empty((len(members), height, width), np.float32)
-        unknown = observed == UNKNOWN
         for i, member in enumerate(members):
             result = member.session.run([member.output_name], {member.input_name: padded})[0][0, 0]
             if self.lattice_filter:
                 result = remove_lattice(np.clip(result, 0.0, 1.0), self.size_multiple)
             out[i] = np.clip(result[:height, :width], 0.0, 1.0)
-            if i == 1 and self.agreement_stop is not None and len(members) > 2:
-                disagreement = float(np.abs(out[0] - out[1])[unknown].mean()) if unknown.any() else 0.0
-                if disagreement <= self.agreement_stop:
-                    out = out[:2]
-                    break
         self.members_run = len(out)
         return out
 
