@@ -226,7 +226,8 @@ def old_recording(record_episode):
                     "spad": False, "models": None, "sensor": None, "nlos": None, "explorer": explorer_cfg,
                     "profile": "full", "profile_settings": PROFILES["full"].to_json()}
         world, explorer = make_world_and_explorer(load_map(name), start_poses(name)[start_index],
-                                                  make_planner("superex", **OLD_SUPEREX),
+                                                  # transmittance: read by the expected gain only
+                                                  make_planner("superex", gain=OLD_SUPEREX["gain"]),
                                                   ObservedAsPrediction(), 0, cfg)
         return path, record_episode(path, world, explorer, metadata)
     return record

@@ -47,7 +47,7 @@ def test_a_fresh_recording_replays_bit_for_bit(tmp_path):
 
     grid = load_map(MAP)
     cfg = PROFILES["full"].episode_config(iou_every=0)
-    planner = make_planner("superex", gain="goal", wall_support=0.3, drop_resolved_m=2.0)
+    planner = make_planner("superex", gain="goal", sense_every_m=1.2, drop_resolved_m=2.0)
     world, explorer = make_world_and_explorer(grid, start_poses(MAP)[2], planner, ObservedAsPrediction(), 0, cfg)
     metadata = recording_metadata(map_name=MAP, planner_name="superex", planner=planner,
                                   planner_options={"gain": "goal"}, predictor="observed", seed=0, sensor=None,
@@ -81,11 +81,11 @@ def test_explore_records_every_configuration_and_it_replays(tmp_path):
 
     record = tmp_path / "new.mcap"
     assert main(["explore", "--pipeline", "nearest", "--map", MAP, "--start", "2", "--planner", "superex",
-                 "--planner-option", "wall_support=0.5", "--spad", "--steps", "6", "--gif-every", "0",
+                 "--planner-option", "sense_every_m=1.5", "--spad", "--steps", "6", "--gif-every", "0",
                  "--out", str(tmp_path / "run"), "--record", str(record)]) == 0
     metadata = read_recording(record).metadata
-    assert metadata["planner_options"] == {"wall_support": 0.5}
-    assert metadata["planner_config"] == SuperexConfig(wall_support=0.5).to_json()
+    assert metadata["planner_options"] == {"sense_every_m": 1.5}
+    assert metadata["planner_config"] == SuperexConfig(sense_every_m=1.5).to_json()
     assert metadata["planner_config"]["gain"] == "expected" and metadata["spad"] is True
     assert SpadConfig.from_json(metadata["sensor"]) == SpadConfig() and metadata["nlos"] == NlosConfig().to_json()
     replay = _replay(tmp_path, record)
@@ -129,7 +129,7 @@ def test_a_converted_old_recording_replays_the_goals_of_its_run(tmp_path, old_re
     assert recording.metadata["format_version"] == "2" and len(recording.steps) == 15
     # The options given were none: the planner ran the defaults of then, which the converter fills in.
     assert PREVIOUS_DEFAULTS == {"superex": OLD_SUPEREX}
-    assert recording.metadata["planner_config"] == SuperexConfig(**OLD_SUPEREX).to_json()
+    assert recording.metadata["planner_config"] == SuperexConfig(gain=OLD_SUPEREX["gain"]).to_json()
     replay = _replay(tmp_path, new)
     assert replay["goals_match"] and replay["goals"]["cells"] == goals and goals
     # The recording tells the defaults apart: rebuilt with the new ones, the planner would choose other goals.
@@ -191,7 +191,7 @@ def test_the_converter_rewrites_every_old_form():
     assert new["format_version"] == "2" and new["profile"] == "full" and new["seed"] == 3
     assert new["planner_config"]["expand_m"] == 0.5 and "expand_cells" not in new["planner_config"]
     assert new["explorer"]["frontier_min_m"] == 1.0 and new["explorer"]["motion"]["step_m"] == 0.3
-    assert new["explorer"]["prediction"]["mode"] == "thread" and new["explorer"]["finish_frontier_m"] == 0.0
+    assert new["explorer"]["prediction"]["mode"] == "simulated" and new["explorer"]["finish_frontier_m"] == 0.0
     assert new["explorer"]["goal_policy"]["drop_resolved_m"] is None
     assert new["nlos"]["window_m"] == 6.0 and new["nlos"]["wall_strip_m"] == pytest.approx(0.15)
     assert "retired_option" not in new["nlos"]
