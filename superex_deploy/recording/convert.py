@@ -152,6 +152,8 @@ def _planner(old: dict, resolution_m: float) -> dict:
         fields = old["planner_config"]
     else:
         fields = {**PREVIOUS_DEFAULTS.get(name, {}), **(old.get("planner_options") or {})}
+    if name in ("superex", "mapex") and fields.get("gain") != "expected":
+        fields = {key: value for key, value in fields.items() if key != "transmittance"}  # read by that gain only
     config_class = planner_config(name)
     if config_class is None:
         if fields:
