@@ -2,7 +2,7 @@
 
 A planner is a :class:`superex_deploy.onboard.types.Planner` subclass with a ``name`` and a ``choose_goal(ctx)``
 that returns the goal cell from the step's :class:`~superex_deploy.onboard.types.PlanningContext` (its frontier
-regions, the travel cost from the robot, the map). Added to the registry ``PLANNERS``, it is built by name wherever
+regions, the travel cost from the robot, the map). Registered (``register_planner``), it is built by name wherever
 a planner is in this process (``make_planner``, ``build_explorer``, ``superex_deploy.cli.main(["explore",
 "--planner", "largest", ...])``), though not in ``superex benchmark``'s worker processes, which import only the
 package. Here it explores a bundled KTH floor through the construction path ``superex explore`` takes
@@ -15,12 +15,13 @@ import argparse
 
 from superex_deploy.maps import load_map, start_poses
 from superex_deploy.messages import MapFrame
-from superex_deploy.onboard.planning.planners import PLANNERS, reachable_frontiers
+from superex_deploy.onboard.planning.planners import reachable_frontiers, register_planner
 from superex_deploy.onboard.types import Planner
 from superex_deploy.pipeline import DEFAULT_PROFILE, PROFILES, build_explorer
 from superex_deploy.evaluation.episodes import run_episode
 
 
+@register_planner  # built by name from here on, in this process (a planner with settings: register_planner(cls, cfg))
 class LargestFrontier(Planner):
     """The reachable frontier region with the most cells; ties to the nearer one (by travel cost), then the cell."""
 
@@ -33,8 +34,6 @@ class LargestFrontier(Planner):
         best = min(range(len(frontiers)), key=lambda i: (-frontiers[i].size, costs[i], frontiers[i].cell_rc))
         return frontiers[best].cell_rc
 
-
-PLANNERS[LargestFrontier.name] = LargestFrontier  # registered: built by name from here on, in this process
 
 
 def explore(planner: str, floor: str, start: int, steps: int):

@@ -379,3 +379,43 @@ def test_union_of_views_counts_each_unknown_cell_once_per_group():
     assert counts[2] == 0
     with pytest.raises(ValueError, match="outside the map"):
         union_visible_unknown(mean, observed, [[(40, 0)]], cfg, 0.1)
+
+
+def test_register_planner_adds_a_planner_by_name_and_refuses_what_it_cannot_build():
+    from dataclasses import dataclass
+
+    from superex_deploy.onboard.planning.planners import PLANNERS, make_planner, planner_config, register_planner
+    from superex_deploy.onboard.types import Planner
+
+    @dataclass(frozen=True)
+    class FirstConfig:
+        reach_m: float = 1.0
+
+    class First(Planner):
+        name = "first-test"
+
+        def __init__(self, cfg=FirstConfig()):
+            self.cfg = cfg
+
+        def choose_goal(self, ctx):
+            return None
+
+    saved = dict(PLANNERS)
+    try:
+        assert register_planner(First, FirstConfig) is First
+        assert planner_config("first-test") is FirstConfig
+        assert make_planner("first-test", reach_m=2.5).cfg == FirstConfig(2.5)
+        with pytest.raises(ValueError, match="a planner named 'first-test' is registered already"):
+            register_planner(First)
+        with pytest.raises(ValueError, match="a planner must be a subclass of"):
+            register_planner(FirstConfig)
+        nameless = type("Nameless", (First,), {"name": ""})
+        with pytest.raises(ValueError, match="Nameless needs a class attribute name"):
+            register_planner(nameless)
+        renamed = type("Renamed", (First,), {"name": "renamed-test"})
+        with pytest.raises(ValueError, match="config_class must be a dataclass or None"):
+            register_planner(renamed, dict)
+        assert "renamed-test" not in PLANNERS
+    finally:
+        PLANNERS.clear()
+        PLANNERS.update(saved)

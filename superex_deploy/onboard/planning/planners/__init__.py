@@ -38,7 +38,7 @@ __all__ = [
     "reachable_frontiers",
     "RandomTree", "grow_rrt",
     "NearestFrontier", "HectorConfig", "HectorPlanner", "UpenConfig", "UpenPlanner", "MapexConfig", "MapexPlanner",
-    "SuperexConfig", "SuperexPlanner", "PLANNERS", "make_planner", "planner_config",
+    "SuperexConfig", "SuperexPlanner", "PLANNERS", "register_planner", "make_planner", "planner_config",
 ]
 
 PLANNERS: dict[str, type[Planner]] = {
@@ -51,6 +51,35 @@ PLANNERS: dict[str, type[Planner]] = {
 
 _CONFIGS = {HectorPlanner: HectorConfig, UpenPlanner: UpenConfig, MapexPlanner: MapexConfig,
             SuperexPlanner: SuperexConfig}
+
+
+def register_planner(planner_class: type, config_class: type = None) -> type:
+    """Register ``planner_class`` under its ``name``: from then on :func:`make_planner`, :func:`planner_config` and
+    everything that builds planners by name (the CLI's ``--planner``, the pipelines, the benchmarks run in this
+    process) build it, with ``config_class`` (a frozen dataclass the class is constructed with, or None for a
+    planner without configuration). Returns ``planner_class``, so it serves as a decorator of a class without
+    configuration. A worker process of a parallel benchmark sees the registration only if it imports the module
+    that makes it.
+
+    Raises:
+        ValueError: a class that is not a :class:`~superex_deploy.onboard.types.Planner` or has no ``name`` (a
+            non-empty str), a name already registered, a ``config_class`` that is not a dataclass.
+    """
+    import dataclasses
+
+    if not isinstance(planner_class, type) or not issubclass(planner_class, Planner):
+        raise ValueError(f"a planner must be a subclass of superex_deploy.onboard.types.Planner, got {planner_class!r}")
+    name = getattr(planner_class, "name", None)
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{planner_class.__name__} needs a class attribute name (a non-empty str), got {name!r}")
+    if name in PLANNERS:
+        raise ValueError(f"a planner named {name!r} is registered already ({PLANNERS[name].__name__})")
+    if config_class is not None and not (isinstance(config_class, type) and dataclasses.is_dataclass(config_class)):
+        raise ValueError(f"config_class must be a dataclass or None, got {config_class!r}")
+    PLANNERS[name] = planner_class
+    if config_class is not None:
+        _CONFIGS[planner_class] = config_class
+    return planner_class
 
 
 def planner_config(name: str):
