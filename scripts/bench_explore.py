@@ -5,7 +5,7 @@ reports, per stage (scan, map update, frontiers, prediction, scoring, path), the
 whole episode and over its first and last 100 steps (a stage whose cost grew with the step count shows up
 there), plus the whole-episode wall time (metric evaluation included). Prints a markdown table and writes JSON.
 
-    .venv/bin/python scripts/bench_explore.py --steps 1000 --out benchmarks/bench_explore.json
+    .venv/bin/python scripts/bench_explore.py --steps 1000 --out benchmarks/explore/bench_explore.json
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--maps", default="50052750,50010535_PLAN1", help="comma-separated bundled eval maps")
     parser.add_argument("--planners", default="nearest,hector,upen,mapex", help="comma-separated planner names")
     parser.add_argument("--steps", type=int, default=1000, help="step budget per episode")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/bench_explore.json"), help="JSON output")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/explore/bench_explore.json"), help="JSON output")
     args = parser.parse_args()
     maps = [m.strip() for m in args.maps.split(",") if m.strip()]
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]

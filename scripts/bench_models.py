@@ -35,7 +35,7 @@ exporter at opset 18 (ONNX ``DFT``), same weights, same padded largest-map input
 each, the export time and the largest |ORT - torch| difference. This is the measurement behind the choice of the
 matmul unit.
 
-Prints markdown tables and writes JSON (``--out``, default ``benchmarks/bench_models.json``). Timings depend on
+Prints markdown tables and writes JSON (``--out``, default ``benchmarks/model_speed/bench_models.json``). Timings depend on
 the machine and its load; nothing here asserts on them.
 
 Usage::
@@ -376,7 +376,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument("--fft", action="store_true",
                         help="table 3: the matmul Fourier unit vs a torch.fft / ONNX DFT export (largest map)")
     parser.add_argument("--quick", action="store_true", help="smoke test: largest size only, 2 repeats, 1 warm-up")
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "bench_models.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "model_speed" / "bench_models.json")
     args = parser.parse_args(argv)
     repeats = args.repeats if args.repeats is not None else (2 if args.quick else 10)
     warmup = args.warmup if args.warmup is not None else (1 if args.quick else 2)

@@ -181,7 +181,7 @@ def part_tradeoff(scenarios):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("bench_spad.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/spad/bench_spad.json"))
     parser.add_argument("--maps", type=int, default=10, help="number of eval maps (<= 10)")
     parser.add_argument("--steps", type=int, default=200, help="steps of each part-2 episode")
     parser.add_argument("--timing-only", action="store_true", help="run parts 1 and 2 only")

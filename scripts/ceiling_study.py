@@ -8,7 +8,7 @@ and than MapEx. Only train floors are used (``eval/`` is for reporting): the map
 the map's name (:func:`superex_deploy.evaluation.train_scenarios`). Prints a table and writes JSON; the first-half
 coverage AUC is the mean coverage over steps 1..steps/2.
 
-    .venv/bin/python scripts/ceiling_study.py --maps 12 --steps 500 --out benchmarks/ceiling_study.json
+    .venv/bin/python scripts/ceiling_study.py --maps 12 --steps 500 --out benchmarks/ceiling_study/ceiling_study_500.json
 """
 
 from __future__ import annotations

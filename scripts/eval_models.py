@@ -32,7 +32,7 @@ since 0.3 (``lama_bp_filtered``, ``lama_los_filtered``).
 ``--models DIR`` scores another model folder (a ``manifest.json`` and its files, e.g. ``runs/training/candidate``);
 ``--maps N`` keeps the first N held-out maps (name order) for both parts, ``--filter-samples N`` the first N
 filter windows: ``--maps 3 --filter-samples 64 --jobs 1`` is a quick check. Prints markdown tables and writes
-JSON (``--out``, default ``benchmarks/eval_models.json``).
+JSON (``--out``, default ``benchmarks/eval_models/eval_models.json``).
 """
 
 from __future__ import annotations
@@ -287,7 +287,7 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-predictors", action="store_true")
     parser.add_argument("--lattice-filter", action="store_true",
                         help="part 2: also score each ensemble with its lattice filter on")
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "eval_models.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "eval_models" / "eval_models.json")
     args = parser.parse_args(argv)
     if args.maps is not None and args.maps < 1:
         parser.error(f"--maps must be >= 1, got {args.maps}")

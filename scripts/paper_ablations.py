@@ -9,7 +9,7 @@ deterministic, so their measures over steps 1-500 (first-half AUC, IoU below 30 
 protocol's, and they pair with the 1000-step rows of ``benchmarks/eval_paper/rows`` cut to the same steps. Writes
 ``OUT/ablations.md``, ``OUT/ablations.json`` and ``OUT/ablation_<measure>.png`` (mean paired difference against the
 full pipeline with its bootstrap 95 % interval, one bar per row), and ``pairs.md`` / ``pairs.json`` beside ``--rows``
-(the rows of the previous defaults read from ``previous_defaults/rows`` there).
+(the rows of the previous defaults read from ``benchmarks/history/eval_paper_previous_defaults/rows``).
 
     PYTHONPATH=. .venv/bin/python scripts/paper_ablations.py --out benchmarks/eval_paper/ablations
 """
@@ -27,6 +27,8 @@ from superex_deploy.pipeline import PIPELINES
 from superex_deploy.evaluation.summary import paired_summary, row_summary
 
 ROOT = Path(__file__).resolve().parents[1]
+# The paper rows as measured with the previous (0.1) defaults, which this version cannot re-run.
+PREVIOUS_ROWS = ROOT / "benchmarks" / "history" / "eval_paper_previous_defaults" / "rows"
 MEASURES = {"auc_first_half": ("first-half AUC, carved cells counted (points)", 100.0),
             "los_auc_first_half": ("first-half AUC, line of sight only (points)", 100.0),
             "iou_bin_0.0_0.1": ("wall IoU at 0-10 % coverage", 1.0),
@@ -74,11 +76,11 @@ def _cell(p: dict) -> str:
 
 
 def _pairs(rows_dir: Path, steps: int) -> tuple[list[str], dict]:
-    """:data:`PAIRS` whose two rows are in ``rows_dir`` (or its ``../previous_defaults/rows``): the table's lines
-    and ``"candidate - reference"`` -> measure -> the paired difference."""
+    """:data:`PAIRS` whose two rows are in ``rows_dir`` (a row of the previous defaults in :data:`PREVIOUS_ROWS`):
+    the table's lines and ``"candidate - reference"`` -> measure -> the paired difference."""
     def path(name: str) -> Path:
         if name.endswith(PREVIOUS):
-            return rows_dir.parent / "previous_defaults" / "rows" / f"{name[:-len(PREVIOUS)]}.json"
+            return PREVIOUS_ROWS / f"{name[:-len(PREVIOUS)]}.json"
         return rows_dir / f"{name}.json"
 
     result, table = {}, []
@@ -90,7 +92,8 @@ def _pairs(rows_dir: Path, steps: int) -> tuple[list[str], dict]:
         table.append([f"{candidate} - {reference}", what] + [_cell(pair[m]) for m in MEASURES])
     lines = ["The paper's planner rows paired by scenario (40 eval scenarios, 1000 steps; measures over steps 1-500 "
              "and below 30 % coverage): mean difference [bootstrap 95 %], ratio of means - 1, better / worse; "
-             f"`NAME{PREVIOUS}`: the row with the previous defaults (`previous_defaults/rows/`).", ""]
+             f"`NAME{PREVIOUS}`: the row with the previous defaults "
+             "(`benchmarks/history/eval_paper_previous_defaults/rows/`).", ""]
     lines += markdown_table(["pair", "what it measures"] + [MEASURES[m][0] for m in MEASURES], table,
                             ["-", "-"] + ["-"] * len(MEASURES))
     return lines, result

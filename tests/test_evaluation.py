@@ -104,7 +104,7 @@ def test_a_shared_stream_matches_the_robustness_benchmarks_draws():
 
 
 def test_the_committed_ceiling_study_intervals_regenerate():
-    data = json.loads((BENCHMARKS / "ceiling_study_500.json").read_text())
+    data = json.loads((BENCHMARKS / "ceiling_study" / "ceiling_study_500.json").read_text())
     base = {(e["map"], tuple(e["start"])): e for e in data["episodes"]
             if (e["idea"], e["predictor"]) == ("mapex", "observed")}
     for row in data["rows"]:
@@ -153,8 +153,9 @@ def test_the_committed_suite_comparison_regenerates():
     data = json.loads((folder / "side_by_side.json").read_text())
     script = _script("compare_suites")
     # The altered suite ran with the previous defaults: its standard rows are the paper rows of those defaults
-    # (the rows the defaults of #34 changed are kept in eval_paper/previous_defaults/).
-    standard = {**script._rows(BENCHMARKS / "eval_paper"), **script._rows(BENCHMARKS / "eval_paper" / "previous_defaults")}
+    # (the rows the 0.2 defaults changed are kept in history/eval_paper_previous_defaults/).
+    standard = {**script._rows(BENCHMARKS / "eval_paper"),
+                **script._rows(BENCHMARKS / "history" / "eval_paper_previous_defaults")}
     entries = script.compare(standard, script._rows(folder), data["steps"])
     assert json.dumps(entries) == json.dumps(data["entries"])
     assert script.markdown(data["entries"], data["steps"]) == (folder / "side_by_side.md").read_text()
@@ -236,7 +237,7 @@ def test_the_held_out_train_scenarios():
     assert set(list_maps("eval")).isdisjoint(s.map_name for s in held)
     assert held == heldout_scenarios()  # seeded by the map's name
     assert [(s.map_name, s.start_rc) for s in held] == evaluation.train_scenarios(12, 1, 40000, heldout=True)
-    committed = json.loads((BENCHMARKS / "ceiling_study_lama_heldout.json").read_text())["scenarios"]
+    committed = json.loads((BENCHMARKS / "ceiling_study" / "ceiling_study_lama_heldout.json").read_text())["scenarios"]
     assert [[s.map_name, list(s.start_rc)] for s in heldout_scenarios(len(committed))][:len(committed)] == committed
 
 
