@@ -109,7 +109,7 @@ def ideal_carving(scan) -> np.ndarray:
     d2 = truth.fan_d2_m[fans]
     nearest = np.where(np.isnan(d2), scan.config.range_m, d2).min(axis=1) / scan.resolution_m
     out = np.zeros(scan.grid_shape, bool)
-    carve_sectors(apex, np.ascontiguousarray(normals), nearest, np.zeros(len(fans)), 0.0, 0, 0, out, 1)
+    carve_sectors(apex, np.ascontiguousarray(normals), nearest, np.zeros(len(fans)), np.zeros(len(fans)), 0, 0, out, 1)
     return out
 
 

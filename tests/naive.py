@@ -228,10 +228,11 @@ def naive_hit_normals(points, radius, max_minor_ratio=0.1, interior=1.5, max_res
 
 def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_limit):
     """Test every cell of the grid against every wall point's carve sector (nlos.carving.carve_sectors);
-    ``strip_cells``: one width for every wall point, or one each."""
+    ``strip_cells`` and ``cos_limit``: one value for every wall point, or one each."""
     out = np.zeros(shape, bool)
     strips = np.broadcast_to(np.asarray(strip_cells, float), (len(apex),))
-    for (ay, ax), (ny, nx), radius, strip_cells in zip(apex, normals, radius_cells, strips):
+    limits = np.broadcast_to(np.asarray(cos_limit, float), (len(apex),))
+    for (ay, ax), (ny, nx), radius, strip_cells, cos_limit in zip(apex, normals, radius_cells, strips, limits):
         if not radius > strip_cells:
             continue
         oy, ox = ay + 0.75 * ny, ax + 0.75 * nx
@@ -244,6 +245,20 @@ def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_lim
                 norm = np.hypot(wy, wx)
                 if norm == 0.0 or (wy * ny + wx * nx) / norm >= cos_limit:
                     out[r, c] = True
+    return out
+
+
+def naive_step_deviation(points, normals):
+    """Angle (radians) between each point's wall line and the direction to each of its 8 neighbours, the largest
+    (nlos.normals.step_deviation): numpy over all pairs."""
+    out = np.zeros(len(points))
+    for u, p in enumerate(points):
+        d = points - p
+        near = (np.abs(d) <= 1.0).all(axis=1) & (np.abs(d).sum(axis=1) > 0)
+        if near.any():
+            tangent = np.array([-normals[u, 1], normals[u, 0]])
+            cosines = np.abs(d[near] @ tangent) / np.hypot(*d[near].T)
+            out[u] = np.arccos(np.minimum(cosines, 1.0)).max()
     return out
 
 

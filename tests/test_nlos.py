@@ -11,13 +11,13 @@ from superex_deploy.onboard.nlos import (
 from superex_deploy.onboard.nlos.back_projection import RING_PAD, _accumulate_votes, _draw_rings, _window
 from superex_deploy.onboard.nlos.carving import carve_sectors
 from superex_deploy.onboard.nlos.los import _los_and_first_late_bins, late_threshold
-from superex_deploy.onboard.nlos.normals import hit_normals
+from superex_deploy.onboard.nlos.normals import hit_normals, step_deviation
 from superex_deploy.evaluation.metrics import wall_iou, wall_iou_tolerant
 from superex_deploy.sim.spad import nlos_ground_truth
 from superex_deploy.spad_types import SpadConfig, SpadNoise, SparseHistograms
 from superex_deploy.sim.spad import simulate_scan
 from tests.naive import (
-    naive_back_projection, naive_draw_rings, naive_carve_sectors, naive_hit_normals,
+    naive_back_projection, naive_draw_rings, naive_carve_sectors, naive_hit_normals, naive_step_deviation,
     naive_los_and_first_late_bins)
 
 RES = 0.1
@@ -104,6 +104,25 @@ def test_hit_normals_match_naive():
             np.testing.assert_array_equal(normals, results[0])
 
 
+def test_step_deviation_matches_naive_and_the_staircase_geometry():
+    rng = np.random.default_rng(5)
+    for trial in range(6):
+        points = np.unique(rng.integers(0, 12, size=(50, 2)), axis=0) + 0.5  # unique rows come sorted by row
+        angles = rng.uniform(0, 2 * np.pi, size=len(points))
+        normals = np.stack([np.sin(angles), np.cos(angles)], axis=1)
+        out = np.full(len(points), -1.0)
+        step_deviation(points, normals, out)
+        np.testing.assert_allclose(out, naive_step_deviation(points, normals), atol=1e-12)
+    # A straight row: no step; a one-cell jog in it: the cells either side of the jog see a diagonal neighbour
+    # 45 degrees off the row's line; an isolated cell: nothing.
+    row = np.array([[5.5, c + 0.5] for c in range(6)])
+    jog = np.array([[5.5, 0.5], [5.5, 1.5], [5.5, 2.5], [6.5, 3.5], [6.5, 4.5], [6.5, 5.5], [9.5, 9.5]])
+    for points, expected_deg in [(row, [0.0] * 6), (jog, [0, 0, 45, 45, 0, 0, 0])]:
+        out = np.zeros(len(points))
+        step_deviation(points, np.tile([1.0, 0.0], (len(points), 1)), out)
+        np.testing.assert_allclose(np.rad2deg(out), expected_deg, atol=1e-9)
+
+
 def test_carve_sectors_match_naive():
     rng = np.random.default_rng(2)
     apex = rng.uniform(5, 25, size=(10, 2))
@@ -116,16 +135,19 @@ def test_carve_sectors_match_naive():
     # One wall strip per wall point (the pose-error margin widens each by its own amount).
     strip = np.full(10, 1.5)
     strip[[1, 4]] = [2.7, 4.0]
-    expected = naive_carve_sectors((30, 32), apex, normals, radius, strip, np.cos(np.deg2rad(70)))
+    # One sector per wall point (narrowed where the wall steps), an empty one among them.
+    limits = np.cos(np.deg2rad(rng.uniform(0, 90, size=10)))
+    limits[[0, 7]] = [np.cos(np.deg2rad(70)), 2.0]
+    expected = naive_carve_sectors((30, 32), apex, normals, radius, strip, limits)
     assert expected.any()
     for n_parts in (1, 2, 5):  # rows dealt to parallel parts in blocks
         out = np.zeros((30, 32), bool)
-        carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), 0, 0, out, n_parts)
+        carve_sectors(apex, normals, radius, strip, limits, 0, 0, out, n_parts)
         np.testing.assert_array_equal(out, expected)
         # A patch of the grid receives exactly its part of the carving.
         for top, left, height, width in [(7, 3, 12, 20), (0, 20, 30, 12), (29, 31, 1, 1), (10, 10, 0, 5)]:
             patch = np.zeros((height, width), bool)
-            carve_sectors(apex, normals, radius, strip, np.cos(np.deg2rad(70)), top, left, patch, n_parts)
+            carve_sectors(apex, normals, radius, strip, limits, top, left, patch, n_parts)
             np.testing.assert_array_equal(patch, expected[top:top + height, left:left + width])
 
 

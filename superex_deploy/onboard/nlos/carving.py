@@ -27,6 +27,15 @@ needs three more arguments, each a margin below:
    found each of these cases: three hits from two walls (a thin wall's face and a wall seen past its end)
    fitted a line tilted 25 degrees, which flipped the carved sector onto the far wall; and a wall-end cell
    whose hits ran on, across a 4-cell gap, to a second wall carved a sector the end's own fan never covered.
+   Where the wall steps (a rasterised oblique wall is a staircase; a thin wall jogs by a cell) the fan leaves
+   the cell along the cell's own surface normal, which turns off the fitted line as the step does (45 degrees
+   at a one-cell jog): the sector is narrowed to +-(90 - max(sector_margin_deg, step)), ``step`` the largest
+   angle between the fitted line and the direction to a neighbouring hit (:func:`sector_cos_limits`). The
+   property test over random L-shaped walls (tests/test_carving_corners.py) found it, the sector's edge
+   reaching a far wall's corner past the fan's. What no rule here sees: the simulator's cell normal (Sobel of
+   the 3x3 neighbourhood) also reads the cells behind the surface, so a wall two cells thick whose back face
+   steps turns the fan of a front cell that looks straight (2 of 3,000 random L-corner scans carved a wall
+   cell so; docs/benchmarks/carving.md).
 4. **Where the robot is.** With an uncertain pose the whole frame (wall points, normals, carved sectors) is
    placed by the believed pose: the scan is rigid, so every carved point lands off its true place by at most
    ``|dxy| + rho |dyaw|`` (position error, yaw error, ``rho`` its distance from the robot). Each wall point's
@@ -49,14 +58,15 @@ import numpy as np
 from superex_deploy.parallel import kernel_parts
 from superex_deploy.onboard.nlos.config import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig,
                                                 carve_radius_cap_m)
-from superex_deploy.onboard.nlos.normals import reliable_with_interior
+from superex_deploy.onboard.nlos.normals import reliable_with_interior, step_deviation
 from superex_deploy.spad_types import SpadScan
 
 
 @numba.njit(cache=True, parallel=True)
 def carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, top, left, out, n_parts):
     """Mark cells whose centre lies within ``radius_cells[u]`` of ``apex[u]``, at least ``strip_cells[u]`` in front
-    of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit`` seen from a vertex 0.75
+    of the wall line, and within the sector ``cos(angle to the normal) >= cos_limit[u]`` (float64 ``[U]``: one
+    sector per wall point, narrowed where the wall steps, see :func:`sector_cos_limits`) seen from a vertex 0.75
     cells in front of the apex (a scattering model may start its fan off the surface, as the simulator does;
     a vertex moved forward only narrows the sector, so the choice errs on the safe side). ``out`` bool
     ``[h, w]`` holds grid rows ``top..top + h - 1`` and columns ``left..left + w - 1``; cells outside it are not
@@ -74,6 +84,7 @@ def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top,
     for u in range(apex.shape[0]):
         radius = radius_cells[u]
         strip = strip_cells[u]
+        limit = cos_limit[u]
         if not radius > strip:
             continue
         ay = apex[u, 0]
@@ -113,7 +124,7 @@ def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top,
                 wy = r + 0.5 - oy
                 wx = c + 0.5 - ox
                 norm = np.sqrt(wy * wy + wx * wx)
-                if norm == 0.0 or (wy * ny + wx * nx) / norm >= cos_limit:
+                if norm == 0.0 or (wy * ny + wx * nx) / norm >= limit:
                     out[r - top, c - left] = True
 
 
@@ -173,6 +184,22 @@ def _carved_box(apex, radius_cells, strip_cells, n_rows, n_cols):
     return top, left, bottom, right
 
 
+def sector_cos_limits(wall_cells: np.ndarray, wall_normal: np.ndarray, cfg: NlosConfig, yaw_margin_rad: float = 0.0
+                      ) -> np.ndarray:
+    """float64 ``[U]``: the cosine of each wall point's carved half-angle about its fitted normal,
+    ``90 deg - max(sector_margin_deg, step + yaw_margin_rad)`` with ``step`` the wall's turn at that cell
+    (:func:`.normals.step_deviation`; point 3 of the module docstring).
+
+    ``wall_cells`` int ``[U, 2]`` sorted by row (as :class:`LosEstimate` holds them), ``wall_normal`` float64
+    ``[U, 2]`` unit normals; ``yaw_margin_rad``: the pose-error margin on the yaw (0 for an exact pose), which turns
+    a step's normal as it turns the fitted one."""
+    step = np.zeros(len(wall_cells))
+    if len(wall_cells):
+        step_deviation(np.ascontiguousarray(wall_cells + 0.5, np.float64), np.ascontiguousarray(wall_normal), step)
+    narrowing = np.maximum(np.deg2rad(cfg.sector_margin_deg), step + yaw_margin_rad)
+    return np.cos(np.pi / 2 - np.minimum(narrowing, np.pi / 2))
+
+
 def check_pose_sigma(pose_sigma) -> tuple[float, float]:
     """``(sigma_xy_m, sigma_yaw_rad)`` as two finite floats >= 0.
 
@@ -211,7 +238,7 @@ def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0
                                 cfg.pose_sigma_margin * sigma_yaw, strip_cells)
     top, left, bottom, right = _carved_box(los.wall_apex, radius_cells, strip_cells, shape[0], shape[1])
     carved = np.zeros((bottom - top, right - left), bool)
-    cos_limit = np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))
+    cos_limit = sector_cos_limits(los.wall_cells, los.wall_normal, cfg, cfg.pose_sigma_margin * sigma_yaw)
     carve_sectors(los.wall_apex, los.wall_normal, radius_cells, strip_cells, cos_limit, top, left, carved,
                   kernel_parts(cfg.threads))
     return GridPatch(carved, int(top), int(left), shape)

@@ -104,6 +104,35 @@ def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, inte
 
 
 @numba.njit(cache=True)
+def step_deviation(points, normals, out):
+    """``out[u]`` (float64 ``[U]``, radians): the largest angle between the wall line through point ``u`` (the
+    direction perpendicular to ``normals[u]``) and the direction to any other point among its 8 neighbours (cell
+    centres at most one cell away in each axis); 0 for a point without neighbours.
+
+    Why: a rasterised oblique wall is a staircase, and at a step the surface of the cell itself turns off the
+    wall's line (by up to 45 degrees at a one-cell jog): a scattering fan that leaves the cell along the cell's own
+    surface normal does not cover the sector about the wall's fitted normal (point 3 of :mod:`.carving`).
+    ``points`` must be sorted by row, as for :func:`hit_normals`."""
+    n = points.shape[0]
+    band_lo = 0
+    for u in range(n):
+        while points[band_lo, 0] < points[u, 0] - 1.5:
+            band_lo += 1
+        ty = -normals[u, 1]
+        tx = normals[u, 0]
+        worst = 0.0
+        v = band_lo
+        while v < n and points[v, 0] <= points[u, 0] + 1.5:
+            dy = points[v, 0] - points[u, 0]
+            dx = points[v, 1] - points[u, 1]
+            if v != u and abs(dy) <= 1.5 and abs(dx) <= 1.5 and (dy != 0.0 or dx != 0.0):
+                along = abs(dy * ty + dx * tx) / np.sqrt(dy * dy + dx * dx)
+                worst = max(worst, np.arccos(min(along, 1.0)))
+            v += 1
+        out[u] = worst
+
+
+@numba.njit(cache=True)
 def face_the_robot(points, origin_y, origin_x, normals, reliable, apex):
     """Where a normal is not ``reliable`` the unit direction from the point to the robot replaces it; every
     normal is then turned to face the robot (in place). ``apex`` receives each wall cell's fan origin X1: where
