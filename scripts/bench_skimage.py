@@ -35,7 +35,7 @@ from superex_deploy.evaluation import write_json, write_text
 from superex_deploy.maps import list_maps, load_map, start_poses
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.nlos import NlosConfig
-from superex_deploy.onboard.nlos.config import GridPatch
+from superex_deploy.onboard.nlos.shared import GridPatch
 from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
 from superex_deploy.onboard.planning import motion
 from superex_deploy.onboard.planning.coarse import pool_prediction_blocks

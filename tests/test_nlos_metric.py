@@ -9,7 +9,7 @@ import pytest
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard import ExplorerConfig
 from superex_deploy.onboard.nlos import NlosConfig, laplacian_filter, process_scan
-from superex_deploy.onboard.nlos.config import metres_to_cells
+from superex_deploy.onboard.nlos.shared import metres_to_cells
 from superex_deploy.onboard.nlos.processing import SpadProcessing
 from superex_deploy.sim.spad import simulate_scan
 from superex_deploy.spad_types import SpadConfig

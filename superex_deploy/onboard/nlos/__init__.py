@@ -37,7 +37,7 @@ import numpy as np
 
 from superex_deploy.onboard.nlos.back_projection import back_project, back_project_patch
 from superex_deploy.onboard.nlos.carving import carve, carve_patch
-from superex_deploy.onboard.nlos.config import GridPatch, LosEstimate, NlosConfig, NlosResult, carve_radius_cap_m
+from superex_deploy.onboard.nlos.shared import GridPatch, LosEstimate, NlosConfig, NlosResult, carve_radius_cap_m
 from superex_deploy.onboard.nlos.filters import laplacian_filter, laplacian_filter_patch
 from superex_deploy.onboard.nlos.los import estimate_los
 from superex_deploy.spad_types import SpadScan

@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from superex_deploy.parallel import kernel_parts
-from superex_deploy.onboard.nlos.config import ROW_BLOCK, GridPatch, LosEstimate, NlosConfig
+from superex_deploy.onboard.nlos.shared import ROW_BLOCK, GridPatch, LosEstimate, NlosConfig
 from superex_deploy.onboard.nlos.los import late_threshold
 from superex_deploy.spad_types import SpadScan
 

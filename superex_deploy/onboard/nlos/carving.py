@@ -56,7 +56,7 @@ import numba
 import numpy as np
 
 from superex_deploy.parallel import kernel_parts
-from superex_deploy.onboard.nlos.config import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig,
+from superex_deploy.onboard.nlos.shared import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig,
                                                 carve_radius_cap_m)
 from superex_deploy.onboard.nlos.normals import reliable_with_interior, step_deviation
 from superex_deploy.spad_types import SpadScan

@@ -14,7 +14,7 @@ from functools import lru_cache
 import numba
 import numpy as np
 
-from superex_deploy.onboard.nlos.config import GridPatch
+from superex_deploy.onboard.nlos.shared import GridPatch
 
 
 @numba.njit(cache=True, inline="always")

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from superex_deploy.geometry import group_by_cell
-from superex_deploy.onboard.nlos.config import LosEstimate, NlosConfig, check_scan
+from superex_deploy.onboard.nlos.shared import LosEstimate, NlosConfig, check_scan
 from superex_deploy.onboard.nlos.normals import observed_normals
 from superex_deploy.spad_types import SpadScan, SparseHistograms
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from superex_deploy.geometry import minor_axis_2x2
 from superex_deploy.parallel import kernel_parts
-from superex_deploy.onboard.nlos.config import NlosConfig
+from superex_deploy.onboard.nlos.shared import NlosConfig
 from superex_deploy.spad_types import SpadScan
 
 
