@@ -1,6 +1,6 @@
 """The simulator's noise as one object: :class:`SimNoise` holds the localisation error, the LiDAR's noise and the
 SPAD's photon budget, and is what every layer passes (the command line parses it once, :class:`ScenarioTask
-<superex_deploy.evaluation.tasks.ScenarioTask>` carries it, :class:`~superex_deploy.sim.episode.ExplorationConfig`
+<superex_deploy.evaluation.tasks.ScenarioTask>` carries it, :class:`~superex_deploy.sim.exploration.ExplorationConfig`
 and :class:`~superex_deploy.sim.world.WorldConfig` hold it, :meth:`SimNoise.sensing` applies its SPAD part).
 
 :data:`NOISE_PRESETS` names the noise models the benchmarks use; the SPAD photon budgets are the named instances
@@ -82,7 +82,7 @@ class SimNoise(JsonConfig):
         return settings
 
     def episode_config(self, cfg):
-        """The :class:`~superex_deploy.sim.episode.ExplorationConfig` ``cfg`` with this noise (``cfg`` itself
+        """The :class:`~superex_deploy.sim.exploration.ExplorationConfig` ``cfg`` with this noise (``cfg`` itself
         without pose and LiDAR noise). With LiDAR noise the explorer's map is told the sensor's range sigma
         (``OccupancyConfig.range_sigma_m``: the robot's calibration is the simulated sensor's sigma), as a robot's
         configuration would be."""
