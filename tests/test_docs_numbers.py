@@ -150,6 +150,10 @@ ABLATIONS = "benchmarks/eval_paper/ablations/ablations.json"
 ALTERED = "benchmarks/eval_altered/defaults34/results.json"
 SIDE_BY_SIDE = "benchmarks/eval_altered/side_by_side.json"
 CEILING = "benchmarks/ceiling_study/ceiling_study_1000.json"
+CARVE_CEILINGS = {"goal": "benchmarks/carve_gain_ceiling/ceiling.json",
+                  "path": "benchmarks/carve_gain_ceiling/path/ceiling.json",
+                  "weight3": "benchmarks/carve_gain_ceiling/weight3/ceiling.json",
+                  "path_weight3": "benchmarks/carve_gain_ceiling/path_weight3/ceiling.json"}
 FRAME = "benchmarks/frame_budget/realtime.json"
 FRAME_NOW = "benchmarks/frame_budget/defaults34/realtime.json"
 FINE = "benchmarks/realtime/fine/realtime.json"
@@ -255,6 +259,20 @@ def altered_ceiling_change() -> dict:
     return next(e for e in entries if e["row"] == "superex_oracle" and e["baseline"] == "mapex_observed")["change"]
 
 
+def carve_ceiling(variant: str) -> dict:
+    """The true carve gain's ceiling (``carve_gain_ceiling``) of one variant: the paired first-half AUC."""
+    return read(CARVE_CEILINGS[variant])["auc_first_half"]
+
+
+def carve_ceiling_row(variant: str) -> list[str]:
+    """A row of the carve gain ceiling's table: scenarios, AUC today and ceiling, the paired difference [95 %],
+    the relative gain, better / worse / tied."""
+    entry = carve_ceiling(variant)
+    return [count(read(CARVE_CEILINGS[variant])["scenarios_finished"]), fixed(100 * entry["today"], 2),
+            fixed(100 * entry["ceiling"], 2), points(entry["difference"]), *interval(entry["interval"], 100.0),
+            percent(entry["relative"]), *[count(entry[k]) for k in ("better", "worse", "tied")]]
+
+
 def onnx_median_speedup() -> float:
     return statistics.median(model["torch_over_ort"] for model in read(MODEL_SPEED)["models"])
 
@@ -308,6 +326,7 @@ FRAME_NOW_SECTION = "## The frame budget with the shipped defaults"
 FRAME_SECTION = "## The default today: never waiting"
 SHIPPED_MODELS_SECTION = "## The shipped models, retrained for 256-ray scans"
 PAPER_SECTION = "### With the shipped defaults"
+CARVE_SECTION = "## The NLOS gain's ceiling: the planner given the true carve gain"
 
 
 CLAIMS = [
@@ -475,6 +494,12 @@ CLAIMS = [
     Claim(INDEX, INDEX_BETTER, "the ceiling does not grow ({} points, {} steps)", (SIDE_BY_SIDE,),
           "entries[superex_oracle vs mapex_observed].change.mean, steps",
           lambda: [points(altered_ceiling_change()["mean"]), count(read(SIDE_BY_SIDE)["steps"])]),
+    Claim(INDEX, INDEX_BETTER, "given the true carve gain the planner is no faster ({} %, {} points [{}, {}], train)",
+          (CARVE_CEILINGS["goal"],), "auc_first_half: relative, difference [interval]",
+          lambda: [percent(carve_ceiling("goal")["relative"]), points(carve_ceiling("goal")["difference"]),
+                   *interval(carve_ceiling("goal")["interval"], 100.0)]),
+    Claim(INDEX, INDEX_BETTER, "{} % at best (carved along the path, weight 3;", (CARVE_CEILINGS["path_weight3"],),
+          "auc_first_half.relative", lambda: [percent(carve_ceiling("path_weight3")["relative"])]),
     Claim(INDEX, INDEX_REALTIME,
           "with the shipped defaults p99 {} ms, mean {} ms ({} ms with a core held), {}x MapEx unpaced", (FRAME_NOW,),
           "timing.realtime: p99_ms, mean_ms; timing['realtime (1 core held)'].p99_ms; wall over MapEx",
@@ -653,6 +678,15 @@ CLAIMS = [
                    count(read(ALTERED)["paired_vs_reference"]["superex"]["auc_first_half"]["better"]),
                    count(read(ALTERED)["paired_vs_reference"]["superex"]["auc_first_half"]["worse"]),
                    percent(read(ALTERED)["paired_vs_reference"]["superex"]["los_auc_first_half"]["ratio"])]),
+
+    *[Claim(BETTER_MAP, CARVE_SECTION,
+            f"| {label} | {{}} | {{}} | {{}} | {{}} [{{}}, {{}}] | {{}} % | {{}} / {{}} / {{}} |",
+            (CARVE_CEILINGS[variant],), "scenarios_finished; auc_first_half: today, ceiling, difference [interval], "
+                                        "relative, better / worse / tied",
+            lambda variant=variant: carve_ceiling_row(variant))
+      for label, variant in (("from the goal cell, weight 1", "goal"), ("along the path, weight 1", "path"),
+                             ("from the goal cell, weight 3", "weight3"),
+                             ("along the path, weight 3", "path_weight3"))],
 
     # --- docs/benchmarks/spad.md ------------------------------------------------------------------------------
     Claim(SPAD_PAGE, "## Single scans and episodes", "| {} | {} | {} | {}x | {}x | {} % |", (SPAD,),

@@ -173,6 +173,72 @@ def test_the_committed_seams_report_and_scenarios_regenerate():
             (e["map"], e["start_index"], tuple(e["start"])) for e in episodes]
 
 
+CARVE_CEILING_VARIANTS = ["", "path", "weight3", "path_weight3"]
+
+
+@pytest.mark.parametrize("variant", CARVE_CEILING_VARIANTS)
+def test_the_committed_carve_gain_ceiling_regenerates(variant):
+    """ceiling_carve_gain.py's report from its committed episodes (the held-out scenarios it names, each arm's
+    first-half AUC, the paired bootstrap) is the committed ceiling.json and ceiling.md, in each variant's folder."""
+    folder = BENCHMARKS / "carve_gain_ceiling" / variant
+    data = json.loads((folder / "ceiling.json").read_text())
+    script = _script("ceiling_carve_gain")
+    scenarios = heldout_scenarios(data["scenarios_planned"])
+    result, text = script.summarise(folder, scenarios, data["steps"], data["weight"], data["top_k"],
+                                    data["viewpoints"])
+    assert json.loads(json.dumps(result)) == data
+    assert text == (folder / "ceiling.md").read_text()
+    assert [(p["map"], tuple(p["start_rc"])) for p in data["per_scenario"]] == [
+        (s.map_name, s.start_rc) for s in scenarios[:data["scenarios_finished"]]]
+
+
+def test_the_true_carve_gain_counts_the_unknown_cells_the_carving_would_carve():
+    """The ceiling's carve gain of a cell: the cells the onboard carving carves from a scan simulated there on the
+    true grid, counted where the map is unknown (carved cells, FREE in the map, count no more); one scan per cell."""
+    from superex_deploy.maps import load_map, random_start
+    from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
+    from superex_deploy.onboard.types import FREE, UNKNOWN
+    from superex_deploy.sim.spad import simulate_scan
+    from superex_deploy.spad_types import SpadConfig
+
+    script = _script("ceiling_carve_gain")
+    grid = load_map(heldout_scenarios(1)[0].map_name)
+    start = random_start(grid, np.random.default_rng(3), 0.5)
+    scan = simulate_scan(grid, start, SpadConfig())
+    carved = carve(scan, estimate_los(scan, NlosConfig()), NlosConfig())
+    assert carved.sum() > 100
+    gain = script.TrueCarveGain(grid, SpadConfig(), NlosConfig())
+    observed = np.full(grid.shape, UNKNOWN, np.int8)
+    assert gain.gains(observed, [start]).tolist() == [float(carved.sum())]
+    rows, cols = np.nonzero(carved)
+    observed[rows[::2], cols[::2]] = FREE  # half of them carved (or seen) already
+    wall = tuple(int(v) for v in np.argwhere(grid.occupied)[0])
+    assert gain.gains(observed, [start, wall]).tolist() == [float(len(rows) - len(rows[::2])), 0.0]
+    assert gain.scans == 2  # the start's carved set computed once (it reads neither the map nor the step)
+    with pytest.raises(ValueError, match="true grid"):
+        gain.gains(observed[1:], [start])
+
+
+def test_the_ceiling_planner_adds_the_weighted_carve_gain_to_the_k_best_frontiers(monkeypatch):
+    """The ceiling planner's gain is today's plus ``weight`` x the carve gain, for the ``top_k`` frontiers of
+    largest line-of-sight gain only."""
+    from types import SimpleNamespace
+
+    from superex_deploy.onboard.planning.planners import SuperexPlanner
+    from superex_deploy.onboard.types import frontiers_at
+
+    script = _script("ceiling_carve_gain")
+    monkeypatch.setattr(SuperexPlanner, "gains", lambda self, ctx, prediction, frontiers: np.array([5.0, 9.0, 1.0]))
+    carve_gain = SimpleNamespace(gains=lambda observed, cells: np.array([10.0 * r for r, _ in cells]))
+    frontiers = frontiers_at([[1, 0], [2, 0], [3, 0]])
+    ctx = SimpleNamespace(observed=np.zeros((4, 4), np.int8))
+    every = script.ceiling_planner(carve_gain, weight=0.5)
+    assert every.gains(ctx, None, frontiers).tolist() == [10.0, 19.0, 16.0]
+    best_two = script.ceiling_planner(carve_gain, weight=2.0, top_k=2)
+    assert best_two.gains(ctx, None, frontiers).tolist() == [25.0, 49.0, 1.0]
+    assert best_two.stats == {"calls": 1, "frontiers": 3, "scored": 2, "los_gain": 14.0, "carve_gain": 30.0}
+
+
 # --- reports ---
 
 
