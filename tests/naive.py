@@ -525,7 +525,7 @@ def naive_path_gain(mean, observed, path, every, n_rays, range_cells, hit_thresh
 
 
 def naive_clear_limits(angles, reach, sigma_xy, sigma_yaw, sigmas, max_half=np.pi / 6.0):
-    """onboard.mapper.clear_limits by brute force: for each ray, lower ``t`` from its own reach to the nearest reach
+    """onboard.mapping.log_odds.clear_limits by brute force: for each ray, lower ``t`` from its own reach to the nearest reach
     among all rays within ``min(atan(u(t) / t), max_half)`` of its angle (``u(t) = sigmas sqrt(sigma_xy^2 +
     (t sigma_yaw)^2)``) until every one of them reaches ``t`` (at most 8 times)."""
     angles = np.mod(np.asarray(angles, np.float64), 2.0 * np.pi)

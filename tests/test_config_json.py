@@ -63,7 +63,7 @@ def _samples() -> dict:
     for the classes that nest configurations, tuples or enums."""
     from superex_deploy.onboard import ExplorerConfig, PredictionReuse, PredictionSchedule
     from superex_deploy.onboard.mapping.growth import MapGrowth
-    from superex_deploy.onboard.mapping.mapper import OccupancyConfig
+    from superex_deploy.onboard.mapping.log_odds import OccupancyConfig
     from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
     from superex_deploy.onboard.planning.bounds import ExplorationBounds
     from superex_deploy.onboard.planning.goal_policy import GoalPolicy

@@ -9,7 +9,8 @@ import pytest
 from superex_deploy.geometry import cast_rays
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import LaserScan, MapFrame, Pose2D
-from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.mapping.log_odds import OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN
 from superex_deploy.maps import coverage
 from superex_deploy.sim.world import LidarConfig, World, WorldConfig

@@ -13,7 +13,8 @@ from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import MapFrame
 from superex_deploy.onboard import Explorer
 from superex_deploy.onboard.explorer import ExplorerConfig
-from superex_deploy.onboard.mapping.mapper import Mapper, OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.mapping.log_odds import OccupancyConfig, integrate_log_odds
+from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.planning.planners import NearestFrontier
 from superex_deploy.onboard.prediction.baselines import ObservedAsPrediction
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN

@@ -55,7 +55,7 @@ from superex_deploy.commands.options import (add_planner_option, add_profile_opt
                                              check_output_file, check_output_folder, folders_made, planner_options,
                                              predictor_help)
 from superex_deploy.files import write_atomically
-from superex_deploy.onboard.mapping.mapper import OccupancyConfig
+from superex_deploy.onboard.mapping.log_odds import OccupancyConfig
 from superex_deploy.onboard.planning.planners import PLANNERS
 from superex_deploy.onboard.prediction.registry import PREDICTORS
 from superex_deploy.onboard.prediction.scale import servable_resolution

@@ -11,7 +11,7 @@ import numpy as np
 from superex_deploy.configs import JsonConfig
 from superex_deploy.onboard.checks import cells_at_least, check_real
 from superex_deploy.onboard.mapping.growth import MapGrowth
-from superex_deploy.onboard.mapping.mapper import OccupancyConfig
+from superex_deploy.onboard.mapping.log_odds import OccupancyConfig
 from superex_deploy.onboard.mapping.scan_matching import ScanMatchingConfig
 from superex_deploy.onboard.planning.bounds import ExplorationBounds
 from superex_deploy.onboard.planning.goal_policy import GoalPolicy
@@ -46,7 +46,7 @@ class ExplorerConfig(JsonConfig):
             (:class:`~superex_deploy.onboard.prediction.reuse.PredictionReuse`: re-predict only when the map
             changed enough, and only a crop around the change).
         occupancy: the map's log-odds parameters and the SLAM map's thresholds
-            (:class:`~superex_deploy.onboard.mapping.mapper.OccupancyConfig`; a dict of its fields is accepted, as a
+            (:class:`~superex_deploy.onboard.mapping.log_odds.OccupancyConfig`; a dict of its fields is accepted, as a
             recording's metadata holds it).
         growth: None (the default): the grid is the frame the explorer was built with, and what lies beyond it is
             dropped; a :class:`~superex_deploy.onboard.mapping.growth.MapGrowth`: the grid grows as scans, SPAD
