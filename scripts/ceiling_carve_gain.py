@@ -206,10 +206,16 @@ def _first_other_goal(today: dict, ceiling: dict) -> Optional[int]:
     return None
 
 
-def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal"
-              ) -> Optional[tuple[dict, str]]:
+def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal",
+              starts: int = 1, first_half_only: bool = False) -> Optional[tuple[dict, str]]:
     """``(ceiling.json's dict, ceiling.md's text)`` of the pairs finished in ``OUT/episodes`` (both arms of a
-    scenario), in the order of ``scenarios``; None if none."""
+    scenario), in the order of ``scenarios``; None if none. ``starts`` (seeded starts per floor) and
+    ``first_half_only`` (the episodes ran ``steps // 2`` steps, all the first-half AUC of a ``steps`` budget
+    reads) are recorded in the JSON (``starts``, ``steps_run``) and the text when not 1 / False.
+
+    Raises:
+        ValueError: an episode ran with other settings, or fewer steps than the measure reads.
+    """
     from superex_deploy.evaluation import markdown_table, read_json
     from superex_deploy.evaluation.metrics import scenario_metrics
     from superex_deploy.evaluation.summary import paired_summary
@@ -220,6 +226,11 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
         return None
     rows, per = [], []
     for s, (today, ceiling) in pairs:
+        for e in (today, ceiling):
+            if len(e["coverage_with_carving"]) < steps // 2 and not e["finished"]:
+                raise ValueError(f"{s.map_name} #{s.start_index} {e['arm']}: "
+                                 f"{len(e['coverage_with_carving'])} steps run, the first half of {steps} reads "
+                                 f"{steps // 2}")
         a, b = (scenario_metrics(e, steps)["auc_first_half"] for e in (today, ceiling))
         stats = ceiling["carve_gain"]
         ran = (stats["weight"], stats["top_k"], stats.get("viewpoints", "goal"))  # "goal" before the option
@@ -240,7 +251,8 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
                      f"{per[-1]['mean_carve_gain']:.0f}"])
     paired = paired_summary([e for _, (e, _) in pairs], [e for _, (_, e) in pairs], steps)["auc_first_half"]
     result = {"pipeline": PIPELINE, "steps": steps, "weight": weight, "top_k": top_k, "viewpoints": viewpoints,
-              "seed": 0,
+              "seed": 0, **({"starts": starts} if starts != 1 else {}),
+              **({"steps_run": steps // 2} if first_half_only else {}),
               "scenarios_planned": len(scenarios), "scenarios_finished": len(pairs),
               "complete": len(pairs) == len(scenarios),
               "auc_first_half": {"today": float(np.mean([p["auc_today"] for p in per])),
@@ -253,8 +265,11 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
               f" **Partial: {len(pairs)} of {len(scenarios)} planned scenarios finished.**")
     scored = "every frontier" if not top_k else f"the {top_k} frontiers of largest line-of-sight gain"
     scored += ", carved from the goal cell" if viewpoints == "goal" else ", carved along the path (pathwise viewpoints)"
+    floors = "held-out train floors" + (f" ({starts} seeded starts per floor)" if starts != 1 else "")
+    budget = (f"a {steps}-step budget of which the episodes ran the first {steps // 2} steps, all the measure "
+              f"reads (an episode does not depend on its budget)" if first_half_only else f"{steps} steps")
     lines = [f"The SuperEx planner given the true carve gain (weight {weight:g}, {scored}) against today's, the "
-             f"`{PIPELINE}` pipeline on held-out train floors, {steps} steps, seed 0, paired by scenario. "
+             f"`{PIPELINE}` pipeline on {floors}, {budget}, seed 0, paired by scenario. "
              f"First-half AUC counting carved cells (steps 1-{steps // 2}, percent); the step of the first goal "
              f"the two arms chose differently (- : none); the mean line-of-sight and true carve gains of the "
              f"frontiers the ceiling scored (cells).{status}", ""]
@@ -269,13 +284,13 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
     return result, "\n".join(lines) + "\n"
 
 
-def report(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal"
-           ) -> Optional[dict]:
+def report(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal",
+           starts: int = 1, first_half_only: bool = False) -> Optional[dict]:
     """Write ``OUT/ceiling.md`` and ``OUT/ceiling.json`` (:func:`summarise`) and print the table; None (nothing
     written) if no pair is finished."""
     from superex_deploy.evaluation import write_json, write_text
 
-    summary = summarise(out, scenarios, steps, weight, top_k, viewpoints)
+    summary = summarise(out, scenarios, steps, weight, top_k, viewpoints, starts, first_half_only)
     if summary is None:
         return None
     result, text = summary
@@ -288,7 +303,8 @@ def report(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoin
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", type=int, default=6,
-                        help="held-out train scenarios (heldout_scenarios(N): one seeded start per floor)")
+                        help="held-out train floors (heldout_scenarios(N, STARTS): STARTS seeded starts on each)")
+    parser.add_argument("--starts", type=int, default=1, help="seeded starts per floor (the k-th: start index k)")
     parser.add_argument("--steps", type=int, default=400, help="step budget of each episode")
     parser.add_argument("--weight", type=float, default=1.0,
                         help="weight of a carved cell in the gain (1: a carved cell counts like a seen one)")
@@ -298,26 +314,31 @@ def main(argv=None) -> int:
                         help="carve from the frontier's goal cell, or from the pathwise gain's viewpoints (union)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "carve_gain_ceiling",
                         help="folder of the per-episode JSON (episodes/) and the report")
+    parser.add_argument("--first-half-only", action="store_true",
+                        help="run each episode STEPS // 2 steps: all the first-half AUC of a STEPS budget reads")
     parser.add_argument("--report", action="store_true", help="only write the report from the episodes there")
     args = parser.parse_args(argv)
-    if args.scenarios < 1 or args.steps < 2 or args.top_k < 0 or not np.isfinite(args.weight):
-        parser.error("--scenarios >= 1, --steps >= 2, --top-k >= 0 and a finite --weight")
+    if (args.scenarios < 1 or args.starts < 1 or args.steps < 2 or args.top_k < 0
+            or not np.isfinite(args.weight)):
+        parser.error("--scenarios >= 1, --starts >= 1, --steps >= 2, --top-k >= 0 and a finite --weight")
 
     from tqdm import tqdm
 
     from superex_deploy.evaluation import first_half_auc, heldout_scenarios, write_json
 
-    scenarios = heldout_scenarios(args.scenarios)
+    scenarios = heldout_scenarios(args.scenarios, args.starts)
+    run_steps = args.steps // 2 if args.first_half_only else args.steps
+    options = (args.steps, args.weight, args.top_k, args.viewpoints, args.starts, args.first_half_only)
     if not args.report:
         todo = [(s, arm) for s in scenarios for arm in ARMS if not _episode_path(args.out, arm, s).is_file()]
         for s, arm in tqdm(todo, desc="episodes", unit="episode"):
-            summary = run_arm(s, arm, args.steps, args.weight, args.top_k, args.viewpoints)
+            summary = run_arm(s, arm, run_steps, args.weight, args.top_k, args.viewpoints)
             write_json(_episode_path(args.out, arm, s), summary)
             auc = first_half_auc(summary["coverage_with_carving"], args.steps)
             tqdm.write(f"{s.map_name} #{s.start_index} {arm}: first-half AUC {100 * auc:.2f} %, "
                        f"{summary['seconds']:.0f} s")
-            report(args.out, scenarios, args.steps, args.weight, args.top_k, args.viewpoints)
-    if report(args.out, scenarios, args.steps, args.weight, args.top_k, args.viewpoints) is None:
+            report(args.out, scenarios, *options)
+    if report(args.out, scenarios, *options) is None:
         print("no finished pair yet")
     return 0
 

@@ -153,7 +153,8 @@ CEILING = "benchmarks/ceiling_study/ceiling_study_1000.json"
 CARVE_CEILINGS = {"goal": "benchmarks/carve_gain_ceiling/ceiling.json",
                   "path": "benchmarks/carve_gain_ceiling/path/ceiling.json",
                   "weight3": "benchmarks/carve_gain_ceiling/weight3/ceiling.json",
-                  "path_weight3": "benchmarks/carve_gain_ceiling/path_weight3/ceiling.json"}
+                  "path_weight3": "benchmarks/carve_gain_ceiling/path_weight3/ceiling.json",
+                  "confirm": "benchmarks/carve_gain_ceiling/confirm/ceiling.json"}
 FRAME = "benchmarks/frame_budget/realtime.json"
 FRAME_NOW = "benchmarks/frame_budget/defaults34/realtime.json"
 FINE = "benchmarks/realtime/fine/realtime.json"
@@ -686,7 +687,15 @@ CLAIMS = [
             lambda variant=variant: carve_ceiling_row(variant))
       for label, variant in (("from the goal cell, weight 1", "goal"), ("along the path, weight 1", "path"),
                              ("from the goal cell, weight 3", "weight3"),
-                             ("along the path, weight 3", "path_weight3"))],
+                             ("along the path, weight 3", "path_weight3"),
+                             ("along the path, weight 3, 2 starts per floor, steps 1-350 of 700", "confirm"))],
+    Claim(BETTER_MAP, CARVE_SECTION,
+          "the confirmation: **{} %** ({} points [{}, {}], {} / {} / {} of {} scenarios)", (CARVE_CEILINGS["confirm"],),
+          "auc_first_half: relative, difference [interval], better / worse / tied; scenarios_finished",
+          lambda: [percent(carve_ceiling("confirm")["relative"]), points(carve_ceiling("confirm")["difference"]),
+                   *interval(carve_ceiling("confirm")["interval"], 100.0),
+                   *[count(carve_ceiling("confirm")[k]) for k in ("better", "worse", "tied")],
+                   count(read(CARVE_CEILINGS["confirm"])["scenarios_finished"])]),
 
     # --- docs/benchmarks/spad.md ------------------------------------------------------------------------------
     Claim(SPAD_PAGE, "## Single scans and episodes", "| {} | {} | {} | {}x | {}x | {} % |", (SPAD,),

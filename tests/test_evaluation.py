@@ -173,7 +173,7 @@ def test_the_committed_seams_report_and_scenarios_regenerate():
             (e["map"], e["start_index"], tuple(e["start"])) for e in episodes]
 
 
-CARVE_CEILING_VARIANTS = ["", "path", "weight3", "path_weight3"]
+CARVE_CEILING_VARIANTS = ["", "path", "weight3", "path_weight3", "confirm"]
 
 
 @pytest.mark.parametrize("variant", CARVE_CEILING_VARIANTS)
@@ -183,13 +183,14 @@ def test_the_committed_carve_gain_ceiling_regenerates(variant):
     folder = BENCHMARKS / "carve_gain_ceiling" / variant
     data = json.loads((folder / "ceiling.json").read_text())
     script = _script("ceiling_carve_gain")
-    scenarios = heldout_scenarios(data["scenarios_planned"])
+    starts = data.get("starts", 1)
+    scenarios = heldout_scenarios(data["scenarios_planned"] // starts, starts)
     result, text = script.summarise(folder, scenarios, data["steps"], data["weight"], data["top_k"],
-                                    data["viewpoints"])
+                                    data["viewpoints"], starts, "steps_run" in data)
     assert json.loads(json.dumps(result)) == data
     assert text == (folder / "ceiling.md").read_text()
-    assert [(p["map"], tuple(p["start_rc"])) for p in data["per_scenario"]] == [
-        (s.map_name, s.start_rc) for s in scenarios[:data["scenarios_finished"]]]
+    assert [(p["map"], p["start_index"], tuple(p["start_rc"])) for p in data["per_scenario"]] == [
+        (s.map_name, s.start_index, s.start_rc) for s in scenarios[:data["scenarios_finished"]]]
 
 
 def test_the_true_carve_gain_counts_the_unknown_cells_the_carving_would_carve():
@@ -305,6 +306,11 @@ def test_the_held_out_train_scenarios():
     assert [(s.map_name, s.start_rc) for s in held] == evaluation.train_scenarios(12, 1, 40000, heldout=True)
     committed = json.loads((BENCHMARKS / "ceiling_study" / "ceiling_study_lama_heldout.json").read_text())["scenarios"]
     assert [[s.map_name, list(s.start_rc)] for s in heldout_scenarios(len(committed))][:len(committed)] == committed
+    two = heldout_scenarios(12, starts=2)  # a floor's first start is the one-start set's, its second another cell
+    assert two[::2] == held and [s.start_index for s in two[:4]] == [0, 1, 0, 1]
+    assert all(a.map_name == b.map_name and a.start_rc != b.start_rc for a, b in zip(two[::2], two[1::2]))
+    with pytest.raises(ValueError, match="starts"):
+        heldout_scenarios(12, starts=0)
 
 
 def test_the_held_out_buildings_are_the_training_splits():

@@ -86,11 +86,18 @@ def train_scenarios(n_maps: int, starts: int = 1, min_area: int = 40000, heldout
     return out
 
 
-def heldout_scenarios(n_maps: int = 12) -> list[Scenario]:
-    """The held-out tuning set: one seeded start on each of ``n_maps`` held-out train floors of at least 40,000
-    valid cells (:func:`train_scenarios` with ``heldout=True``), as :class:`Scenario` (start index 0)."""
-    return [Scenario(name, 0, (int(start[0]), int(start[1])))
-            for name, start in train_scenarios(n_maps, 1, 40000, heldout=True)]
+def heldout_scenarios(n_maps: int = 12, starts: int = 1) -> list[Scenario]:
+    """The held-out tuning set: ``starts`` seeded starts on each of ``n_maps`` held-out train floors of at least
+    40,000 valid cells (:func:`train_scenarios` with ``heldout=True``), as :class:`Scenario` (start index ``k``: the
+    floor's k-th draw, so a floor's first ``s`` starts are the same for every ``starts >= s``), floor by floor.
+
+    Raises:
+        ValueError: ``starts < 1``.
+    """
+    if starts < 1:
+        raise ValueError(f"starts must be >= 1, got {starts}")
+    pairs = train_scenarios(n_maps, starts, 40000, heldout=True)
+    return [Scenario(name, i % starts, (int(start[0]), int(start[1]))) for i, (name, start) in enumerate(pairs)]
 
 
 def altered_scenarios(order: Literal["map", "start"] = "map") -> list[tuple[Scenario, int]]:
