@@ -36,10 +36,10 @@ from superex_deploy.maps import list_maps, load_map, start_poses
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.nlos import NlosConfig
 from superex_deploy.onboard.nlos.shared import GridPatch
-from superex_deploy.onboard.nlos.filters import laplacian_filter_patch
+from superex_deploy.onboard.nlos.filters import laplacian_filter_patch, widened_box
 from superex_deploy.onboard.planning import motion
 from superex_deploy.onboard.planning.coarse import pool_prediction_blocks
-from superex_deploy.onboard.planning.frontiers import find_frontiers, frontier_cells
+from superex_deploy.onboard.planning.frontiers import find_frontiers, frontier_cells, frontiers_of_regions
 from superex_deploy.onboard.prediction import scale
 from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, Frontier, Prediction
 from superex_deploy.sim.generated_floors import upsampled
@@ -139,22 +139,7 @@ def sk_find_frontiers(observed, min_cells: int = 10) -> tuple[Frontier, ...]:
 
     labels = label(frontier_cells(observed), connectivity=2)
     rows, cols = np.nonzero(labels)  # row-major
-    region, n_regions = labels[rows, cols].astype(np.int64) - 1, int(labels.max())
-    if n_regions == 0:
-        return ()
-    sizes = np.bincount(region, minlength=n_regions)
-    centroid_r = np.bincount(region, weights=rows, minlength=n_regions) / sizes
-    centroid_c = np.bincount(region, weights=cols, minlength=n_regions) / sizes
-    distance_sq = (rows - centroid_r[region]) ** 2 + (cols - centroid_c[region]) ** 2
-    starts = np.r_[0, np.cumsum(sizes)[:-1]]
-    nearest = np.lexsort((distance_sq, region))[starts]
-    members_of = np.argsort(region, kind="stable")
-    frontiers = []
-    for index in np.flatnonzero(sizes >= min_cells):
-        members = members_of[starts[index]:starts[index] + sizes[index]]
-        frontiers.append(Frontier(cell_rc=(int(rows[nearest[index]]), int(cols[nearest[index]])),
-                                  cells=np.stack([rows[members], cols[members]], axis=1).astype(np.int32)))
-    return tuple(frontiers)
+    return frontiers_of_regions(rows, cols, labels[rows, cols].astype(np.int64) - 1, int(labels.max()), min_cells)
 
 
 def sk_laplacian_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
@@ -162,18 +147,12 @@ def sk_laplacian_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
     ``filters.laplace`` (its kernel is the negative 5-point Laplacian) on the same widened box."""
     from skimage import filters
 
-    margin = 2 * (int(4.0 * sigma_cells + 0.5) + 1)
-    rows, cols = bp.slices
-    shape = bp.grid_shape
-    r0, r1 = max(rows.start - margin, 0), min(rows.stop + margin, shape[0])
-    c0, c1 = max(cols.start - margin, 0), min(cols.stop + margin, shape[1])
-    box = np.zeros((r1 - r0, c1 - c0))
-    box[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0] = bp.values
+    box, r0, c0 = widened_box(bp, sigma_cells)
     if sigma_cells > 1e-15:
         box = filters.gaussian(box, sigma=sigma_cells, mode="reflect", truncate=4.0, preserve_range=True)
     box = np.clip(filters.laplace(box), 0.0, None)
     top = box.max()
-    return GridPatch((box / top if top > 0 else box).astype(np.float32), r0, c0, shape)
+    return GridPatch((box / top if top > 0 else box).astype(np.float32), r0, c0, bp.grid_shape)
 
 
 def sk_travel_cost(costs, source_rc):

@@ -1,5 +1,6 @@
-"""The ceiling of an NLOS-aware goal choice (#44 item 1): the SuperEx planner given the TRUE carve gain of each
-frontier (from the simulator) against today's planner, the ``superex`` pipeline paired by scenario on train floors.
+"""The ceiling of an NLOS-aware goal choice (would a planner that asks what the SPAD will carve explore faster?):
+the SuperEx planner given the TRUE carve gain of each frontier (from the simulator) against today's planner, the
+``superex`` pipeline paired by scenario on train floors.
 
 Today's planner scores a frontier by the unknown cells it expects to see in line of sight along the path to it
 (:class:`~superex_deploy.onboard.planning.planners.superex.SuperexPlanner`): a goal beside a long wall that would

@@ -15,6 +15,7 @@ from superex_deploy.onboard.nlos import carving
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.sim.corner_scenes import l_corner_scene
 from superex_deploy.sim.spad import simulate_scan
+from tests.naive import sector_without_steps
 
 N_SCENES = 500
 CONFIG = SpadConfig(n_rays=720, n_secondary=256)
@@ -27,11 +28,6 @@ def _walls_carved(seed, nlos_cfg=NlosConfig()):
     return int((carved & grid.occupied).sum()), int(carved.sum())
 
 
-def _old_sector(wall_cells, wall_normal, cfg, yaw_margin_rad=0.0):
-    """The sector before the step rule: +-(90 - sector_margin_deg) about every fitted normal."""
-    return np.full(len(wall_cells), np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg)))
-
-
 # Scenes where the sector of a stepping wall cell reached a wall its fan never covered (found by the property test
 # over seeds 0-2,499: 4 scenes carved true walls with the old sector; these 3 are the step's, the 4th is the limit
 # below).
@@ -42,7 +38,7 @@ STEP_SCENES = (1590, 1595, 2117)
 def test_the_sector_narrows_where_the_wall_steps(seed, monkeypatch):
     walls, carved = _walls_carved(seed)
     assert walls == 0 and carved > 10000
-    monkeypatch.setattr(carving, "sector_cos_limits", _old_sector)
+    monkeypatch.setattr(carving, "sector_cos_limits", sector_without_steps)
     old_walls, old_carved = _walls_carved(seed)
     assert old_walls > 0  # the scene tells the rules apart
     assert carved < old_carved < carved * 1.05  # and the narrowing costs little there

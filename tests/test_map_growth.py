@@ -63,7 +63,8 @@ def test_a_growing_map_is_the_whole_floors_map_of_the_same_observations(seed):
 
 
 def test_a_slam_corridor_beyond_the_frame_is_not_finished():
-    # A 30 m corridor in a SLAM map, the explorer's frame only 6 m of it (#33: finished at the frame's edge).
+    # A 30 m corridor in a SLAM map, the explorer's frame only 6 m of it (the explorer once said finished at the
+    # frame's edge).
     slam_frame = MapFrame((40, 300), 0.1, (0.0, 0.0))
     corridor = np.full(slam_frame.shape, -1, np.int8)
     corridor[15:25, 0:250] = 0

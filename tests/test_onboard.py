@@ -25,7 +25,7 @@ from superex_deploy.sim.exploration import ExplorationConfig
 from superex_deploy.sim.world import World, WorldConfig
 from superex_deploy.spad_types import SpadConfig
 from superex_deploy.recording.convert import PREVIOUS_DEFAULTS
-from tests.naive import naive_mark_ranges
+from tests.naive import naive_mark_ranges, sector_without_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_FLOOR = list_maps("train")[0]
@@ -51,8 +51,7 @@ def test_the_world_explorer_loop_reproduces_the_ground_truth_loop_it_replaced(ca
     predictor = make_predictor(case["predictor"], grid, profile=PROFILES["full"])
     # Its carving had one sector for every wall cell (narrowed where a wall steps since 0.3: 3 of the SPAD case's
     # 12,524 carved cells, all of them known already).
-    monkeypatch.setattr(carving, "sector_cos_limits", lambda cells, normals, cfg, yaw=0.0: np.full(
-        len(cells), np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg))))
+    monkeypatch.setattr(carving, "sector_cos_limits", sector_without_steps)
     if hasattr(predictor, "with_lattice_filter"):
         predictor = predictor.with_lattice_filter(False)
     result = run_episode(grid, start, make_planner(case["planner"], **{  # transmittance: read by the expected gain only

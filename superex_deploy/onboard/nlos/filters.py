@@ -99,25 +99,30 @@ def _gaussian_weights(sigma_cells: float) -> np.ndarray:
     return weights
 
 
-def laplacian_filter_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
-    """:func:`laplacian_filter` of a map that is zero outside the patch ``bp``: only the patch, widened by a margin,
-    is filtered. float32 in [0, 1]."""
-    # Filter the patch plus twice the stencil reach (Gaussian truncated at 4 sigma, plus the Laplacian's one cell),
-    # so the box edge's reflection only ever mirrors zeros and the result equals filtering the whole grid.
-    reach = int(4.0 * sigma_cells + 0.5)
-    margin = 2 * (reach + 1)
+def widened_box(bp: GridPatch, sigma_cells: float) -> tuple[np.ndarray, int, int]:
+    """``(box float64, top row, left col)``: the patch ``bp`` on zeros, widened by twice the filter's stencil reach
+    (a Gaussian of ``sigma_cells`` truncated at 4 sigma, plus the Laplacian's one cell) and cut at the grid, so
+    that a filter with reflecting edges over the box only ever mirrors zeros and equals filtering the whole grid."""
+    margin = 2 * (int(4.0 * sigma_cells + 0.5) + 1)
     rows, cols = bp.slices
     shape = bp.grid_shape
     r0, r1 = max(rows.start - margin, 0), min(rows.stop + margin, shape[0])
     c0, c1 = max(cols.start - margin, 0), min(cols.stop + margin, shape[1])
     box = np.zeros((r1 - r0, c1 - c0))
     box[rows.start - r0:rows.stop - r0, cols.start - c0:cols.stop - c0] = bp.values
+    return box, r0, c0
+
+
+def laplacian_filter_patch(bp: GridPatch, sigma_cells: float) -> GridPatch:
+    """:func:`laplacian_filter` of a map that is zero outside the patch ``bp``: only the patch, widened by a margin,
+    is filtered. float32 in [0, 1]."""
+    box, r0, c0 = widened_box(bp, sigma_cells)
     # scipy.ndimage.gaussian_filter's steps (truncate = 4), in numba: the same kernel, axis 0 then axis 1.
     if sigma_cells > 1e-15:
         weights = _gaussian_weights(float(sigma_cells))
         box = _correlate_symmetric(_correlate_symmetric(box, weights, 0), weights, 1)
     box, top = _clipped_negative_laplacian(box)
-    return GridPatch((box / top if top > 0 else box).astype(np.float32), r0, c0, shape)
+    return GridPatch((box / top if top > 0 else box).astype(np.float32), r0, c0, bp.grid_shape)
 
 
 def laplacian_filter(bp: np.ndarray, sigma_cells: float = 1.0) -> np.ndarray:

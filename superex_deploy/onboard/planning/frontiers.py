@@ -22,7 +22,7 @@ import numpy as np
 
 from superex_deploy.onboard.types import FREE, UNKNOWN, Frontier, check_observed
 
-__all__ = ["frontier_cells", "find_frontiers", "Pockets", "open_frontiers"]
+__all__ = ["frontier_cells", "find_frontiers", "frontiers_of_regions", "Pockets", "open_frontiers"]
 
 
 @numba.njit(cache=True)
@@ -117,6 +117,14 @@ def find_frontiers(observed: np.ndarray, min_cells: int = 10) -> tuple[Frontier,
     if int(min_cells) < 1:
         raise ValueError(f"min_cells must be >= 1, got {min_cells}")
     rows, cols, region, n_regions = _frontier_regions(np.ascontiguousarray(observed))
+    return frontiers_of_regions(rows, cols, region, n_regions, int(min_cells))
+
+
+def frontiers_of_regions(rows: np.ndarray, cols: np.ndarray, region: np.ndarray, n_regions: int,
+                         min_cells: int) -> tuple[Frontier, ...]:
+    """The :class:`Frontier` of each labelled region of at least ``min_cells`` cells: ``rows``, ``cols`` the
+    region cells in row-major order, ``region`` int64 their region index (``0 .. n_regions - 1``, numbered in the
+    row-major order of each region's first cell); its goal cell the cell nearest the centroid (ties: row-major)."""
     if n_regions == 0:
         return ()
     sizes = np.bincount(region, minlength=n_regions)
@@ -130,7 +138,7 @@ def find_frontiers(observed: np.ndarray, min_cells: int = 10) -> tuple[Frontier,
     # Cells of each region, row-major: a stable sort by region alone.
     cells_by_region = np.argsort(region, kind="stable")
     frontiers = []
-    for index in np.flatnonzero(sizes >= int(min_cells)):
+    for index in np.flatnonzero(sizes >= min_cells):
         members = cells_by_region[starts[index]:starts[index] + sizes[index]]
         cells = np.stack([rows[members], cols[members]], axis=1).astype(np.int32)
         frontiers.append(Frontier(cell_rc=(int(rows[nearest[index]]), int(cols[nearest[index]])), cells=cells))
