@@ -56,6 +56,8 @@ VARIANTS = {
     "fan256_sector20_ends30": (256, {"sector_margin_deg": 20.0, "_ends_margin_deg": 30.0}),
     "truth_normals": (64, {"_truth_normals": True}),
     "fan256_sector20_truth_normals": (256, {"sector_margin_deg": 20.0, "_truth_normals": True}),
+    "fan256_scan_normals": (256, {"normals_from_map": False}),
+    "fan256_map_normals": (256, {"normals_from_map": True}),
 }
 """Name -> (SpadConfig.n_secondary, NlosConfig overrides); the carve-radius cap follows the fan density.
 ``_truth_normals``: every wall cell carves about the simulator's own normal (corners and wall ends included), the
@@ -69,13 +71,14 @@ def nlos_config(variant: str) -> NlosConfig:
     return NlosConfig(**{k: v for k, v in VARIANTS[variant][1].items() if not k.startswith("_")})
 
 
-def variant_carving(variant: str, scan, los, cfg: NlosConfig) -> np.ndarray:
-    """bool ``[H, W]`` the variant's carving of one scan."""
+def variant_carving(variant: str, scan, los, cfg: NlosConfig, map_walls=None) -> np.ndarray:
+    """bool ``[H, W]`` the variant's carving of one scan (``map_walls``: the explorer's wall cells, which support
+    the normals where ``cfg.normals_from_map``)."""
     ends_margin = VARIANTS[variant][1].get("_ends_margin_deg")
     if ends_margin is not None:
-        return carve(scan, los, cfg) | _wall_end_carving(scan, los, cfg, ends_margin)
+        return carve(scan, los, cfg, map_walls=map_walls) | _wall_end_carving(scan, los, cfg, ends_margin)
     if not VARIANTS[variant][1].get("_truth_normals"):
-        return carve(scan, los, cfg)
+        return carve(scan, los, cfg, map_walls=map_walls)
     truth = scan.truth
     rays = np.flatnonzero((los.ray_wall >= 0) & (truth.ray_fan >= 0))
     cells, first = np.unique(los.ray_wall[rays], return_index=True)
@@ -149,6 +152,7 @@ def _scenario(task: tuple) -> dict:
 
     def on_step(state) -> None:
         known = state.mapper.known(include_carved=False)
+        map_walls = state.mapper.seen_wall
         coverage["los"].append(coverage_of(known, grid.valid))
         scans = {}
         for k in fans:
@@ -162,7 +166,7 @@ def _scenario(task: tuple) -> dict:
             key = (k, replace(cfg, sector_margin_deg=0.0, wall_strip_m=0.0, apex_margin_m=0.0))
             if key not in estimates:
                 estimates[key] = estimate_los(scans[k], cfg)
-            carved[v] |= variant_carving(v, scans[k], estimates[key], cfg)
+            carved[v] |= variant_carving(v, scans[k], estimates[key], cfg, map_walls)
         if with_ideal:
             carved["ideal"] |= ideal_carving(scans[256])
         for v in carved:
@@ -225,9 +229,9 @@ def noisy_property(n_poses: int, names: list[str], sigma_xy_m: float = 0.05, sig
     """tests/test_noisy_carving.py's property for the variants (360 primaries): scans from the true cell,
     placed by a belief drawn at the declared sigmas and carved with that covariance (generator 24, floor
     ``trial % floors``). Returns the poses carving a true wall and the carved cells per scan."""
-    from superex_deploy.messages import MapFrame, Pose2D, SpadFrame
+    from superex_deploy.messages import MapFrame, Pose2D
     from superex_deploy.onboard.nlos.processing import scan_from_frame
-    from superex_deploy.sim.spad import simulate_scan
+    from superex_deploy.sim.spad import measured_frame, simulate_scan
 
     sigma_yaw = np.deg2rad(sigma_yaw_deg)
     rng = np.random.default_rng(24)
@@ -244,10 +248,7 @@ def noisy_property(n_poses: int, names: list[str], sigma_xy_m: float = 0.05, sig
         for k in sorted({VARIANTS[v][0] for v in names}):
             cfg = SpadConfig(n_rays=360, n_secondary=k)
             simulated = simulate_scan(grid, pose, cfg)
-            sparse = simulated.sparse
-            measured = SpadFrame(angles=-simulated.angles, bin_width_s=cfg.bin_width_s, n_bins=sparse.n_bins,
-                                 row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
-            scan = scan_from_frame(measured, frame, belief, cfg)
+            scan = scan_from_frame(measured_frame(simulated), frame, belief, cfg)
             for v in (v for v in names if VARIANTS[v][0] == k):
                 nlos_cfg = nlos_config(v)
                 carved = carve(scan, estimate_los(scan, nlos_cfg), nlos_cfg, (sigma_xy_m, sigma_yaw))

@@ -37,7 +37,7 @@ def old_sector():
     """Carve with the sector of 0.2 inside the block (the module's rule swapped, then put back)."""
     rule = carving.sector_cos_limits
 
-    def constant(wall_cells, wall_normal, cfg, yaw_margin_rad=0.0):
+    def constant(wall_cells, wall_normal, cfg, yaw_margin_rad=0.0, steps=None):
         return np.full(len(wall_cells), np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg)))
 
     carving.sector_cos_limits = constant

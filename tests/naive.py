@@ -248,7 +248,7 @@ def naive_carve_sectors(shape, apex, normals, radius_cells, strip_cells, cos_lim
     return out
 
 
-def sector_without_steps(wall_cells, wall_normal, cfg, yaw_margin_rad=0.0):
+def sector_without_steps(wall_cells, wall_normal, cfg, yaw_margin_rad=0.0, steps=None):
     """The carving's sector before the step rule (nlos.carving.sector_cos_limits' signature): cos(90 deg -
     sector_margin_deg) for every wall point, what the legacy loop and the property's old rule carved with."""
     return np.full(len(wall_cells), np.cos(np.deg2rad(90.0 - cfg.sector_margin_deg)))

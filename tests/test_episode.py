@@ -9,6 +9,7 @@ import pytest
 from superex_deploy.maps import OccupancyGrid, load_map, start_poses
 from superex_deploy.messages import SpadFrame
 from superex_deploy.onboard import SpadProcessing
+from superex_deploy.onboard.nlos import NlosConfig
 from superex_deploy.onboard.explorer import ExplorerConfig
 from superex_deploy.onboard.planning.frontiers import find_frontiers
 from superex_deploy.onboard.planning.goal_choice import choose_goal as _choose
@@ -74,9 +75,12 @@ class _CarveRightRoom(SpadProcessing):
         self.fixed_evidence = np.full(shape, 0.25, np.float32)
         self.calls = 0
 
-    def __call__(self, frame, map_frame, pose, known):
+    def __call__(self, frame, map_frame, pose, known, pose_covariance=None, map_walls=None):
         self.calls += 1
         assert isinstance(frame, SpadFrame) and known.dtype == np.bool_ and known.shape == map_frame.shape
+        # The explorer hands over its map's walls (they support the carving's normals): walls it knows.
+        assert map_walls.dtype == np.bool_ and map_walls.shape == map_frame.shape and not np.any(map_walls & ~known)
+        assert map_walls.any()
         self._evidence = self.fixed_evidence
         return self.carved, self._evidence
 
@@ -394,3 +398,11 @@ def test_a_short_episode_is_the_one_recorded_before_the_explorer_came_from_build
     assert [list(goal) for goal in spad.goals] == [[44, 349], [63, 336], [55, 169], [62, 138]]
     assert spad.goal_steps == [0, 10, 18, 21] and float(spad.coverage_with_carving.sum()) == 2.3618458242837166
     assert _episode_digest(spad) == "363317a46c78a26595b8065cabde0c771a687c59b0d66558c034c537dfc2dcb3"
+    # With the carving's normals supported by the map (NlosConfig.normals_from_map, 0.3): the same goals here, and
+    # every step's carving reaches at least as far.
+    mapped = run_episode(small_map, start_poses("50052750")[1], make_planner("superex"), OraclePredictor(small_map),
+                         steps=40, seed=0, sensing=SpadSensing(spad=_SMALL_SPAD,
+                                                               nlos_cfg=NlosConfig(normals_from_map=True)))
+    assert mapped.goals == spad.goals and np.array_equal(mapped.coverage, spad.coverage)
+    assert np.all(mapped.coverage_with_carving >= spad.coverage_with_carving)
+    assert mapped.coverage_with_carving.sum() > spad.coverage_with_carving.sum()

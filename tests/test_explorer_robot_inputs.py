@@ -165,7 +165,7 @@ class _CarveAcrossTheDoor(SpadProcessing):
         self.block = np.zeros(shape, bool)
         self.block[8:22, 12:32] = True
 
-    def __call__(self, frame, map_frame, pose, known, pose_covariance=None):
+    def __call__(self, frame, map_frame, pose, known, pose_covariance=None, map_walls=None):
         self._evidence = np.zeros(map_frame.shape, np.float32)
         return self.block & ~known, self._evidence
 

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from superex_deploy.maps import OccupancyGrid, list_maps, load_map
-from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance, SpadFrame
+from superex_deploy.messages import MapFrame, Pose2D, PoseCovariance
 from superex_deploy.onboard import SpadProcessing
 from superex_deploy.onboard.nlos import NlosConfig, carve, estimate_los
 from superex_deploy.onboard.nlos.processing import scan_from_frame
-from superex_deploy.sim.spad import simulate_scan
+from superex_deploy.sim.spad import measured_frame, simulate_scan
 from superex_deploy.spad_types import SpadConfig
 
 N_POSES = 2000
@@ -17,13 +17,6 @@ SIGMA_XY_M = 0.05  # the declared sigma: what a good SLAM system delivers
 SIGMA_YAW_RAD = np.deg2rad(1.0)
 # Fewer primaries than the default keep 2,000 scans fast; the fan (the part soundness depends on) is default.
 PROPERTY_CONFIG = SpadConfig(n_rays=360)
-
-
-def _frame_of(simulated, cfg):
-    """The measured frame of a simulated scan taken with yaw 0 (grid angles back to robot-frame angles)."""
-    sparse = simulated.sparse
-    return SpadFrame(angles=-simulated.angles, bin_width_s=cfg.bin_width_s, n_bins=sparse.n_bins,
-                     row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
 
 
 def _noisy_carvings(rng, n_poses, margins):
@@ -51,7 +44,7 @@ def _noisy_carvings(rng, n_poses, margins):
             pose = tuple(int(v) for v in candidates[index])
             x, y = frame.centre_xy(pose)
             belief = Pose2D(x + dx, y + dy, dyaw)
-            scan = scan_from_frame(_frame_of(simulate_scan(grid, pose, PROPERTY_CONFIG), PROPERTY_CONFIG), frame,
+            scan = scan_from_frame(measured_frame(simulate_scan(grid, pose, PROPERTY_CONFIG)), frame,
                                    belief, PROPERTY_CONFIG)
             los = estimate_los(scan)
             yield grid, [carve(scan, los, NlosConfig(pose_sigma_margin=k), (SIGMA_XY_M, SIGMA_YAW_RAD)) if k
@@ -93,7 +86,7 @@ def test_the_explorers_spad_processing_widens_the_margins_from_the_covariance():
     grid = OccupancyGrid(walls, ~walls, 0.1, "room")
     cfg = SpadConfig(n_rays=720)
     frame = MapFrame(grid.shape, grid.resolution_m)
-    measured = _frame_of(simulate_scan(grid, (45, 30), cfg), cfg)
+    measured = measured_frame(simulate_scan(grid, (45, 30), cfg))
     pose = Pose2D(*frame.centre_xy((45, 30)))
     known = np.zeros(grid.shape, bool)
     exact, _ = SpadProcessing(sensor=cfg)(measured, frame, pose, known)

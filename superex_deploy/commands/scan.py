@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     seen_free = np.zeros(grid.shape, bool)
     seen_wall = np.zeros(grid.shape, bool)
     mark_rays(grid.occupied, cell_centre(pose), scan.angles, cfg.range_m / grid.resolution_m, seen_free, seen_wall)
-    result = process_scan(scan, NlosConfig(), known=seen_free | seen_wall)
+    result = process_scan(scan, NlosConfig(), known=seen_free | seen_wall, map_walls=seen_wall)
     truth = nlos_ground_truth(scan)
     hidden = ~(seen_free | seen_wall)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -6,8 +6,8 @@
    readings skipped), or a SLAM map replaces the line-of-sight layer; a growing map first moves to a grid that
    holds what the step can touch (:mod:`~superex_deploy.onboard.mapping.growth`);
 2. **map_update**: a SPAD frame is processed (:class:`~superex_deploy.onboard.nlos.processing.SpadProcessing`,
-   margins widened by the pose covariance): carved cells join the map as evidence towards free, the back-projection
-   evidence is kept for the predictor;
+   margins widened by the pose covariance, the map's walls supporting the carving's wall normals): carved cells join
+   the map as evidence towards free, the back-projection evidence is kept for the predictor;
 3. **frontiers**: frontier regions of the map (those shorter than ``frontier_min_m`` only as a last tier);
 4. **path / scoring / prediction**: a locked goal is kept until reached (within ``goal_reached_m`` and in line of
    sight, :func:`~superex_deploy.onboard.planning.goal_choice.goal_reached`), let go by the planner, or blocked with
@@ -370,11 +370,8 @@ class Explorer:
 
         clock = time.perf_counter()
         if self.spad_processing is not None and obs.spad is not None:
-            if obs.pose_covariance is None:
-                carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known())
-            else:
-                carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known(),
-                                                 pose_covariance=obs.pose_covariance)
+            carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known(),
+                                             pose_covariance=obs.pose_covariance, map_walls=self.mapper.seen_wall)
             self.mapper.merge_carved(carved)
         observed = self.mapper.observed()
         # The map the planning reads, on the planning grid: carved-only cells are free in it only when they may be

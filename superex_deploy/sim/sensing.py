@@ -9,7 +9,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from superex_deploy.onboard.types import UNKNOWN
+from superex_deploy.onboard.types import OCCUPIED, UNKNOWN
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.onboard.nlos import NlosConfig
 from superex_deploy.onboard.nlos.processing import NlosSkips, SpadProcessing
@@ -72,4 +72,4 @@ class SpadSensing:
         if self._processing is None:
             self.processing()
         scan = simulate_scan(grid, pose_rc, self.spad, rng=self._rng if self.spad.noise.enabled else None)
-        return self._processing.process_scan(scan, observed != UNKNOWN)
+        return self._processing.process_scan(scan, observed != UNKNOWN, map_walls=observed == OCCUPIED)

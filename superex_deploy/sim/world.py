@@ -34,7 +34,7 @@ from superex_deploy.sim.kinematics import drive_belief_relative
 from superex_deploy.sim.noise.lidar import noisy_ranges
 from superex_deploy.sim.noise.model import SimNoise
 from superex_deploy.sim.noise.pose import PoseErrorModel
-from superex_deploy.sim.spad import simulate_scan
+from superex_deploy.sim.spad import measured_frame, simulate_scan
 
 __all__ = ["World", "WorldConfig", "LidarConfig", "laser_scan_from_distances", "advance"]
 
@@ -225,12 +225,7 @@ class World:
                                   rng=self._spad_rng if self.cfg.spad.noise.enabled else None,
                                   origin_yx=origin if continuous else None)
         self.last_spad_scan = simulated  # the truth stays here: labels and tests only
-        sparse = simulated.sparse
-        # Grid angles back to robot-frame angles: an exact negation at yaw 0 (the cell-to-cell robot); a turned
-        # robot's rays are the same grid directions seen from its heading.
-        angles = -simulated.angles - pose.yaw if continuous else -simulated.angles
-        return SpadFrame(angles=angles, bin_width_s=self.cfg.spad.bin_width_s, n_bins=sparse.n_bins,
-                         row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
+        return measured_frame(simulated, pose.yaw if continuous else 0.0)
 
     def observe(self) -> Observation:
         """Scan from the robot's true pose: the line-of-sight ranges and, with a SPAD sensor, its frame; the

@@ -47,12 +47,13 @@ __all__ = ["NlosConfig", "LosEstimate", "GridPatch", "NlosResult", "estimate_los
 
 
 def process_scan(scan: SpadScan, cfg: NlosConfig = NlosConfig(), known: Optional[np.ndarray] = None,
-                 pose_sigma=(0.0, 0.0)) -> NlosResult:
+                 pose_sigma=(0.0, 0.0), map_walls: Optional[np.ndarray] = None) -> NlosResult:
     """LOS estimates, carved free space, back-projection and its Laplacian-filtered version (as patches; the
     result's ``carved``, ``bp`` and ``bp_filtered`` give whole maps). ``pose_sigma``: ``(sigma_xy_m,
-    sigma_yaw_rad)`` of the scan's pose, which widens the carving margins (:func:`carve`)."""
+    sigma_yaw_rad)`` of the scan's pose, which widens the carving margins; ``map_walls``: the map's wall cells,
+    which support the carving's normals (both :func:`carve`)."""
     los = estimate_los(scan, cfg)
     bp = back_project_patch(scan, los, cfg, known)
-    return NlosResult(carved_patch=carve_patch(scan, los, cfg, pose_sigma), bp_patch=bp,
+    return NlosResult(carved_patch=carve_patch(scan, los, cfg, pose_sigma, map_walls), bp_patch=bp,
                       bp_filtered_patch=laplacian_filter_patch(bp, cfg.in_cells(scan.resolution_m).laplacian_sigma),
                       los=los)

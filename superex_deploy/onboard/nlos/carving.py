@@ -52,13 +52,15 @@ needs three more arguments, each a margin below:
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numba
 import numpy as np
 
 from superex_deploy.parallel import kernel_parts
 from superex_deploy.onboard.nlos.shared import (ROW_BLOCK, GridPatch, LosEstimate, NlosConfig,
                                                 carve_radius_cap_m)
-from superex_deploy.onboard.nlos.normals import reliable_with_interior, step_deviation
+from superex_deploy.onboard.nlos.normals import map_supported_normals, reliable_with_interior, step_deviation
 from superex_deploy.spad_types import SpadScan
 
 
@@ -116,6 +118,8 @@ def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top,
             c_first = max(left, int(np.floor(max(lo, left - 2.0))) - 1)
             c_last = min(col_end - 1, int(np.ceil(min(hi, col_end + 1.0))) + 1)
             for c in range(c_first, c_last + 1):
+                if out[r - top, c - left]:  # marked by another wall point already (neighbours' discs overlap)
+                    continue
                 vx = c + 0.5 - ax
                 if vy * vy + vx * vx >= radius * radius:
                     continue
@@ -184,20 +188,33 @@ def _carved_box(apex, radius_cells, strip_cells, n_rows, n_cols):
     return top, left, bottom, right
 
 
-def sector_cos_limits(wall_cells: np.ndarray, wall_normal: np.ndarray, cfg: NlosConfig, yaw_margin_rad: float = 0.0
-                      ) -> np.ndarray:
+def sector_cos_limits(wall_cells: np.ndarray, wall_normal: np.ndarray, cfg: NlosConfig, yaw_margin_rad: float = 0.0,
+                      steps: Optional[np.ndarray] = None) -> np.ndarray:
     """float64 ``[U]``: the cosine of each wall point's carved half-angle about its fitted normal,
     ``90 deg - max(sector_margin_deg, step + yaw_margin_rad)`` with ``step`` the wall's turn at that cell
     (:func:`.normals.step_deviation`; point 3 of the module docstring).
 
     ``wall_cells`` int ``[U, 2]`` sorted by row (as :class:`LosEstimate` holds them), ``wall_normal`` float64
     ``[U, 2]`` unit normals; ``yaw_margin_rad``: the pose-error margin on the yaw (0 for an exact pose), which turns
-    a step's normal as it turns the fitted one."""
+    a step's normal as it turns the fitted one; ``steps``: float64 ``[U]`` radians, the turn where it is known
+    from more than the scan's hits (:func:`.normals.map_supported_normals`), NaN elsewhere (None: nowhere)."""
     step = np.zeros(len(wall_cells))
     if len(wall_cells):
         step_deviation(np.ascontiguousarray(wall_cells + 0.5, np.float64), np.ascontiguousarray(wall_normal), step)
+    if steps is not None:
+        step = np.where(np.isnan(steps), step, steps)
     narrowing = np.maximum(np.deg2rad(cfg.sector_margin_deg), step + yaw_margin_rad)
     return np.cos(np.pi / 2 - np.minimum(narrowing, np.pi / 2))
+
+
+def _could_carve(los: LosEstimate, cap_m: float, resolution_m: float, cells) -> np.ndarray:
+    """bool ``[U]``: the wall cells whose rays leave a carve radius past the wall strip whatever their normal (the
+    bound of :func:`_carve_radii` before the normal's and the pose's tests, which only shrink it)."""
+    bound = np.full(len(los.wall_cells), np.inf)
+    hit = los.ray_wall >= 0
+    radius = np.where(los.first_late_bin[hit] < 0, 0.0, los.empty_radius_m[hit])
+    np.minimum.at(bound, los.ray_wall[hit], radius)
+    return np.minimum(bound, cap_m) / resolution_m - cells.apex_margin - np.sqrt(0.5) > cells.wall_strip
 
 
 def check_pose_sigma(pose_sigma) -> tuple[float, float]:
@@ -215,7 +232,8 @@ def check_pose_sigma(pose_sigma) -> tuple[float, float]:
     return sigma_xy, sigma_yaw
 
 
-def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0.0, 0.0)) -> GridPatch:
+def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0.0, 0.0),
+                map_walls: Optional[np.ndarray] = None) -> GridPatch:
     """:func:`carve` as a patch around the carved sectors."""
     shape = scan.grid_shape
     if len(los.wall_cells) == 0:
@@ -223,30 +241,39 @@ def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0
     sigma_xy, sigma_yaw = check_pose_sigma(pose_sigma)
     cells = cfg.in_cells(scan.resolution_m)
     strip_cells = np.full(len(los.wall_cells), cells.wall_strip)
-    reliable = los.normal_reliable
+    widened = None
     if sigma_xy > 0.0 or sigma_yaw > 0.0:
         distance = np.hypot(los.wall_cells[:, 0] + 0.5 - scan.origin_yx[0],
                             los.wall_cells[:, 1] + 0.5 - scan.origin_yx[1])
         widened = cells.normal_interior + cfg.pose_sigma_margin * (sigma_xy / scan.resolution_m
                                                                    + distance * sigma_yaw)
+    normals, reliable, apex, steps = los.wall_normal, los.normal_reliable, los.wall_apex, None
+    if widened is not None:
         reliable = reliable & reliable_with_interior(los.wall_cells, cfg, scan.resolution_m, widened)
+    if map_walls is not None and cfg.normals_from_map:
+        normals, reliable, apex, steps = map_supported_normals(
+            los.wall_cells, normals, reliable, apex, scan, cfg, map_walls, widened,
+            _could_carve(los, carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
+                         cells))
     radius_cells = _carve_radii(los.ray_wall, los.first_late_bin, los.empty_radius_m, los.wall_cells,
-                                los.wall_normal, reliable, scan.origin_yx[0], scan.origin_yx[1],
+                                normals, reliable, scan.origin_yx[0], scan.origin_yx[1],
                                 carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
                                 cells.apex_margin, np.cos(np.deg2rad(cfg.max_incidence_deg)),
                                 cells.wall_strip, cfg.pose_sigma_margin * sigma_xy / scan.resolution_m,
                                 cfg.pose_sigma_margin * sigma_yaw, strip_cells)
-    top, left, bottom, right = _carved_box(los.wall_apex, radius_cells, strip_cells, shape[0], shape[1])
+    top, left, bottom, right = _carved_box(apex, radius_cells, strip_cells, shape[0], shape[1])
     carved = np.zeros((bottom - top, right - left), bool)
-    cos_limit = sector_cos_limits(los.wall_cells, los.wall_normal, cfg, cfg.pose_sigma_margin * sigma_yaw)
-    carve_sectors(los.wall_apex, los.wall_normal, radius_cells, strip_cells, cos_limit, top, left, carved,
-                  kernel_parts(cfg.threads))
+    cos_limit = sector_cos_limits(los.wall_cells, normals, cfg, cfg.pose_sigma_margin * sigma_yaw, steps)
+    carve_sectors(apex, normals, radius_cells, strip_cells, cos_limit, top, left, carved, kernel_parts(cfg.threads))
     return GridPatch(carved, int(top), int(left), shape)
 
 
-def carve(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(), pose_sigma=(0.0, 0.0)) -> np.ndarray:
+def carve(scan: SpadScan, los: LosEstimate, cfg: NlosConfig = NlosConfig(), pose_sigma=(0.0, 0.0),
+          map_walls: Optional[np.ndarray] = None) -> np.ndarray:
     """Cells proven free by the first late photons: bool ``[H, W]`` (see the module docstring for soundness).
 
     ``pose_sigma``: ``(sigma_xy_m, sigma_yaw_rad)`` of the pose the scan was placed by (point 4 above); zeros for
-    an exact pose."""
-    return carve_patch(scan, los, cfg, pose_sigma).to_grid()
+    an exact pose. ``map_walls``: bool ``[H, W]`` the wall cells the map already holds, on the scan's grid; with
+    ``cfg.normals_from_map`` each wall point's normal is fitted to the scan's hits and these together (point 3
+    above, :func:`.normals.map_supported_normals`); None: the scan's hits alone."""
+    return carve_patch(scan, los, cfg, pose_sigma, map_walls).to_grid()

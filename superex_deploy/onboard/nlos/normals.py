@@ -20,7 +20,8 @@ def hit_normals(points, radius, max_minor_ratio, max_residual, max_gap, interior
     there are at least 3 such points, the minor variance is below ``max_minor_ratio`` of the major one, every
     point lies within ``max_residual`` of the fitted line, no two neighbours along it are more than ``max_gap``
     apart, and the point lies at least ``interior[u]`` cells inside the extent of its neighbours along the wall
-    (float64 ``[U]``: one distance per point).
+    (float64 ``[U]``: one distance per point; ``inf``: the point only supports the others' fits, its own normal
+    is not fitted and stays as given).
 
     ``points`` must be sorted by row (``points[:, 0]`` ascending, as row-major cell indices give them): each point
     then looks for neighbours only in the band of rows within ``radius``. The points are cut into ``n_parts``
@@ -42,6 +43,8 @@ def _hit_normals_of(points, radius, max_minor_ratio, max_residual, max_gap, inte
     band_lo = 0
     band_hi = 0
     for u in range(first, stop):
+        if interior[u] == np.inf:  # can never be trusted: not fitted (a support point, see map_supported_normals)
+            continue
         # The band of rows [y - radius - 1, y + radius + 1] holds every neighbour (a cell of slack for rounding);
         # both ends only move forward as u goes down the rows.
         while points[band_lo, 0] < points[u, 0] - radius - 1.0:
@@ -196,3 +199,89 @@ def reliable_with_interior(wall_cells: np.ndarray, cfg: NlosConfig, resolution_m
                     np.ascontiguousarray(interior_cells, np.float64), np.zeros((n_walls, 2)), reliable,
                     kernel_parts(cfg.threads))
     return reliable
+
+
+def map_supported_normals(wall_cells: np.ndarray, normals: np.ndarray, reliable: np.ndarray, apex: np.ndarray,
+                          scan: SpadScan, cfg: NlosConfig, map_walls: np.ndarray, interior_cells=None,
+                          candidates=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The scan's normals (``normals``, ``reliable``, ``apex`` as :func:`observed_normals` gives them) with every
+    wall cell they do not trust refitted to the scan's wall hits and the map's wall cells together (``map_walls``
+    bool ``[H, W]`` on the scan's grid): the same tests (straight, contiguous, interior) with more of the wall to
+    pass them, and only where the map holds that cell a wall too (a wall-cell estimate one cell off the wall, in
+    front of it, would fit the map's wall with an apex where no fan starts). Cells the scan trusts keep their
+    normals.
+
+    Why: a wall cell at the end of *this scan's* hits is not trusted (point 3 of :mod:`.carving`), though most such
+    ends are where the scan stops seeing the wall (an occluder, grazing incidence, the edge of the fan), not where
+    the wall stops. The map has seen more of it: where its wall cells run on straight past the cell on both sides,
+    the cell lies inside a wall and its fan faces the wall's normal. Where the map shows the wall ending or turning
+    (a corner, a wall end, another wall within ``normal_radius_m``), the union fails the same tests and the cell
+    stays untrusted. ``interior_cells`` (float64 ``[U]``, cells; None: ``normal_interior_m``) widens the interior
+    test, as :func:`reliable_with_interior` does under pose uncertainty; ``candidates`` (bool ``[U]``; None: all)
+    limits the refit to the cells that could carve at all (the carving passes those whose rays' first late photons
+    leave a radius past the wall strip), which keeps it cheap.
+
+    The wall's turn at a cell trusted so (:func:`step_deviation`, which narrows its carved sector) is taken over
+    the same union: where the map shows the wall stepping beside the cell, its surface turns there though the
+    scan's hits ran straight (the property test over random L-corners found such a cell, the scan's hits
+    straight up to it and the map's wall stepping one cell back).
+
+    Returns new ``(normals float64 [U, 2], reliable bool [U], apex float64 [U, 2], steps float64 [U])``; ``steps``:
+    the wall's turn (radians) at each cell newly trusted, NaN at the others (for
+    :func:`.carving.sector_cos_limits`).
+
+    Raises:
+        ValueError: ``map_walls`` not a bool array of the scan's grid shape.
+    """
+    map_walls = np.asarray(map_walls)
+    if map_walls.dtype != np.bool_ or map_walls.shape != tuple(scan.grid_shape):
+        raise ValueError(f"map_walls must be a bool array of the scan's grid shape {tuple(scan.grid_shape)}, got "
+                         f"{map_walls.dtype} {map_walls.shape}")
+    normals, reliable, apex = normals.copy(), reliable.copy(), apex.copy()
+    steps = np.full(len(wall_cells), np.nan)
+    width = map_walls.shape[1]
+    own = wall_cells[:, 0] * width + wall_cells[:, 1]
+    refit = ~reliable & map_walls.ravel()[own]
+    if candidates is not None:
+        refit &= candidates
+    untrusted = np.flatnonzero(refit)
+    if len(untrusted) == 0:
+        return normals, reliable, apex, steps
+    cells = cfg.in_cells(scan.resolution_m)
+    interior = (np.full(len(wall_cells), cells.normal_interior) if interior_cells is None
+                else np.asarray(interior_cells, np.float64))
+    # The support: the scan's and the map's wall cells in the square of the fit's radius around each cell refitted
+    # (every point the fit of one of them can read), sorted by row as hit_normals needs; only those cells are
+    # fitted, the others support them.
+    reach = int(np.ceil(cells.normal_radius)) + 1
+    span = np.arange(-reach, reach + 1)
+    around = (wall_cells[untrusted, None, None, :]
+              + np.stack(np.meshgrid(span, span, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
+    around = around[np.all((around >= 0) & (around < map_walls.shape), axis=1)]
+    window = np.unique(around[:, 0] * width + around[:, 1])
+    index, position = np.unique(np.concatenate([own, window[map_walls.ravel()[window]]]), return_inverse=True)
+    # Scan cells outside every window are in ``index`` too (so that ``position`` maps all of them); they are
+    # too far from every fitted cell to be read, and are not fitted.
+    points = np.column_stack([index // width, index % width]).astype(np.float64) + 0.5
+    fitted = position[untrusted]
+    union_interior = np.full(len(points), np.inf)
+    union_interior[fitted] = interior[untrusted]
+    union_normals = np.zeros((len(points), 2))
+    union_reliable = np.zeros(len(points), bool)
+    # Sequential (hit_normals' own loop, outside any parallel region): the cells refitted are few (tens to
+    # hundreds), and a parallel region waits for the thread pool, which the prediction's worker thread may hold: in
+    # the shipped pipeline on the largest eval floor that wait was about 12 ms a frame, the fit well under one.
+    _hit_normals_of(points, cells.normal_radius, cfg.normal_max_minor_ratio, cells.normal_max_residual,
+                    cells.normal_max_gap, union_interior, union_normals, union_reliable, 0, len(points))
+    gained = untrusted[union_reliable[fitted]]
+    if len(gained):
+        gained_normals = union_normals[position[gained]]
+        gained_apex = np.empty((len(gained), 2))
+        face_the_robot(wall_cells[gained] + 0.5, scan.origin_yx[0], scan.origin_yx[1], gained_normals,
+                       np.ones(len(gained), bool), gained_apex)
+        normals[gained], apex[gained], reliable[gained] = gained_normals, gained_apex, True
+        union_steps = np.zeros(len(points))
+        step_deviation(points, union_normals, union_steps)
+        steps[gained] = union_steps[position[gained]]
+    return normals, reliable, apex, steps
+

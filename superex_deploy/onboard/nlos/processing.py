@@ -177,10 +177,12 @@ class SpadProcessing:
         carve_m = self.sensor.range_m + carve_radius_cap_m(self.sensor.n_secondary, resolution_m)
         return max(int(np.ceil(carve_m / resolution_m)) + 1, int(np.ceil(self.nlos_cfg.window_m / resolution_m)))
 
-    def process_scan(self, scan: SpadScan, known: np.ndarray, pose_sigma=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    def process_scan(self, scan: SpadScan, known: np.ndarray, pose_sigma=(0.0, 0.0),
+                     map_walls: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray]:
         """Carving and evidence of one scan (simulated or built by :func:`scan_from_frame`); ``known``: bool
         ``[H, W]`` cells the explorer already knows; ``pose_sigma``: ``(sigma_xy_m, sigma_yaw_rad)`` of the pose
-        the scan was placed by (zeros: exact)."""
+        the scan was placed by (zeros: exact); ``map_walls``: bool ``[H, W]`` the map's wall cells, which support
+        the carving's wall normals (:func:`~superex_deploy.onboard.nlos.carve`; None: the scan's hits alone)."""
         if self._evidence is None or self._evidence.shape != tuple(scan.grid_shape):
             self._evidence = np.zeros(scan.grid_shape, np.float32)
         self.counts["frames"] += 1
@@ -190,9 +192,9 @@ class SpadProcessing:
             if self.skips.carving:  # the line-of-sight estimate would only feed the carving
                 return np.zeros(scan.grid_shape, bool), self._evidence
             los = estimate_los(scan, self.nlos_cfg)
-            return self._carve(scan, los, pose_sigma), self._evidence
+            return self._carve(scan, los, pose_sigma, map_walls), self._evidence
         if self.bp_filter is None and not self.skips.carving:
-            result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma)
+            result = process_scan(scan, self.nlos_cfg, known=known, pose_sigma=pose_sigma, map_walls=map_walls)
             # Only the filtered window can raise the running maximum.
             area = result.bp_filtered_patch.slices
             np.maximum(self._evidence[area], result.bp_filtered_patch.values, out=self._evidence[area])
@@ -203,19 +205,19 @@ class SpadProcessing:
             filtered = laplacian_filter_patch(bp, self.nlos_cfg.in_cells(scan.resolution_m).laplacian_sigma)
             area = filtered.slices
             np.maximum(self._evidence[area], filtered.values, out=self._evidence[area])
-            return self._carve(scan, los, pose_sigma), self._evidence
+            return self._carve(scan, los, pose_sigma, map_walls), self._evidence
         # The learned filter replaces the Laplacian one (that is not computed), at its model's scale: on a finer
         # grid the back-projection itself is drawn on the model's cells (model_scan), as the filter would pool it.
         model, k = self._model_scan(scan, los, known)
         bp = self._back_projection(*model)
         self._filter_into_evidence(model[0], bp, k)
-        return self._carve(scan, los, pose_sigma), self._evidence
+        return self._carve(scan, los, pose_sigma, map_walls), self._evidence
 
-    def _carve(self, scan: SpadScan, los, pose_sigma) -> np.ndarray:
+    def _carve(self, scan: SpadScan, los, pose_sigma, map_walls) -> np.ndarray:
         """bool ``[H, W]``: the cells this frame carves (none with ``skips.carving``)."""
         if self.skips.carving:
             return np.zeros(scan.grid_shape, bool)
-        return carve(scan, los, self.nlos_cfg, pose_sigma)
+        return carve(scan, los, self.nlos_cfg, pose_sigma, map_walls)
 
     def _model_scan(self, scan: SpadScan, los, known: np.ndarray) -> tuple[tuple, int]:
         """``((scan, los, known), k)``: the scan, its line-of-sight estimate and the known cells on the grid the
@@ -264,10 +266,12 @@ class SpadProcessing:
         return back_project_patch(scan, los, self.nlos_cfg, known)
 
     def __call__(self, frame: SpadFrame, map_frame: MapFrame, pose: Pose2D, known: np.ndarray,
-                 pose_covariance: Optional[PoseCovariance] = None) -> tuple[np.ndarray, np.ndarray]:
+                 pose_covariance: Optional[PoseCovariance] = None, map_walls: Optional[np.ndarray] = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Process a measured frame taken at ``pose`` (see the class docstring); ``pose_covariance``: the pose's
-        uncertainty, which widens the carving margins (None: the pose is exact)."""
+        uncertainty, which widens the carving margins (None: the pose is exact); ``map_walls``: the map's wall
+        cells (see :meth:`process_scan`)."""
         if pose_covariance is not None and not isinstance(pose_covariance, PoseCovariance):
             raise ValueError(f"pose_covariance must be a PoseCovariance or None, got {type(pose_covariance).__name__}")
         sigma = (0.0, 0.0) if pose_covariance is None else (pose_covariance.sigma_xy_m, pose_covariance.sigma_yaw_rad)
-        return self.process_scan(scan_from_frame(frame, map_frame, pose, self.sensor), known, sigma)
+        return self.process_scan(scan_from_frame(frame, map_frame, pose, self.sensor), known, sigma, map_walls)

@@ -43,17 +43,17 @@ fans and the histograms are each split over numba's threads; the split never cha
 Modules (one per job): :mod:`.truth` (:class:`SpadTruth`), :mod:`.scene` (wall normals, wall blocks and cell
 codes: :class:`SpadScene`, :func:`prepare_scene`), :mod:`.tracer` (the two-level first-hit DDA, the primaries, the
 normal a ray sees), :mod:`.fans` (:class:`FanCache`, looking up and tracing fans), :mod:`.histograms` (the sparse
-histograms), :mod:`.noise` (detector noise), :mod:`.simulate` (:func:`simulate_scan`) and :mod:`.labels`
+histograms), :mod:`.noise` (detector noise), :mod:`.simulate` (:func:`simulate_scan`, :func:`measured_frame`) and :mod:`.labels`
 (:func:`nlos_ground_truth`).
 """
 
 from superex_deploy.sim.spad.fans import FAN_OFFSET_CELLS, FAN_VARIANTS, MAX_CACHED_FAN_BYTES, FanCache
 from superex_deploy.sim.spad.labels import nlos_ground_truth
 from superex_deploy.sim.spad.scene import SpadScene, prepare_scene
-from superex_deploy.sim.spad.simulate import MIN_DISTANCE_CELLS, simulate_scan
+from superex_deploy.sim.spad.simulate import MIN_DISTANCE_CELLS, measured_frame, simulate_scan
 from superex_deploy.sim.spad.tracer import BLOCK_CELLS, BLOCK_SHIFT, CELL_FREE, CELL_OPEN_BLOCK, CELL_WALL
 from superex_deploy.sim.spad.truth import SpadTruth
 
 # The constants above are re-exported for reading; each is read from its own module (to resize the fan caches, set
 # superex_deploy.sim.spad.fans.MAX_CACHED_FAN_BYTES).
-__all__ = ["SpadTruth", "SpadScene", "FanCache", "prepare_scene", "simulate_scan", "nlos_ground_truth"]
+__all__ = ["SpadTruth", "SpadScene", "FanCache", "prepare_scene", "simulate_scan", "measured_frame", "nlos_ground_truth"]

@@ -11,6 +11,7 @@ import numpy as np
 from superex_deploy.parallel import kernel_parts
 from superex_deploy.geometry import cell_centre, group_by_cell, ray_angles
 from superex_deploy.maps import OccupancyGrid
+from superex_deploy.messages import SpadFrame
 from superex_deploy.sim.spad.fans import fan_cache_rows, trace_fans
 from superex_deploy.sim.spad.histograms import fill_sparse
 from superex_deploy.sim.spad.noise import add_noise, check_noise_rng
@@ -115,3 +116,14 @@ def simulate_scan(grid: OccupancyGrid, pose_rc, cfg: SpadConfig = SpadConfig(),
                       fan_store=(cache.d2_m, cache.cos2, cache.h2_rc), three_bounce_scale=three_bounce_scale)
     return SpadScan(angles=angles, origin_yx=origin, pose_rc=pose_rc, bin_path_m=cfg.bin_path_m,
                     resolution_m=resolution, grid_shape=grid.shape, config=cfg, truth=truth, stored=stored)
+
+
+def measured_frame(simulated: SpadScan, yaw: float = 0.0) -> SpadFrame:
+    """The :class:`~superex_deploy.messages.SpadFrame` a robot heading ``yaw`` (radians, REP 103: counter-clockwise
+    from the map's x axis) receives for the simulated scan ``simulated``: its histograms with the grid's ray angles
+    turned back into the sensor's (an exact negation at yaw 0; a turned robot's rays are the same grid directions
+    seen from its heading). What the world sends, and what a test places with a belief of its own."""
+    sparse = simulated.sparse
+    angles = -simulated.angles - yaw if yaw else -simulated.angles
+    return SpadFrame(angles=angles, bin_width_s=simulated.config.bin_width_s, n_bins=sparse.n_bins,
+                     row_start=sparse.row_start, bins=sparse.bins, counts=sparse.counts)
