@@ -32,11 +32,21 @@ def _paper_row(name: str) -> dict:
     return {scenario_key(e): e for e in json.loads(path.read_text())["episodes"]}
 
 
-def _new_row(folder: Path) -> dict:
-    journal = folder / "episodes.jsonl"
+def _new_row(path: Path) -> dict:
+    """The episodes of a `superex benchmark` output folder (its ``episodes.jsonl``), of one journal file (a suite's
+    ``rows/ROW.episodes.jsonl``) or of a finished suite row (``rows/ROW.json``)."""
+    if path.suffix == ".json" and path.is_file():
+        return {scenario_key(e): e for e in json.loads(path.read_text())["episodes"]}
+    journal = path if path.suffix == ".jsonl" else path / "episodes.jsonl"
     if not journal.is_file():
-        raise SystemExit(f"{journal} does not exist: give a `superex benchmark` output folder")
+        raise SystemExit(f"{journal} does not exist: give a `superex benchmark` output folder, a .jsonl journal or "
+                         "a suite's row .json")
     return {scenario_key(e): e for e in read_journal(journal).values()}
+
+
+def _row(name: str) -> dict:
+    """A committed paper row by name, or a new row (a path ending in .jsonl or .json)."""
+    return _new_row(Path(name)) if name.endswith((".jsonl", ".json")) else _paper_row(name)
 
 
 def pair(new: dict, old: dict, steps: int) -> dict:
@@ -58,10 +68,11 @@ def pair(new: dict, old: dict, steps: int) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--row", type=Path, required=True, help="a `superex benchmark` output folder")
+    parser.add_argument("--row", type=Path, required=True,
+                        help="a `superex benchmark` output folder, or a suite row's journal (.jsonl) or file (.json)")
     parser.add_argument("--name", required=True, help="the new row's name in the table")
     parser.add_argument("--against", default="superex,mapex_lama_los,superex_observed",
-                        help="comma-separated committed paper rows")
+                        help="comma-separated committed paper rows, or new rows' journals (.jsonl) or files (.json)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     new = _new_row(args.row)
@@ -72,10 +83,10 @@ def main(argv=None) -> int:
     lines = [f"`{args.name}` ({len(new)} eval scenarios, {steps} steps) paired by scenario with the committed paper "
              f"rows; first-half AUC of {2 * steps}-step episodes in points (steps 1-{steps}), IoU at 10 / 20 / 30 % "
              "coverage; mean difference [bootstrap 95 %], better / worse.", "",
-             "| against | scenarios | AUC new | AUC old | AUC diff | IoU@10% diff | IoU@20% diff | IoU@30% diff |",
-             "|---|---:|---:|---:|---|---|---|---|"]
+             "| against | scenarios | AUC new | AUC old | relative | AUC diff | IoU@10% diff | IoU@20% diff | IoU@30% diff |",
+             "|---|---:|---:|---:|---:|---|---|---|---|"]
     for name in [s.strip() for s in args.against.split(",") if s.strip()]:
-        result = pair(new, _paper_row(name), steps)
+        result = pair(new, _row(name), steps)
         results["pairs"][name] = result
         auc = result["auc_first_half"]
         cells = [f"{100 * auc['mean_diff']:+.2f} [{100 * auc['ci95'][0]:+.2f}, {100 * auc['ci95'][1]:+.2f}] "
@@ -84,7 +95,7 @@ def main(argv=None) -> int:
             m = result[metric]
             cells.append(f"{m['mean_diff']:+.3f} [{m['ci95'][0]:+.3f}, {m['ci95'][1]:+.3f}] {m['better']}/{m['worse']}")
         lines.append(f"| {name} | {result['scenarios']} | {100 * auc['new']:.2f} | {100 * auc['old']:.2f} | "
-                     + " | ".join(cells) + " |")
+                     f"{auc['new'] / auc['old'] - 1:+.1%} | " + " | ".join(cells) + " |")
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "pairing.json", results)
     write_text(args.out / "pairing.md", "\n".join(lines) + "\n")

@@ -250,27 +250,37 @@ def map_supported_normals(wall_cells: np.ndarray, normals: np.ndarray, reliable:
     cells = cfg.in_cells(scan.resolution_m)
     interior = (np.full(len(wall_cells), cells.normal_interior) if interior_cells is None
                 else np.asarray(interior_cells, np.float64))
-    # The support: the scan's and the map's wall cells in the square of the fit's radius around each cell refitted
-    # (every point the fit of one of them can read), sorted by row as hit_normals needs; only those cells are
-    # fitted, the others support them.
-    reach = int(np.ceil(cells.normal_radius)) + 1
+    # The support: the map's wall cells in the square of the fit's radius around each cell refitted (every point
+    # its fit can read), and the scan's, marked on the box of those squares; read back in row order (as hit_normals
+    # needs) with each point's index kept on the box. Only the cells refitted are fitted, the others support them.
+    reach = int(np.floor(cells.normal_radius))
     span = np.arange(-reach, reach + 1)
-    around = (wall_cells[untrusted, None, None, :]
-              + np.stack(np.meshgrid(span, span, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
-    around = around[np.all((around >= 0) & (around < map_walls.shape), axis=1)]
-    window = np.unique(around[:, 0] * width + around[:, 1])
-    index, position = np.unique(np.concatenate([own, window[map_walls.ravel()[window]]]), return_inverse=True)
-    # Scan cells outside every window are in ``index`` too (so that ``position`` maps all of them); they are
-    # too far from every fitted cell to be read, and are not fitted.
-    points = np.column_stack([index // width, index % width]).astype(np.float64) + 0.5
+    offsets = np.stack(np.meshgrid(span, span, indexing="ij"), axis=-1).reshape(-1, 2)
+    refit_cells = wall_cells[untrusted]
+    top, left = np.maximum(refit_cells.min(axis=0) - reach, 0)
+    bottom, right = np.minimum(refit_cells.max(axis=0) + reach + 1, map_walls.shape)
+    window = np.zeros((bottom - top, right - left), bool)
+    around = (refit_cells[:, None, :] + offsets[None] - (top, left)).reshape(-1, 2)
+    around = around[np.all((around >= 0) & (around < window.shape), axis=1)]
+    window[around[:, 0], around[:, 1]] = True
+    support = window & map_walls[top:bottom, left:right]
+    local = wall_cells - (top, left)
+    inside = np.all((local >= 0) & (local < window.shape), axis=1)
+    support[local[inside, 0], local[inside, 1]] = True
+    points = np.argwhere(support).astype(np.float64) + (top + 0.5, left + 0.5)
+    index = np.full(window.shape, -1, np.int64)
+    index[support] = np.arange(len(points))
+    position = np.full(len(wall_cells), -1, np.int64)
+    position[inside] = index[local[inside, 0], local[inside, 1]]
     fitted = position[untrusted]
     union_interior = np.full(len(points), np.inf)
     union_interior[fitted] = interior[untrusted]
     union_normals = np.zeros((len(points), 2))
     union_reliable = np.zeros(len(points), bool)
     # Sequential (hit_normals' own loop, outside any parallel region): the cells refitted are few (tens to
-    # hundreds), and a parallel region waits for the thread pool, which the prediction's worker thread may hold: in
-    # the shipped pipeline on the largest eval floor that wait was about 12 ms a frame, the fit well under one.
+    # hundreds), and a parallel region waits for numba's thread pool (shared with the prediction's worker thread):
+    # in the shipped pipeline on the largest eval floor, on a loaded machine, that wait was about 12 ms a frame, the
+    # fit well under one.
     _hit_normals_of(points, cells.normal_radius, cfg.normal_max_minor_ratio, cells.normal_max_residual,
                     cells.normal_max_gap, union_interior, union_normals, union_reliable, 0, len(points))
     gained = untrusted[union_reliable[fitted]]
