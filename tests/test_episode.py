@@ -69,7 +69,7 @@ class _CarveRightRoom(SpadProcessing):
     """A stand-in for the onboard SPAD processing: reveals a 5 x 5 block of the hidden room from the first step on."""
 
     def __init__(self, shape):
-        super().__init__(sensor=_SMALL_SPAD)
+        super().__init__(sensor=_SMALL_SPAD, nlos_cfg=NlosConfig(normals_from_map=True))  # asks for the map's walls
         self.carved = np.zeros(shape, bool)
         self.carved[5:10, 30:35] = True
         self.fixed_evidence = np.full(shape, 0.25, np.float32)

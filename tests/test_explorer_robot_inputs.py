@@ -166,6 +166,7 @@ class _CarveAcrossTheDoor(SpadProcessing):
         self.block[8:22, 12:32] = True
 
     def __call__(self, frame, map_frame, pose, known, pose_covariance=None, map_walls=None):
+        assert map_walls is None  # the default carving does not read the map's walls: the explorer derives none
         self._evidence = np.zeros(map_frame.shape, np.float32)
         return self.block & ~known, self._evidence
 

@@ -66,13 +66,20 @@ def test_a_wall_end_the_map_sees_past_is_trusted_with_the_walls_normal():
     assert not np.any(with_map & grid.occupied)
 
 
-def test_no_cell_is_trusted_where_the_map_shows_a_corner_or_no_wall():
+def _gap_edge():
+    """The occluded wall's scan: ``(los, args, walls, target)`` with ``args`` map_supported_normals' arguments before
+    the map, ``walls`` every wall face, ``target`` the index of a north-wall cell the map lets the refit trust (an edge
+    of the pillar's gap in the scan's hits)."""
     grid, pose = _occluded_wall()
     scan, los = _scan_normals(grid, pose)
     walls = _surface(grid)
     args = (los.wall_cells, los.wall_normal, los.normal_reliable, los.wall_apex, scan, MAPPED)
     gained = map_supported_normals(*args, walls)[1] & ~los.normal_reliable
-    target = np.flatnonzero(gained & (los.wall_cells[:, 0] == 1))[0]
+    return los, args, walls, int(np.flatnonzero(gained & (los.wall_cells[:, 0] == 1))[0])
+
+
+def test_no_cell_is_trusted_where_the_map_shows_a_corner_or_no_wall():
+    los, args, walls, target = _gap_edge()
     row, col = los.wall_cells[target]
     # A wall meeting the north wall at that cell (the map sees a corner): the union is no straight line.
     corner = walls.copy()
@@ -87,12 +94,7 @@ def test_no_cell_is_trusted_where_the_map_shows_a_corner_or_no_wall():
 
 
 def test_the_sector_narrows_where_the_map_shows_the_wall_stepping():
-    grid, pose = _occluded_wall()
-    scan, los = _scan_normals(grid, pose)
-    walls = _surface(grid)
-    args = (los.wall_cells, los.wall_normal, los.normal_reliable, los.wall_apex, scan, MAPPED)
-    gained = map_supported_normals(*args, walls)[1] & ~los.normal_reliable
-    target = np.flatnonzero(gained & (los.wall_cells[:, 0] == 1))[0]
+    los, args, walls, target = _gap_edge()
     row, col = los.wall_cells[target]
     assert map_supported_normals(*args, walls)[3][target] < np.deg2rad(1.0)
     # The map's wall steps back a row one cell along (a jog, as a rasterised oblique wall has): the union's line
@@ -106,21 +108,21 @@ def test_the_sector_narrows_where_the_map_shows_the_wall_stepping():
 
 
 def test_refitting_only_the_cells_that_could_carve_changes_no_carved_cell(monkeypatch):
-    """The carving refits only wall cells whose rays leave a radius past the wall strip (``carving._could_carve``,
-    which keeps the refit cheap); refitting every untrusted cell carves the same cells."""
+    """The carving refits only wall cells whose rays leave a radius past the wall strip (the ``candidates`` it gives
+    ``map_supported_normals``, which keep the refit cheap); refitting every untrusted cell carves the same cells."""
     scenes = [_occluded_wall(), *(l_corner_scene(seed) for seed in (3, 17, 671, 926))]
-    fast, skipped = [], 0
-    for grid, pose in scenes:
-        scan, los = _scan_normals(grid, pose)
-        fast.append(carve(scan, los, MAPPED, map_walls=_surface(grid)))
-        cells = NlosConfig().in_cells(scan.resolution_m)
-        could = carving._could_carve(los, carving.carve_radius_cap_m(256, scan.resolution_m), scan.resolution_m, cells)
-        skipped += int(np.sum(~could & ~los.normal_reliable))
-    assert skipped > 0  # the filter leaves cells out here
-    monkeypatch.setattr(carving, "_could_carve", lambda los, *args: np.ones(len(los.wall_cells), bool))
+    fast = [carve(*_scan_normals(grid, pose), MAPPED, map_walls=_surface(grid)) for grid, pose in scenes]
+    real, skipped = map_supported_normals, []
+
+    def every_cell(wall_cells, normals, reliable, *args):
+        *args, candidates = args
+        skipped.append(int(np.sum(~candidates & ~reliable)))
+        return real(wall_cells, normals, reliable, *args, None)
+
+    monkeypatch.setattr(carving, "map_supported_normals", every_cell)
     for (grid, pose), expected in zip(scenes, fast):
-        scan, los = _scan_normals(grid, pose)
-        assert np.array_equal(carve(scan, los, MAPPED, map_walls=_surface(grid)), expected)
+        assert np.array_equal(carve(*_scan_normals(grid, pose), MAPPED, map_walls=_surface(grid)), expected)
+    assert sum(skipped) > 0  # the filter leaves cells out here
     assert sum(int(c.sum()) for c in fast) > 100000
 
 

@@ -370,8 +370,9 @@ class Explorer:
 
         clock = time.perf_counter()
         if self.spad_processing is not None and obs.spad is not None:
+            walls = self.mapper.seen_wall if self.spad_processing.reads_map_walls else None
             carved, _ = self.spad_processing(obs.spad, self.frame, obs.pose, self.mapper.known(),
-                                             pose_covariance=obs.pose_covariance, map_walls=self.mapper.seen_wall)
+                                             pose_covariance=obs.pose_covariance, map_walls=walls)
             self.mapper.merge_carved(carved)
         observed = self.mapper.observed()
         # The map the planning reads, on the planning grid: carved-only cells are free in it only when they may be

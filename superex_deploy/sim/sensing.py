@@ -72,4 +72,5 @@ class SpadSensing:
         if self._processing is None:
             self.processing()
         scan = simulate_scan(grid, pose_rc, self.spad, rng=self._rng if self.spad.noise.enabled else None)
-        return self._processing.process_scan(scan, observed != UNKNOWN, map_walls=observed == OCCUPIED)
+        walls = observed == OCCUPIED if self._processing.reads_map_walls else None
+        return self._processing.process_scan(scan, observed != UNKNOWN, map_walls=walls)

@@ -133,18 +133,10 @@ def _carve_sector_rows(apex, normals, radius_cells, strip_cells, cos_limit, top,
 
 
 @numba.njit(cache=True)
-def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, reliable, origin_y, origin_x,
-                 cap_m, resolution_m, apex_margin_cells, cos_max_incidence, strip_cells, sigma_xy_cells,
-                 sigma_yaw_rad, strip_out):
-    """Carve radius (cells) of each wall cell: the smallest empty radius of the rays that share it (rays sharing
-    a wall-cell estimate may come from different true wall points), capped at ``cap_m`` and reduced by
-    ``apex_margin_cells`` (the config's ``apex_margin_m`` in cells), half a cell diagonal and the pose-error
-    margin; zero for a wall cell with a ray that saw no late photon (at grazing incidence no three-bounce light
-    exists however empty the space is), without a ``reliable`` normal, or seen more obliquely than
-    ``cos_max_incidence``. ``strip_out[u]`` (float64, preset to ``strip_cells``) gets the wall strip widened by
-    the same margin: ``sigma_xy_cells + rho sigma_yaw_rad`` with ``rho`` the distance from the robot to the wall cell's centre plus the radius and a
-    cell (both sigmas already multiplied by the margin factor; zero: no pose error)."""
-    n_walls = wall_cells.shape[0]
+def _empty_bounds(ray_wall, first_late, empty_radius_m, n_walls):
+    """float64 ``[U]`` metres: per wall cell the smallest empty radius of the rays that share it (rays sharing a
+    wall-cell estimate may come from different true wall points); 0 where one of them saw no late photon (at grazing
+    incidence no three-bounce light exists however empty the space is); inf for a cell no ray hit."""
     bound = np.full(n_walls, np.inf)
     for i in range(ray_wall.shape[0]):
         u = ray_wall[i]
@@ -152,6 +144,19 @@ def _carve_radii(ray_wall, first_late, empty_radius_m, wall_cells, wall_normal, 
             continue
         radius = 0.0 if first_late[i] < 0 else empty_radius_m[i]
         bound[u] = min(bound[u], radius)
+    return bound
+
+
+@numba.njit(cache=True)
+def _carve_radii(bound, wall_cells, wall_normal, reliable, origin_y, origin_x, cap_m, resolution_m,
+                 apex_margin_cells, cos_max_incidence, strip_cells, sigma_xy_cells, sigma_yaw_rad, strip_out):
+    """Carve radius (cells) of each wall cell: its empty radius ``bound`` (:func:`_empty_bounds`), capped at
+    ``cap_m`` and reduced by ``apex_margin_cells`` (the config's ``apex_margin_m`` in cells), half a cell diagonal
+    and the pose-error margin; zero for a wall cell without a ``reliable`` normal or seen more obliquely than
+    ``cos_max_incidence``. ``strip_out[u]`` (float64, preset to ``strip_cells``) gets the wall strip widened by
+    the same margin: ``sigma_xy_cells + rho sigma_yaw_rad`` with ``rho`` the distance from the robot to the wall cell's centre plus the radius and a
+    cell (both sigmas already multiplied by the margin factor; zero: no pose error)."""
+    n_walls = wall_cells.shape[0]
     radius_cells = np.zeros(n_walls)
     for u in range(n_walls):
         if not reliable[u]:
@@ -207,16 +212,6 @@ def sector_cos_limits(wall_cells: np.ndarray, wall_normal: np.ndarray, cfg: Nlos
     return np.cos(np.pi / 2 - np.minimum(narrowing, np.pi / 2))
 
 
-def _could_carve(los: LosEstimate, cap_m: float, resolution_m: float, cells) -> np.ndarray:
-    """bool ``[U]``: the wall cells whose rays leave a carve radius past the wall strip whatever their normal (the
-    bound of :func:`_carve_radii` before the normal's and the pose's tests, which only shrink it)."""
-    bound = np.full(len(los.wall_cells), np.inf)
-    hit = los.ray_wall >= 0
-    radius = np.where(los.first_late_bin[hit] < 0, 0.0, los.empty_radius_m[hit])
-    np.minimum.at(bound, los.ray_wall[hit], radius)
-    return np.minimum(bound, cap_m) / resolution_m - cells.apex_margin - np.sqrt(0.5) > cells.wall_strip
-
-
 def check_pose_sigma(pose_sigma) -> tuple[float, float]:
     """``(sigma_xy_m, sigma_yaw_rad)`` as two finite floats >= 0.
 
@@ -247,19 +242,21 @@ def carve_patch(scan: SpadScan, los: LosEstimate, cfg: NlosConfig, pose_sigma=(0
                             los.wall_cells[:, 1] + 0.5 - scan.origin_yx[1])
         widened = cells.normal_interior + cfg.pose_sigma_margin * (sigma_xy / scan.resolution_m
                                                                    + distance * sigma_yaw)
+    cap_m = carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m)
+    bound = _empty_bounds(los.ray_wall, los.first_late_bin, los.empty_radius_m, len(los.wall_cells))
     normals, reliable, apex, steps = los.wall_normal, los.normal_reliable, los.wall_apex, None
     if widened is not None:
         reliable = reliable & reliable_with_interior(los.wall_cells, cfg, scan.resolution_m, widened)
     if map_walls is not None and cfg.normals_from_map:
-        normals, reliable, apex, steps = map_supported_normals(
-            los.wall_cells, normals, reliable, apex, scan, cfg, map_walls, widened,
-            _could_carve(los, carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
-                         cells))
-    radius_cells = _carve_radii(los.ray_wall, los.first_late_bin, los.empty_radius_m, los.wall_cells,
-                                normals, reliable, scan.origin_yx[0], scan.origin_yx[1],
-                                carve_radius_cap_m(scan.config.n_secondary, scan.resolution_m), scan.resolution_m,
-                                cells.apex_margin, np.cos(np.deg2rad(cfg.max_incidence_deg)),
-                                cells.wall_strip, cfg.pose_sigma_margin * sigma_xy / scan.resolution_m,
+        # Only cells whose rays leave a radius past the wall strip could carve, whatever their normal (the
+        # normal's and the pose's tests in _carve_radii only shrink it): the refit is kept to those.
+        could_carve = (np.minimum(bound, cap_m) / scan.resolution_m - cells.apex_margin - np.sqrt(0.5)
+                       > cells.wall_strip)
+        normals, reliable, apex, steps = map_supported_normals(los.wall_cells, normals, reliable, apex, scan, cfg,
+                                                               map_walls, widened, could_carve)
+    radius_cells = _carve_radii(bound, los.wall_cells, normals, reliable, scan.origin_yx[0], scan.origin_yx[1],
+                                cap_m, scan.resolution_m, cells.apex_margin,
+                                np.cos(np.deg2rad(cfg.max_incidence_deg)), cells.wall_strip, cfg.pose_sigma_margin * sigma_xy / scan.resolution_m,
                                 cfg.pose_sigma_margin * sigma_yaw, strip_cells)
     top, left, bottom, right = _carved_box(apex, radius_cells, strip_cells, shape[0], shape[1])
     carved = np.zeros((bottom - top, right - left), bool)

@@ -239,9 +239,7 @@ def map_supported_normals(wall_cells: np.ndarray, normals: np.ndarray, reliable:
                          f"{map_walls.dtype} {map_walls.shape}")
     normals, reliable, apex = normals.copy(), reliable.copy(), apex.copy()
     steps = np.full(len(wall_cells), np.nan)
-    width = map_walls.shape[1]
-    own = wall_cells[:, 0] * width + wall_cells[:, 1]
-    refit = ~reliable & map_walls.ravel()[own]
+    refit = ~reliable & map_walls[wall_cells[:, 0], wall_cells[:, 1]]
     if candidates is not None:
         refit &= candidates
     untrusted = np.flatnonzero(refit)

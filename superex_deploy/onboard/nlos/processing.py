@@ -128,6 +128,12 @@ class SpadProcessing:
             raise ValueError(f"skips must be an NlosSkips, got {type(self.skips).__name__}")
 
     @property
+    def reads_map_walls(self) -> bool:
+        """Whether the carving reads the map's wall cells (``nlos_cfg.normals_from_map``, carving not skipped): a
+        caller derives them only then."""
+        return self.nlos_cfg.normals_from_map and not self.skips.carving
+
+    @property
     def evidence(self) -> Optional[np.ndarray]:
         """float32 ``[H, W]`` running maximum of the filtered back-projection so far (None before the first frame)."""
         return self._evidence
