@@ -20,7 +20,8 @@ LAYERS = (
     # anything higher, give it its own place here.
     ("base", ("superex_deploy",)),  # geometry, messages, maps, spad_types, parallel, files, ...
     ("onboard", ("superex_deploy.onboard",)),
-    ("ros 2 transforms", ("superex_deploy.ros.tf",)),  # tf2's rules in numpy: the bag reader's and the node's
+    # tf2's rules and the rigid transforms they hold, in numpy: the bag reader's and the node's
+    ("ros 2 transforms", ("superex_deploy.ros.tf", "superex_deploy.ros.rigid")),
     ("recording", ("superex_deploy.recording",)),
     ("ros 2 wire", ("superex_deploy.ros",)),  # messages over DDS, QoS, transforms, the node's parameters
     ("sim", ("superex_deploy.sim",)),

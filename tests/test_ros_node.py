@@ -17,9 +17,10 @@ from PIL import Image
 
 from superex_deploy.maps import OccupancyGrid
 from superex_deploy.messages import LaserScan
-from superex_deploy.ros.core import PAUSED, WAITING_FOR_INPUT, ExplorationCore
+from superex_deploy.ros.core import ExplorationCore
+from superex_deploy.ros.node_status import PAUSED, WAITING_FOR_INPUT
 from superex_deploy.ros.params import NodeParams, load_params
-from superex_deploy.ros.tf import Transform
+from superex_deploy.ros.rigid import Transform
 from superex_deploy.sim.robot import RobotSimConfig, SimulatedRobot, TfSample, run_in_process
 from superex_deploy.sim.world import LidarConfig
 

@@ -1,6 +1,7 @@
-"""The transform buffer of :mod:`superex_deploy.ros.tf`: tf2's semantics (interpolation, common ancestors, the latest
-common time, its errors), checked analytically, against the slow twins of ``tests/naive.py`` (4 x 4 matrices,
-Rodrigues' rotations, an axis-angle slerp) on random trees, on a turning robot's /tf, and for 2-D LiDAR mounts."""
+"""The transform buffer of :mod:`superex_deploy.ros.tf` and its transforms (:mod:`superex_deploy.ros.rigid`): tf2's
+semantics (interpolation, common ancestors, the latest common time, its errors), checked analytically, against the
+slow twins of ``tests/naive.py`` (4 x 4 matrices, Rodrigues' rotations, an axis-angle slerp) on random trees, on a
+turning robot's /tf, and for 2-D LiDAR mounts."""
 
 from __future__ import annotations
 
@@ -12,8 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from superex_deploy.ros.tf import (ConnectivityError, ExtrapolationError, LoopError, TfBuffer, Transform,
-                                   TransformError, UnknownFrameError, planar, stamp_of, stamp_seconds)
+from superex_deploy.ros.rigid import Transform, planar
+from superex_deploy.ros.tf import (ConnectivityError, ExtrapolationError, LoopError, TfBuffer, TransformError,
+                                   UnknownFrameError, stamp_of, stamp_seconds)
 from tests.naive import naive_lookup
 
 T0 = 1_700_000_000.0  # an epoch stamp: the precision of float seconds there is 0.24 us

@@ -27,13 +27,13 @@ from cyclonedds.topic import Topic  # noqa: E402
 from rosbags.interfaces import Nodetype  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
-from superex_deploy.ros import dds, idl, qos  # noqa: E402
+from superex_deploy.ros import dds, discovery, idl, qos  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONFIG = dds.loopback_config()
 DOMAIN = os.getpid() % 200 + 20
-ALL_TYPES = {**idl.MESSAGE_TYPES, **{idl.ros_name(c): c for c in (dds.Gid, dds.NodeEntitiesInfo,
-                                                                   dds.ParticipantEntitiesInfo)}}
+ALL_TYPES = {**idl.MESSAGE_TYPES, **{idl.ros_name(c): c for c in (discovery.Gid, discovery.NodeEntitiesInfo,
+                                                                   discovery.ParticipantEntitiesInfo)}}
 
 
 def _store():
@@ -319,11 +319,12 @@ def test_bad_names_and_domains_are_refused(monkeypatch):
 
 
 def test_known_type_hashes():
-    assert dds.type_hash(idl.String) == "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
-    assert dds.type_hash(idl.LaserScan) == "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"
-    assert dds.type_hash(idl.SpadFrame) == STORE.hash_rihs01("superex_msgs/msg/SpadFrame")
+    type_hash = discovery.type_hash
+    assert type_hash(idl.String) == "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+    assert type_hash(idl.LaserScan) == "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"
+    assert type_hash(idl.SpadFrame) == STORE.hash_rihs01("superex_msgs/msg/SpadFrame")
     with pytest.raises(ValueError):
-        dds.type_hash(int)
+        type_hash(int)
 
 
 def test_endpoints_carry_ros_names_and_the_type_hash_in_user_data():
@@ -338,14 +339,15 @@ def test_endpoints_carry_ros_names_and_the_type_hash_in_user_data():
                       or {"rt/robot1/scan", "rt/map", "ros_discovery_info"} <= set(seen))
         scan, grid = seen["rt/robot1/scan"], seen["rt/map"]
         assert scan.type_name == "sensor_msgs::msg::dds_::LaserScan_" and scan.key.bytes == publisher.gid
-        assert scan.qos[Policy.Userdata].data == f"typehash={dds.type_hash(idl.LaserScan)};".encode()
+        assert scan.qos[Policy.Userdata].data == f"typehash={discovery.type_hash(idl.LaserScan)};".encode()
         assert scan.qos[Policy.Reliability] == Policy.Reliability.BestEffort
         assert grid.type_name == "nav_msgs::msg::dds_::OccupancyGrid_" and grid.key.bytes == subscription.gid
-        assert grid.qos[Policy.Userdata].data == f"typehash={dds.type_hash(idl.OccupancyGrid)};".encode()
+        assert grid.qos[Policy.Userdata].data == f"typehash={discovery.type_hash(idl.OccupancyGrid)};".encode()
         assert grid.qos[Policy.Durability] == Policy.Durability.TransientLocal
         info = seen["ros_discovery_info"]
         assert info.type_name == "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
-        assert info.qos[Policy.Userdata].data == f"typehash={dds.type_hash(dds.ParticipantEntitiesInfo)};".encode()
+        info_hash = discovery.type_hash(discovery.ParticipantEntitiesInfo)
+        assert info.qos[Policy.Userdata].data == f"typehash={info_hash};".encode()
         del readers, observer
 
 
@@ -354,7 +356,7 @@ def test_ros_discovery_info_lists_the_node_and_its_endpoints():
         publisher = node.publisher("goal", idl.PoseStamped, qos.DEFAULT)
         subscription = node.subscription("scan", idl.LaserScan, qos.SENSOR_DATA)
         observer = DomainParticipant(DOMAIN)
-        reader = DataReader(observer, Topic(observer, dds.DISCOVERY_TOPIC, dds.ParticipantEntitiesInfo),
+        reader = DataReader(observer, Topic(observer, discovery.DISCOVERY_TOPIC, discovery.ParticipantEntitiesInfo),
                             qos.DISCOVERY_INFO.to_dds())  # a late reader: the info is transient local
         newest = [None]
 

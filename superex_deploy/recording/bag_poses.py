@@ -14,9 +14,9 @@
   quaternion far from unit norm or a covariance that is not one (a negative variance) is refused
   (:meth:`ScanPoses.add_pose` says why), as a bad scan is. The scan's frame is then placed on the base by the
   transform ``base_frame`` -> scan frame of the TfBuffer (the mount).
-* The sensor's 3-D pose is projected onto the map plane by :func:`~superex_deploy.ros.tf.planar`: a laser mounted
+* The sensor's 3-D pose is projected onto the map plane by :func:`~superex_deploy.ros.rigid.planar`: a laser mounted
   upside down (roll pi) is *mirrored* (its scan is fed as :meth:`~superex_deploy.messages.LaserScan.mirrored`), any
-  other tilt beyond :func:`~superex_deploy.ros.tf.planar`'s tolerance (0.05 rad) raises :class:`MountError` naming
+  other tilt beyond :func:`~superex_deploy.ros.rigid.planar`'s tolerance (0.05 rad) raises :class:`MountError` naming
   its frame. The tilt is the sensor's in the map frame, the whole chain's: a base pitched on a ramp by a 3-D
   odometry tilts its laser too.
 * :func:`deskew`: a scanner's rays are measured one after the other (``time_increment`` apart), so on a moving robot
@@ -42,7 +42,8 @@ import numpy as np
 
 from superex_deploy.messages import LaserScan, PoseCovariance
 from superex_deploy.messages.ros_fields import pose_covariance, yaw_of
-from superex_deploy.ros.tf import TfBuffer, Transform, TransformError, planar
+from superex_deploy.ros.rigid import Transform, planar
+from superex_deploy.ros.tf import TfBuffer, TransformError
 
 __all__ = ["PoseSeries", "ScanPoses", "SensorPose", "MountError", "deskew", "DESKEW_SAMPLE_S", "HISTORY_S"]
 
@@ -178,7 +179,7 @@ class ScanPoses:
         transform or pose there (a missing link, beyond the data, a loop in the tree).
 
         Raises:
-            MountError: a frame tilted out of the map's plane (:func:`~superex_deploy.ros.tf.planar`).
+            MountError: a frame tilted out of the map's plane (:func:`~superex_deploy.ros.rigid.planar`).
         """
         frame = frame_id.lstrip("/")
         covariance = None

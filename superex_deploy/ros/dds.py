@@ -8,23 +8,16 @@ What makes a DDS endpoint a ROS 2 one, and what :class:`RosParticipant` does for
   ``/<namespace>/<node>/x``) names and refuses invalid ones with ROS 2's rules (``rmw_validate_full_topic_name``:
   alphanumerics, ``_`` and ``/``; no ``//``; no trailing ``/``; no token starting with a digit; at most 247
   characters).
-* **type hash**: every reader and writer carries ``typehash=RIHS01_<64 hex>;`` in its USER_DATA QoS, exactly as
-  ``rmw_cyclonedds_cpp``'s ``create_readwrite_qos`` puts it there (``rmw_dds_common::
-  encode_type_hash_for_user_data_qos``: ``"typehash=" + rosidl_stringify_type_hash(hash) + ";"``, read back by
-  ``parse_type_hash_from_user_data`` as the key-value pair ``typehash``). The hash is rosbags'
-  ``Typestore.hash_rihs01`` over the Jazzy store with the ``superex_msgs`` types registered (equal to ROS 2's: the
-  published hashes of ``std_msgs/msg/String`` and ``sensor_msgs/msg/LaserScan`` match).
+* **type hash**: every reader and writer carries ``typehash=RIHS01_<64 hex>;`` in its USER_DATA QoS, as
+  ``rmw_cyclonedds_cpp`` puts it there (:func:`~superex_deploy.ros.discovery.type_hash`; how it is computed and why
+  it equals ROS 2's: :mod:`superex_deploy.ros.discovery`).
 * **QoS** as rmw builds it (:meth:`superex_deploy.ros.qos.RosQos.to_dds`); the participant's USER_DATA is
   ``enclave=/;`` as rmw's.
-* **the ROS graph** (``discovery_info=True``): ``ros2 node list`` shows nodes from the ``ros_discovery_info`` topic
-  (no ``rt/`` prefix: rmw creates it with ``avoid_ros_namespace_conventions``), type
-  ``rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_``, reliable, transient local, keep last 1. The participant
-  publishes there its GUID and one node (name, namespace, the GUIDs of its readers and writers) after every change.
-  The ``Gid`` is ``char[16]`` since Iron (``rmw_dds_common`` "Change Gid.msg to be 16 bytes"), ``char[24]`` in
-  Humble: this targets Iron and later; a Humble graph does not parse it, so turn it off there
-  (``discovery_info=False``: topics still flow, only the node is missing from ``ros2 node list``). The type hash of
-  ParticipantEntitiesInfo is computed with ``char`` as ``uint8``, as ``rosidl_adapter`` converts it (rosbags' own
-  store hashes it as a char and would differ).
+* **the ROS graph** (``discovery_info=True``): ``ros2 node list`` shows nodes from the ``ros_discovery_info`` topic;
+  the participant publishes there its GUID and one node (name, namespace, the GUIDs of its readers and writers) after
+  every change (the messages and the topic's rules: :mod:`superex_deploy.ros.discovery`). Its ``Gid`` is Iron's
+  (16 bytes): this targets Iron and later; a Humble graph does not parse it, so turn it off there
+  (``discovery_info=False``: topics still flow, only the node is missing from ``ros2 node list``).
 
 Nothing here runs in a DDS thread: there are no listeners or callbacks. A loop thread calls :meth:`RosParticipant.wait`
 (a wait set over the subscriptions' read conditions) and then ``take`` / ``take_newest``; a sample that fails to
@@ -41,80 +34,27 @@ import math
 import os
 import re
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Optional
 
 from cyclonedds._clayer import ddspy_take
 from cyclonedds.core import (DDSException, GuardCondition, InstanceState, Policy, Qos, ReadCondition, SampleState,
                              ViewState, WaitSet)
 from cyclonedds.domain import Domain, DomainParticipant
-from cyclonedds.idl import annotations as annotate, types
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from superex_deploy.ros.idl import (EXPLORER_STATUS_MSG, MESSAGE_TYPES, SPAD_FRAME_MSG, RosMessage, ros_message, field_error,
-                                    ros_name)
+from superex_deploy.ros.discovery import (DISCOVERY_TOPIC, Gid, NodeEntitiesInfo, ParticipantEntitiesInfo,
+                                          type_hash)
+from superex_deploy.ros.idl import MESSAGE_TYPES, field_error, ros_name
 from superex_deploy.ros.qos import DISCOVERY_INFO, RosQos
 
-__all__ = ["RosParticipant", "Publisher", "Subscription", "MessageInfo", "loopback_config", "type_hash",
-           "Gid", "NodeEntitiesInfo", "ParticipantEntitiesInfo", "DISCOVERY_TOPIC", "MAX_DOMAIN_ID"]
+__all__ = ["RosParticipant", "Publisher", "Subscription", "MessageInfo", "loopback_config", "MAX_DOMAIN_ID"]
 
 MAX_DOMAIN_ID = 232
-DISCOVERY_TOPIC = "ros_discovery_info"
 _MAX_TOPIC_LENGTH = 247  # RMW_TOPIC_MAX_NAME_LENGTH: 255 - 8 reserved for prefixes
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
-
-
-@ros_message
-class Gid(RosMessage, typename="rmw_dds_common::msg::dds_::Gid_"):
-    data: types.array[types.uint8, 16] = field(default_factory=lambda: bytes(16))  # a DDS GUID (Iron and later)
-
-
-@ros_message
-class NodeEntitiesInfo(RosMessage, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
-    node_namespace: types.bounded_str[256] = ""
-    node_name: types.bounded_str[256] = ""
-    reader_gid_seq: types.sequence[Gid] = field(default_factory=list)
-    writer_gid_seq: types.sequence[Gid] = field(default_factory=list)
-
-
-@ros_message
-class ParticipantEntitiesInfo(RosMessage, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
-    gid: Gid = field(default_factory=Gid)
-    node_entities_info_seq: types.sequence[NodeEntitiesInfo] = field(default_factory=list)
-
-
-_DISCOVERY_MSGS = {"rmw_dds_common/msg/Gid": "uint8[16] data",  # char[16] in the .msg; rosidl_adapter: uint8
-                   "rmw_dds_common/msg/NodeEntitiesInfo": "string<=256 node_namespace\nstring<=256 node_name\n"
-                                                          "Gid[] reader_gid_seq\nGid[] writer_gid_seq\n",
-                   "rmw_dds_common/msg/ParticipantEntitiesInfo": "Gid gid\nNodeEntitiesInfo[] node_entities_info_seq\n"}
-_HASHES: dict = {}
-_HASH_LOCK = threading.Lock()
-
-
-def type_hash(msg_type) -> str:
-    """The ROS 2 type hash ``RIHS01_<64 hex>`` of a message class (of :data:`MESSAGE_TYPES` or the discovery types).
-
-    Raises:
-        ValueError: not a message class of this package.
-    """
-    name = ros_name(msg_type)
-    with _HASH_LOCK:
-        if not _HASHES:
-            from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-            store = get_typestore(Stores.ROS2_JAZZY)
-            store.register(get_types_from_msg(SPAD_FRAME_MSG, "superex_msgs/msg/SpadFrame"))
-            store.register(get_types_from_msg(EXPLORER_STATUS_MSG, "superex_msgs/msg/ExplorerStatus"))
-            discovery = get_typestore(Stores.EMPTY)
-            for ros, text in _DISCOVERY_MSGS.items():
-                discovery.register(get_types_from_msg(text, ros))
-            _HASHES.update({ros: store.hash_rihs01(ros) for ros in MESSAGE_TYPES})
-            _HASHES.update({ros: discovery.hash_rihs01(ros) for ros in _DISCOVERY_MSGS})
-    if name not in _HASHES or msg_type not in (*MESSAGE_TYPES.values(), Gid, NodeEntitiesInfo,
-                                               ParticipantEntitiesInfo):
-        raise ValueError(f"not a message class of this package: {msg_type!r}")
-    return _HASHES[name]
 
 
 def loopback_config() -> str:

@@ -49,8 +49,9 @@ import numpy as np
 
 from superex_deploy.messages.ros_fields import occupancy_grid, laser_scan, pose_covariance, spad_frame, stamp_seconds
 from superex_deploy.ros import idl, outputs, qos
-from superex_deploy.ros.core import ExplorationCore, StepOutputs
+from superex_deploy.ros.core import ExplorationCore
 from superex_deploy.ros.dds import RosParticipant
+from superex_deploy.ros.node_status import StepOutputs
 from superex_deploy.ros.params import NodeParams
 
 __all__ = ["ExplorationNode"]

@@ -94,7 +94,7 @@ def frontier_markers(regions_xy: list, goal_xy, stamp_s: float, frame_id: str, c
 
 
 def status_message(status, frame_id: str) -> idl.ExplorerStatus:
-    """``superex_msgs/ExplorerStatus`` of a :class:`~superex_deploy.ros.core.NodeStatus`."""
+    """``superex_msgs/ExplorerStatus`` of a :class:`~superex_deploy.ros.node_status.NodeStatus`."""
     goal = status.goal_xy
     names = list(status.stage_s)
     return idl.ExplorerStatus(
