@@ -66,6 +66,7 @@ SETTINGS: dict[str, RealtimeProfile] = {
     "members_1": RealtimeProfile(max_members=1),
     "members_2": RealtimeProfile(max_members=2),
     DEFAULT_PROFILE: PROFILES[DEFAULT_PROFILE],
+    "realtime_no_lattice_filter": PROFILES[DEFAULT_PROFILE],
 }
 """Setting name -> profile: the unskipped pipeline, then one knob at a time, then the default profile. The error
 runs use each profile's simulated clock (``RealtimeProfile.episode_config``) and the timing runs its robot clock,
@@ -73,6 +74,10 @@ so every error episode is independent of the machine except the free-running rep
 The settings of retired options (``agreement_0.05``, ``nlos_skips``, ``crop_skips`` and the ``async_*`` settings of
 the threaded deterministic schedule) keep their committed rows in ``benchmarks/realtime/``; this script at commit
 1761b27 ran them (see that folder's README)."""
+
+RAW_LATTICE = frozenset({"realtime_no_lattice_filter"})
+"""Settings whose LaMa ensemble runs without the lattice filter (``with_lattice_filter(False)``): the default profile
+timed against itself with the filter off, to split the filter's cost from the machine's."""
 
 CHOSEN = DEFAULT_PROFILE
 """The setting that ``pipeline.PROFILES[DEFAULT_PROFILE]`` is (marked in the plot): on the robot it never waits
@@ -147,8 +152,15 @@ def _episode(task: tuple) -> dict:
                 time.sleep(max(0.0, tick[0] - time.perf_counter()))
 
         waits.clear()
-        return run_benchmark_episode(grid, start, planner, predictor_name, steps=n_steps, seed=0, cfg=cfg,
-                                     profile=profile, spad=spad, cores=cores, on_observation=after_step).result
+        predictor, sensing = predictor_name, None
+        if setting in RAW_LATTICE:  # a fresh predictor and sensing per episode, as a name gives
+            from superex_deploy.pipeline import make_predictor, make_sensing
+
+            predictor = make_predictor(predictor_name, profile=profile, cores=cores).with_lattice_filter(False)
+            sensing = make_sensing(predictor_name, spad, 0, profile=profile)
+        return run_benchmark_episode(grid, start, planner, predictor, steps=n_steps, seed=0, cfg=cfg,
+                                     profile=profile, spad=spad, sensing=sensing, cores=cores,
+                                     on_observation=after_step).result
 
     if mode != "error":
         episode(3)  # compiled kernels, loaded sessions: the measured episode starts warm

@@ -29,6 +29,11 @@ from the pairs finished so far (``--report`` writes them without running anythin
 
     NUMBA_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python scripts/ceiling_carve_gain.py --scenarios 6 --steps 400 \\
         --out benchmarks/carve_gain_ceiling
+
+``--estimate`` pairs today's planner with the same planner given its **onboard estimate** of the carve gain instead
+of the truth (:func:`estimate_planner`: :mod:`superex_deploy.onboard.planning.nlos_gain`, what the
+carving would prove free from each path viewpoint on the observed and predicted walls), the second arm's episodes in
+``OUT/episodes/estimate/``; ``--arm today`` / ``--arm second`` run one arm (two processes on one ``--out``).
 """
 
 from __future__ import annotations
@@ -45,6 +50,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = "superex"
 ARMS = ("today", "ceiling")
 """The two arms: today's planner, and the planner given the true carve gain."""
+ESTIMATE = "estimate"
+"""The second arm of ``--estimate``: the shipped planner with its onboard NLOS gain
+(:func:`estimate_planner`, :mod:`superex_deploy.onboard.planning.nlos_gain`) in place of the true one."""
 VIEWPOINTS = ("goal", "path")
 """Where the carve gain is carved from: the frontier's goal cell, or the pathwise gain's viewpoints."""
 
@@ -159,12 +167,50 @@ def ceiling_planner(carve_gain: TrueCarveGain, weight: float = 1.0, top_k: int =
     return TrueCarveGainPlanner()
 
 
+def estimate_planner(weight: float, nlos: Optional[dict] = None):
+    """The shipped SuperEx planner whose gain adds ``weight`` x the onboard estimate of what the carving would prove
+    free along each frontier's path (:func:`superex_deploy.onboard.planning.nlos_gain.union_nlos_gains` over the
+    planner's own viewpoints, with the :class:`~superex_deploy.onboard.planning.nlos_gain.NlosGainConfig` fields
+    ``nlos`` overrides; never the simulator's truth). Its ``stats`` count as the ceiling planner's (``carve_gain``:
+    the estimate), with the seconds the estimate took; ``nlos_cfg``: the estimate's config."""
+    from superex_deploy.onboard.planning.nlos_gain import NlosGainConfig, union_nlos_gains
+    from superex_deploy.onboard.planning.planners import SuperexPlanner
+
+    nlos_cfg = NlosGainConfig(**(nlos or {}))
+
+    class EstimatePlanner(SuperexPlanner):
+        name = "superex_nlos_estimate"
+
+        def __init__(self):
+            super().__init__()
+            self.nlos_cfg = nlos_cfg
+            self.stats = {"calls": 0, "frontiers": 0, "scored": 0, "los_gain": 0.0, "carve_gain": 0.0,
+                          "estimate_seconds": 0.0}
+
+        def gains(self, ctx, prediction, frontiers) -> np.ndarray:
+            cells, offsets = self.viewpoints(ctx, frontiers)
+            base = np.asarray(self.los_gains(ctx, prediction, cells, offsets), float)
+            clock = time.perf_counter()
+            extra = union_nlos_gains(ctx.observed, prediction.mean, cells, offsets, nlos_cfg,
+                                     ctx.resolution_m).astype(float)
+            s = self.stats
+            s["estimate_seconds"] += time.perf_counter() - clock
+            s["calls"] += 1
+            s["frontiers"] += len(frontiers)
+            s["scored"] += len(frontiers)
+            s["los_gain"] += float(base.sum())
+            s["carve_gain"] += float(extra.sum())
+            return base + weight * extra
+
+    return EstimatePlanner()
+
+
 def _episode_path(out: Path, arm: str, scenario) -> Path:
     return out / "episodes" / arm / f"{scenario.map_name}_{scenario.start_index}.json"
 
 
-def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoints: str = "goal", seed: int = 0
-            ) -> dict:
+def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoints: str = "goal", seed: int = 0,
+            nlos: Optional[dict] = None) -> dict:
     """One episode of the ``superex`` pipeline on ``scenario``, with today's planner or the ceiling's; its JSON
     summary (no poses, no per-step stage times) with ``start_index``, ``arm``, ``seconds`` and, for the ceiling,
     ``carve_gain`` (the planner's counts and the time its scans took)."""
@@ -180,6 +226,10 @@ def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoint
     carve_gain = None
     if arm == "today":
         planner = make_planner(pipeline.planner)
+    elif arm == ESTIMATE:
+        if viewpoints != "path" or top_k:
+            raise ValueError("the onboard estimate scores every frontier along its path: --viewpoints path, --top-k 0")
+        planner = estimate_planner(weight, nlos)
     else:
         carve_gain = TrueCarveGain(grid, sensing.spad, sensing.nlos_cfg)
         planner = ceiling_planner(carve_gain, weight, top_k, viewpoints)
@@ -192,6 +242,10 @@ def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoint
     if carve_gain is not None:
         summary["carve_gain"] = {**planner.stats, "scans": carve_gain.scans, "scan_seconds": carve_gain.seconds,
                                  "weight": weight, "top_k": top_k, "viewpoints": viewpoints}
+    elif arm == ESTIMATE:
+        seconds = planner.stats.pop("estimate_seconds")
+        summary["carve_gain"] = {**planner.stats, "scans": 0, "scan_seconds": seconds, "weight": weight,
+                                 "top_k": top_k, "viewpoints": viewpoints, "nlos": planner.nlos_cfg.to_json()}
     return summary
 
 
@@ -208,11 +262,13 @@ def _first_other_goal(today: dict, ceiling: dict) -> Optional[int]:
 
 
 def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal",
-              starts: int = 1, first_half_only: bool = False) -> Optional[tuple[dict, str]]:
+              starts: int = 1, first_half_only: bool = False, second: str = "ceiling"
+              ) -> Optional[tuple[dict, str]]:
     """``(ceiling.json's dict, ceiling.md's text)`` of the pairs finished in ``OUT/episodes`` (both arms of a
     scenario), in the order of ``scenarios``; None if none. ``starts`` (seeded starts per floor) and
     ``first_half_only`` (the episodes ran ``steps // 2`` steps, all the first-half AUC of a ``steps`` budget
-    reads) are recorded in the JSON (``starts``, ``steps_run``) and the text when not 1 / False.
+    reads) are recorded in the JSON (``starts``, ``steps_run``) and the text when not 1 / False. ``second``: the
+    arm paired with today's, ``"ceiling"`` or :data:`ESTIMATE` (its keys and words then say so).
 
     Raises:
         ValueError: an episode ran with other settings, or fewer steps than the measure reads.
@@ -221,8 +277,9 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
     from superex_deploy.evaluation.metrics import scenario_metrics
     from superex_deploy.evaluation.summary import paired_summary
 
-    pairs = [(s, [read_json(_episode_path(out, arm, s)) for arm in ARMS]) for s in scenarios
-             if all(_episode_path(out, arm, s).is_file() for arm in ARMS)]
+    arms = ("today", second)
+    pairs = [(s, [read_json(_episode_path(out, arm, s)) for arm in arms]) for s in scenarios
+             if all(_episode_path(out, arm, s).is_file() for arm in arms)]
     if not pairs:
         return None
     rows, per = [], []
@@ -236,12 +293,12 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
         stats = ceiling["carve_gain"]
         ran = (stats["weight"], stats["top_k"], stats.get("viewpoints", "goal"))  # "goal" before the option
         if ran != (weight, top_k, viewpoints):
-            raise ValueError(f"{_episode_path(out, 'ceiling', s)} ran with (weight, top-k, viewpoints) {ran}, not "
+            raise ValueError(f"{_episode_path(out, second, s)} ran with (weight, top-k, viewpoints) {ran}, not "
                              f"{(weight, top_k, viewpoints)}: give its settings or another --out")
         per.append({"map": s.map_name, "start_index": s.start_index, "start_rc": list(s.start_rc),
-                    "auc_today": a, "auc_ceiling": b, "difference": b - a,
+                    "auc_today": a, f"auc_{second}": b, "difference": b - a,
                     "first_other_goal_step": _first_other_goal(today, ceiling),
-                    "goals_today": len(today["goals"]["steps"]), "goals_ceiling": len(ceiling["goals"]["steps"]),
+                    "goals_today": len(today["goals"]["steps"]), f"goals_{second}": len(ceiling["goals"]["steps"]),
                     "mean_los_gain": stats["los_gain"] / max(stats["scored"], 1),
                     "mean_carve_gain": stats["carve_gain"] / max(stats["scored"], 1),
                     "choices": stats["calls"], "scans": stats["scans"], "scan_seconds": stats["scan_seconds"],
@@ -251,13 +308,14 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
                      "-" if other is None else other, f"{per[-1]['mean_los_gain']:.0f}",
                      f"{per[-1]['mean_carve_gain']:.0f}"])
     paired = paired_summary([e for _, (e, _) in pairs], [e for _, (_, e) in pairs], steps)["auc_first_half"]
-    result = {"pipeline": PIPELINE, "steps": steps, "weight": weight, "top_k": top_k, "viewpoints": viewpoints,
+    result = {"pipeline": PIPELINE, **({"second_arm": second} if second != "ceiling" else {}), "steps": steps,
+              "weight": weight, "top_k": top_k, "viewpoints": viewpoints,
               "seed": 0, **({"starts": starts} if starts != 1 else {}),
               **({"steps_run": steps // 2} if first_half_only else {}),
               "scenarios_planned": len(scenarios), "scenarios_finished": len(pairs),
               "complete": len(pairs) == len(scenarios),
               "auc_first_half": {"today": float(np.mean([p["auc_today"] for p in per])),
-                                 "ceiling": float(np.mean([p["auc_ceiling"] for p in per])),
+                                 second: float(np.mean([p[f"auc_{second}"] for p in per])),
                                  "difference": paired["mean"], "interval": [paired["low"], paired["high"]],
                                  "relative": paired["ratio"], "better": paired["better"], "worse": paired["worse"],
                                  "tied": paired["tied"]},
@@ -269,29 +327,31 @@ def summarise(out: Path, scenarios, steps: int, weight: float, top_k: int, viewp
     floors = "held-out train floors" + (f" ({starts} seeded starts per floor)" if starts != 1 else "")
     budget = (f"a {steps}-step budget of which the episodes ran the first {steps // 2} steps, all the measure "
               f"reads (an episode does not depend on its budget)" if first_half_only else f"{steps} steps")
-    lines = [f"The SuperEx planner given the true carve gain (weight {weight:g}, {scored}) against today's, the "
+    given, gain = (("given the true carve gain", "true carve gains") if second == "ceiling" else
+                   ("with its onboard estimate of the carve gain", "estimated carve gains"))
+    lines = [f"The SuperEx planner {given} (weight {weight:g}, {scored}) against today's, the "
              f"`{PIPELINE}` pipeline on {floors}, {budget}, seed 0, paired by scenario. "
              f"First-half AUC counting carved cells (steps 1-{steps // 2}, percent); the step of the first goal "
-             f"the two arms chose differently (- : none); the mean line-of-sight and true carve gains of the "
-             f"frontiers the ceiling scored (cells).{status}", ""]
-    lines += markdown_table(["scenario", "AUC today", "AUC ceiling", "difference", "first other goal (step)",
+             f"the two arms chose differently (- : none); the mean line-of-sight and {gain} of the "
+             f"frontiers the {second} scored (cells).{status}", ""]
+    lines += markdown_table(["scenario", "AUC today", f"AUC {second}", "difference", "first other goal (step)",
                              "LOS gain", "carve gain"], rows, ["-", "---:", "---:", "---:", "---:", "---:", "---:"])
     d = result["auc_first_half"]
-    lines += ["", f"Paired mean difference (ceiling - today): **{100 * d['difference']:+.2f} points** "
+    lines += ["", f"Paired mean difference ({second} - today): **{100 * d['difference']:+.2f} points** "
                   f"[{100 * d['interval'][0]:+.2f}, {100 * d['interval'][1]:+.2f}] (bootstrap 95 %), "
                   f"**{100 * d['relative']:+.1f} %** relative (AUC {100 * d['today']:.2f} -> "
-                  f"{100 * d['ceiling']:.2f}); "
+                  f"{100 * d[second]:.2f}); "
                   f"better / worse / tied: {d['better']} / {d['worse']} / {d['tied']} of {len(pairs)}."]
     return result, "\n".join(lines) + "\n"
 
 
 def report(out: Path, scenarios, steps: int, weight: float, top_k: int, viewpoints: str = "goal",
-           starts: int = 1, first_half_only: bool = False) -> Optional[dict]:
+           starts: int = 1, first_half_only: bool = False, second: str = "ceiling") -> Optional[dict]:
     """Write ``OUT/ceiling.md`` and ``OUT/ceiling.json`` (:func:`summarise`) and print the table; None (nothing
     written) if no pair is finished."""
     from superex_deploy.evaluation import write_json, write_text
 
-    summary = summarise(out, scenarios, steps, weight, top_k, viewpoints, starts, first_half_only)
+    summary = summarise(out, scenarios, steps, weight, top_k, viewpoints, starts, first_half_only, second)
     if summary is None:
         return None
     result, text = summary
@@ -318,6 +378,13 @@ def main(argv=None) -> int:
     parser.add_argument("--first-half-only", action="store_true",
                         help="run each episode STEPS // 2 steps: all the first-half AUC of a STEPS budget reads")
     parser.add_argument("--report", action="store_true", help="only write the report from the episodes there")
+    parser.add_argument("--estimate", action="store_true",
+                        help="pair today's planner with its onboard NLOS-gain estimate (weight --weight, along the "
+                             "path) instead of the true carve gain")
+    parser.add_argument("--nlos", action="append", default=[], metavar="FIELD=VALUE",
+                        help="with --estimate: a field of the estimate's NlosGainConfig (repeatable; numbers)")
+    parser.add_argument("--arm", choices=("both", "today", "second"), default="both",
+                        help="run only today's arm or only the second one (two processes on one --out)")
     args = parser.parse_args(argv)
     if (args.scenarios < 1 or args.starts < 1 or args.steps < 2 or args.top_k < 0
             or not np.isfinite(args.weight)):
@@ -329,11 +396,19 @@ def main(argv=None) -> int:
 
     scenarios = heldout_scenarios(args.scenarios, args.starts)
     run_steps = args.steps // 2 if args.first_half_only else args.steps
-    options = (args.steps, args.weight, args.top_k, args.viewpoints, args.starts, args.first_half_only)
+    second = ESTIMATE if args.estimate else "ceiling"
+    try:
+        nlos = {field: float(value) for field, _, value in (o.partition("=") for o in args.nlos)}
+    except ValueError:
+        parser.error(f"--nlos takes FIELD=NUMBER, got {args.nlos}")
+    if nlos and not args.estimate:
+        parser.error("--nlos needs --estimate")
+    options = (args.steps, args.weight, args.top_k, args.viewpoints, args.starts, args.first_half_only, second)
+    arms = {"both": ("today", second), "today": ("today",), "second": (second,)}[args.arm]
     if not args.report:
-        todo = [(s, arm) for s in scenarios for arm in ARMS if not _episode_path(args.out, arm, s).is_file()]
+        todo = [(s, arm) for s in scenarios for arm in arms if not _episode_path(args.out, arm, s).is_file()]
         for s, arm in tqdm(todo, desc="episodes", unit="episode"):
-            summary = run_arm(s, arm, run_steps, args.weight, args.top_k, args.viewpoints)
+            summary = run_arm(s, arm, run_steps, args.weight, args.top_k, args.viewpoints, nlos=nlos)
             write_json(_episode_path(args.out, arm, s), summary)
             auc = first_half_auc(summary["coverage_with_carving"], args.steps)
             tqdm.write(f"{s.map_name} #{s.start_index} {arm}: first-half AUC {100 * auc:.2f} %, "

@@ -13,8 +13,8 @@ Conventions used throughout SuperEx
 The kernels are private ``_name`` functions compiled with ``numba.njit(cache=True)``; the public wrappers
 check dtypes, shapes and bounds and raise ``ValueError``. Two kernels are shared with other modules' kernels (the
 SPAD simulator, the NLOS processing, the planners' visibility) and so are public, unchecked, callable only from
-compiled code or with already-checked arguments: :func:`dda_start`, :func:`dda_step`, :func:`group_by_cell` and
-:func:`minor_axis_2x2`. Slow references live
+compiled code or with already-checked arguments: :func:`dda_start`, :func:`dda_step`, :func:`group_by_cell`,
+:func:`minor_axis_2x2` and :func:`window_covariance`. Slow references live
 in ``tests/naive.py``.
 """
 
@@ -26,7 +26,8 @@ import numba
 import numpy as np
 
 __all__ = ["RayHits", "ray_angles", "cast_rays", "mark_rays", "mark_ranges", "line_of_sight", "cell_centre",
-           "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2", "check_measured_rays",
+           "dda_start", "dda_step", "group_by_cell", "minor_axis_2x2", "window_covariance",
+           "check_measured_rays",
            "RETURN_TOLERANCE_CELLS"]
 
 RETURN_TOLERANCE_CELLS = 1e-6
@@ -109,6 +110,36 @@ def dda_step(r, c, step_r, t_next_r, t_delta_r, step_c, t_next_c, t_delta_c):
     if t_next_c <= t_next_r:
         return r, c + step_c, t_next_r, t_next_c + t_delta_c, t_next_c, 1
     return r + step_r, c, t_next_r + t_delta_r, t_next_c, t_next_r, 0
+
+
+@numba.njit(cache=True)
+def window_covariance(mask, r, c, half):
+    """Count and covariance of the cells of bool ``mask`` within ``half`` cells of cell (r, c) (the square window,
+    clipped at the border), as offsets ``(dy, dx)`` from it: ``(n, cyy, cxx, cxy)``, the covariance zero for
+    ``n == 0``. What a wall's line is fitted to (:func:`minor_axis_2x2` of it gives the normal)."""
+    n_rows, n_cols = mask.shape
+    n = 0
+    sy = 0.0
+    sx = 0.0
+    syy = 0.0
+    sxx = 0.0
+    sxy = 0.0
+    for rr in range(max(0, r - half), min(n_rows, r + half + 1)):
+        for cc in range(max(0, c - half), min(n_cols, c + half + 1)):
+            if mask[rr, cc]:
+                dy = float(rr - r)
+                dx = float(cc - c)
+                n += 1
+                sy += dy
+                sx += dx
+                syy += dy * dy
+                sxx += dx * dx
+                sxy += dy * dx
+    if n == 0:
+        return 0, 0.0, 0.0, 0.0
+    my = sy / n
+    mx = sx / n
+    return n, syy / n - my * my, sxx / n - mx * mx, sxy / n - my * mx
 
 
 @numba.njit(cache=True, inline="always")

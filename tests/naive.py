@@ -940,3 +940,79 @@ def naive_lookup(links, target, source, stamp):
             frame = parent
         return pose
     return np.linalg.inv(in_root(target)) @ in_root(source)
+
+
+# --- onboard.planning.nlos_gain ---
+
+
+def naive_nlos_carved(walls, observed, cell_rc, n_rays, max_t, fan_rays, cap, margin, strip, cos_sector,
+                      cos_incidence, max_minor_ratio, interior):
+    """Set of flat indices of the UNKNOWN cells the SPAD's carving is estimated to prove free from one viewpoint
+    (nlos_gain._carved_of_viewpoints): rays from crossing lists, the 5x5 line fit by numpy's eigh, each sector by
+    testing every cell of the grid."""
+    n_rows, n_cols = walls.shape
+    y0, x0 = cell_rc[0] + 0.5, cell_rc[1] + 0.5
+    if walls[cell_rc[0], cell_rc[1]]:
+        return set()
+
+    def first_wall(ys, xs, angle, limit, skip):
+        for t, r, c in _naive_cells_along_ray(n_rows, n_cols, ys, xs, angle):
+            if t >= limit:
+                return limit, None
+            if not (0 <= r < n_rows and 0 <= c < n_cols):
+                return t, None
+            if walls[r, c] and (r, c) != skip:
+                return t, (r, c)
+        return limit, None
+
+    rows, cols = np.mgrid[0:n_rows, 0:n_cols]
+    carved = np.zeros(walls.shape, bool)
+    for k in range(n_rays):
+        _, hit = first_wall(y0, x0, 2.0 * np.pi * k / n_rays, max_t, None)
+        if hit is None:
+            continue
+        r, c = hit
+        def faces(rr, cc):
+            here = np.hypot(rr + 0.5 - y0, cc + 0.5 - x0)
+            return any(0 <= rr + dr < n_rows and 0 <= cc + dc < n_cols and not walls[rr + dr, cc + dc]
+                       and np.hypot(rr + dr + 0.5 - y0, cc + dc + 0.5 - x0) < here
+                       for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)))
+
+        half = max(2, int(np.ceil(interior - 1e-9)))
+        window = [(rr - r, cc - c) for rr in range(max(0, r - half), min(n_rows, r + half + 1))
+                  for cc in range(max(0, c - half), min(n_cols, c + half + 1)) if walls[rr, cc] and faces(rr, cc)]
+        if len(window) < 3:
+            continue
+        points = np.array(window, float)
+        values, vectors = np.linalg.eigh(np.cov(points.T, bias=True))
+        if values[1] < 1e-9 or values[0] > max_minor_ratio * values[1] + 1e-12:
+            continue
+        ny, nx = vectors[:, 0]
+        along = -points[:, 0] * nx + points[:, 1] * ny
+        if -along.min() < interior - 1e-9 or along.max() < interior - 1e-9:
+            continue
+        if ny < 0 or (ny == 0 and nx < 0):
+            ny, nx = -ny, -nx
+        to = np.array([y0 - r - 0.5, x0 - c - 0.5])
+        facing = (to[0] * ny + to[1] * nx) / np.hypot(*to)
+        if facing < 0:
+            ny, nx, facing = -ny, -nx, -facing
+        if facing < cos_incidence:
+            continue
+        ay, ax = r + 0.5, c + 0.5
+        oy, ox = ay + 0.75 * ny, ax + 0.75 * nx
+        radius = cap
+        for j in range(fan_rays):
+            angle = np.arctan2(ny, nx) - 0.5 * np.pi + np.pi * (j + 0.5) / fan_rays
+            t, wall = first_wall(oy, ox, angle, cap + 1.0, (r, c))
+            if wall is not None:
+                radius = min(radius, np.hypot(oy + t * np.sin(angle) - ay, ox + t * np.cos(angle) - ax))
+        radius -= margin
+        if radius <= strip:
+            continue
+        vy, vx = rows + 0.5 - ay, cols + 0.5 - ax
+        wy, wx = rows + 0.5 - oy, cols + 0.5 - ox
+        norm = np.hypot(wy, wx)
+        carved |= ((vy ** 2 + vx ** 2 < radius ** 2) & (vy * ny + vx * nx >= strip) & (norm > 0)
+                   & (wy * ny + wx * nx >= cos_sector * norm))
+    return set(np.flatnonzero(carved & (observed == -1)).tolist())

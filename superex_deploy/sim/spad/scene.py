@@ -13,7 +13,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from superex_deploy.geometry import minor_axis_2x2
+from superex_deploy.geometry import minor_axis_2x2, window_covariance
 from superex_deploy.maps import OccupancyGrid
 import superex_deploy.sim.spad.fans as fans
 from superex_deploy.sim.spad.fans import FanCache
@@ -31,28 +31,7 @@ def _thin_wall_normals(occupied, weak, normals):
         for c in range(n_cols):
             if not weak[r, c]:
                 continue
-            n = 0
-            sy = 0.0
-            sx = 0.0
-            syy = 0.0
-            sxx = 0.0
-            sxy = 0.0
-            for rr in range(max(0, r - 2), min(n_rows, r + 3)):
-                for cc in range(max(0, c - 2), min(n_cols, c + 3)):
-                    if occupied[rr, cc]:
-                        dy = rr - r
-                        dx = cc - c
-                        n += 1
-                        sy += dy
-                        sx += dx
-                        syy += dy * dy
-                        sxx += dx * dx
-                        sxy += dy * dx
-            my = sy / n
-            mx = sx / n
-            cyy = syy / n - my * my
-            cxx = sxx / n - mx * mx
-            cxy = sxy / n - my * mx
+            _, cyy, cxx, cxy = window_covariance(occupied, r, c, 2)
             # The minor axis of the points' covariance is the wall's normal.
             half_trace, spread, vy, vx, norm = minor_axis_2x2(cyy, cxx, cxy)
             if spread < 1e-9 or half_trace < 1e-9:

@@ -216,14 +216,24 @@ class SuperexPlanner(Planner):
 
     def gains(self, ctx: PlanningContext, prediction: Prediction, frontiers) -> np.ndarray:
         """float64 ``[N]`` gain of each frontier (``cfg.gain``): unknown cells predicted visible from its goal
-        cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it; counted on the
-        thresholded prediction, or expected (``"expected"``, ``"expected_goal"``)."""
+        cell, or from its goal cell and every ``sense_every_m`` along the least-cost path to it (:meth:`viewpoints`);
+        counted on the thresholded prediction, or expected (:meth:`los_gains`)."""
+        cells, offsets = self.viewpoints(ctx, frontiers)
+        return self.los_gains(ctx, prediction, cells, offsets)
+
+    def viewpoints(self, ctx: PlanningContext, frontiers) -> tuple[np.ndarray, np.ndarray]:
+        """``(cells int64 [V, 2], offsets int64 [N + 1])``: frontier ``i``'s viewpoints, its goal cell alone
+        (``gain`` ``"goal"``, ``"expected_goal"``) or every ``sense_every_m`` along its least-cost path and its goal
+        cell (:func:`path_viewpoints`)."""
         goals = np.array([f.cell_rc for f in frontiers], np.int64).reshape(-1, 2)
         if self.cfg.gain in ("goal", "expected_goal"):
-            cells, offsets = goals, np.arange(len(goals) + 1)
-        else:
-            every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
-            cells, offsets = path_viewpoints(ctx.travel_cost, goals, every)
+            return goals, np.arange(len(goals) + 1)
+        every = max(1, int(round(self.cfg.sense_every_m / ctx.resolution_m)))
+        return path_viewpoints(ctx.travel_cost, goals, every)
+
+    def los_gains(self, ctx: PlanningContext, prediction: Prediction, cells, offsets) -> np.ndarray:
+        """float64 ``[N]``: the line-of-sight gain of each group of viewpoints: unknown cells predicted visible from
+        them, counted on the thresholded prediction or expected (``cfg.gain``)."""
         if self.cfg.gain in ("expected", "expected_goal"):
             rays = ExpectedVisibility(n_rays=self.cfg.n_rays, range_m=self.cfg.range_m)
             viewpoints = [cells[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
