@@ -30,10 +30,10 @@ from the pairs finished so far (``--report`` writes them without running anythin
     NUMBA_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python scripts/ceiling_carve_gain.py --scenarios 6 --steps 400 \\
         --out benchmarks/carve_gain_ceiling
 
-``--estimate`` pairs today's planner with the same planner given its **onboard estimate** of the carve gain instead
-of the truth (:func:`estimate_planner`: :mod:`superex_deploy.onboard.planning.nlos_gain`, what the
-carving would prove free from each path viewpoint on the observed and predicted walls), the second arm's episodes in
-``OUT/episodes/estimate/``; ``--arm today`` / ``--arm second`` run one arm (two processes on one ``--out``).
+``--arm today`` / ``--arm second`` run one arm (two processes on one ``--out``). The planner given its **onboard
+estimate** of the carve gain instead of the truth (second arm ``estimate``, ``OUT/episodes/estimate/``) ran at commit
+5ef5f36 (``--estimate``; the estimate was slower on train and left the package); ``--report --estimate`` rewrites
+those folders' reports from their episodes.
 """
 
 from __future__ import annotations
@@ -51,8 +51,10 @@ PIPELINE = "superex"
 ARMS = ("today", "ceiling")
 """The two arms: today's planner, and the planner given the true carve gain."""
 ESTIMATE = "estimate"
-"""The second arm of ``--estimate``: the shipped planner with its onboard NLOS gain
-(:func:`estimate_planner`, :mod:`superex_deploy.onboard.planning.nlos_gain`) in place of the true one."""
+"""The second arm of the onboard estimate's runs (commit :data:`ESTIMATE_COMMIT`): the shipped planner with an
+onboard estimate of the NLOS gain in place of the true one; only reported now."""
+ESTIMATE_COMMIT = "5ef5f36"
+"""The commit whose ``--estimate`` ran the estimate arm (``benchmarks/carve_gain_ceiling/estimate*/``)."""
 VIEWPOINTS = ("goal", "path")
 """Where the carve gain is carved from: the frontier's goal cell, or the pathwise gain's viewpoints."""
 
@@ -167,50 +169,12 @@ def ceiling_planner(carve_gain: TrueCarveGain, weight: float = 1.0, top_k: int =
     return TrueCarveGainPlanner()
 
 
-def estimate_planner(weight: float, nlos: Optional[dict] = None):
-    """The shipped SuperEx planner whose gain adds ``weight`` x the onboard estimate of what the carving would prove
-    free along each frontier's path (:func:`superex_deploy.onboard.planning.nlos_gain.union_nlos_gains` over the
-    planner's own viewpoints, with the :class:`~superex_deploy.onboard.planning.nlos_gain.NlosGainConfig` fields
-    ``nlos`` overrides; never the simulator's truth). Its ``stats`` count as the ceiling planner's (``carve_gain``:
-    the estimate), with the seconds the estimate took; ``nlos_cfg``: the estimate's config."""
-    from superex_deploy.onboard.planning.nlos_gain import NlosGainConfig, union_nlos_gains
-    from superex_deploy.onboard.planning.planners import SuperexPlanner
-
-    nlos_cfg = NlosGainConfig(**(nlos or {}))
-
-    class EstimatePlanner(SuperexPlanner):
-        name = "superex_nlos_estimate"
-
-        def __init__(self):
-            super().__init__()
-            self.nlos_cfg = nlos_cfg
-            self.stats = {"calls": 0, "frontiers": 0, "scored": 0, "los_gain": 0.0, "carve_gain": 0.0,
-                          "estimate_seconds": 0.0}
-
-        def gains(self, ctx, prediction, frontiers) -> np.ndarray:
-            cells, offsets = self.viewpoints(ctx, frontiers)
-            base = np.asarray(self.los_gains(ctx, prediction, cells, offsets), float)
-            clock = time.perf_counter()
-            extra = union_nlos_gains(ctx.observed, prediction.mean, cells, offsets, nlos_cfg,
-                                     ctx.resolution_m).astype(float)
-            s = self.stats
-            s["estimate_seconds"] += time.perf_counter() - clock
-            s["calls"] += 1
-            s["frontiers"] += len(frontiers)
-            s["scored"] += len(frontiers)
-            s["los_gain"] += float(base.sum())
-            s["carve_gain"] += float(extra.sum())
-            return base + weight * extra
-
-    return EstimatePlanner()
-
-
 def _episode_path(out: Path, arm: str, scenario) -> Path:
     return out / "episodes" / arm / f"{scenario.map_name}_{scenario.start_index}.json"
 
 
-def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoints: str = "goal", seed: int = 0,
-            nlos: Optional[dict] = None) -> dict:
+def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoints: str = "goal", seed: int = 0
+            ) -> dict:
     """One episode of the ``superex`` pipeline on ``scenario``, with today's planner or the ceiling's; its JSON
     summary (no poses, no per-step stage times) with ``start_index``, ``arm``, ``seconds`` and, for the ceiling,
     ``carve_gain`` (the planner's counts and the time its scans took)."""
@@ -226,10 +190,6 @@ def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoint
     carve_gain = None
     if arm == "today":
         planner = make_planner(pipeline.planner)
-    elif arm == ESTIMATE:
-        if viewpoints != "path" or top_k:
-            raise ValueError("the onboard estimate scores every frontier along its path: --viewpoints path, --top-k 0")
-        planner = estimate_planner(weight, nlos)
     else:
         carve_gain = TrueCarveGain(grid, sensing.spad, sensing.nlos_cfg)
         planner = ceiling_planner(carve_gain, weight, top_k, viewpoints)
@@ -242,10 +202,6 @@ def run_arm(scenario, arm: str, steps: int, weight: float, top_k: int, viewpoint
     if carve_gain is not None:
         summary["carve_gain"] = {**planner.stats, "scans": carve_gain.scans, "scan_seconds": carve_gain.seconds,
                                  "weight": weight, "top_k": top_k, "viewpoints": viewpoints}
-    elif arm == ESTIMATE:
-        seconds = planner.stats.pop("estimate_seconds")
-        summary["carve_gain"] = {**planner.stats, "scans": 0, "scan_seconds": seconds, "weight": weight,
-                                 "top_k": top_k, "viewpoints": viewpoints, "nlos": planner.nlos_cfg.to_json()}
     return summary
 
 
@@ -379,10 +335,8 @@ def main(argv=None) -> int:
                         help="run each episode STEPS // 2 steps: all the first-half AUC of a STEPS budget reads")
     parser.add_argument("--report", action="store_true", help="only write the report from the episodes there")
     parser.add_argument("--estimate", action="store_true",
-                        help="pair today's planner with its onboard NLOS-gain estimate (weight --weight, along the "
-                             "path) instead of the true carve gain")
-    parser.add_argument("--nlos", action="append", default=[], metavar="FIELD=VALUE",
-                        help="with --estimate: a field of the estimate's NlosGainConfig (repeatable; numbers)")
+                        help="with --report: the folder's second arm is the onboard estimate's (its runs: "
+                             f"{ESTIMATE_COMMIT}:scripts/ceiling_carve_gain.py --estimate)")
     parser.add_argument("--arm", choices=("both", "today", "second"), default="both",
                         help="run only today's arm or only the second one (two processes on one --out)")
     args = parser.parse_args(argv)
@@ -397,18 +351,14 @@ def main(argv=None) -> int:
     scenarios = heldout_scenarios(args.scenarios, args.starts)
     run_steps = args.steps // 2 if args.first_half_only else args.steps
     second = ESTIMATE if args.estimate else "ceiling"
-    try:
-        nlos = {field: float(value) for field, _, value in (o.partition("=") for o in args.nlos)}
-    except ValueError:
-        parser.error(f"--nlos takes FIELD=NUMBER, got {args.nlos}")
-    if nlos and not args.estimate:
-        parser.error("--nlos needs --estimate")
+    if args.estimate and not args.report:
+        parser.error(f"--estimate only reports: the estimate left the package ({ESTIMATE_COMMIT} ran it)")
     options = (args.steps, args.weight, args.top_k, args.viewpoints, args.starts, args.first_half_only, second)
     arms = {"both": ("today", second), "today": ("today",), "second": (second,)}[args.arm]
     if not args.report:
         todo = [(s, arm) for s in scenarios for arm in arms if not _episode_path(args.out, arm, s).is_file()]
         for s, arm in tqdm(todo, desc="episodes", unit="episode"):
-            summary = run_arm(s, arm, run_steps, args.weight, args.top_k, args.viewpoints, nlos=nlos)
+            summary = run_arm(s, arm, run_steps, args.weight, args.top_k, args.viewpoints)
             write_json(_episode_path(args.out, arm, s), summary)
             auc = first_half_auc(summary["coverage_with_carving"], args.steps)
             tqdm.write(f"{s.map_name} #{s.start_index} {arm}: first-half AUC {100 * auc:.2f} %, "

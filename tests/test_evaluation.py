@@ -221,40 +221,6 @@ def test_the_true_carve_gain_counts_the_unknown_cells_the_carving_would_carve():
         gain.gains(observed[1:], [start])
 
 
-def test_the_estimate_planner_adds_the_weighted_nlos_estimate_of_each_frontiers_path():
-    """The estimate arm's planner: today's line-of-sight gain plus ``weight`` x the onboard NLOS estimate over the
-    same path viewpoints (union), with the config fields given; its stats count both."""
-    from superex_deploy.onboard.planning.frontiers import find_frontiers
-    from superex_deploy.onboard.planning.motion import planning_map
-    from superex_deploy.onboard.planning.nlos_gain import NlosGainConfig, union_nlos_gains
-    from superex_deploy.onboard.planning.planners import SuperexPlanner
-    from superex_deploy.onboard.types import FREE, OCCUPIED, UNKNOWN, PlanningContext, Prediction
-
-    script = _script("ceiling_carve_gain")
-    walls = np.zeros((100, 200), bool)
-    walls[[0, -1], :] = walls[:, [0, -1]] = True
-    walls[39, :] = walls[50, :] = True
-    observed = np.full(walls.shape, UNKNOWN, np.int8)
-    observed[40:50, 1:80] = FREE
-    observed[39, 1:80] = observed[50, 1:80] = OCCUPIED
-    observed[40:50, 0] = OCCUPIED
-    mean = walls.astype(np.float32)
-    prediction = Prediction(mean, np.zeros_like(mean))
-    plan = planning_map(observed, (45, 20), 0.1)
-    ctx = PlanningContext(observed=observed, pose_rc=(45, 20), frontiers=tuple(find_frontiers(observed, 5)),
-                          travel_cost=plan.travel_cost, traversable=plan.traversable, resolution_m=0.1,
-                          predict=lambda: prediction, rng=np.random.default_rng(0))
-    frontiers = list(ctx.frontiers)
-    planner = script.estimate_planner(2.5, {"cap_m": 3.0})
-    assert planner.nlos_cfg == NlosGainConfig(cap_m=3.0)
-    today = SuperexPlanner().gains(ctx, prediction, frontiers)
-    cells, offsets = planner.viewpoints(ctx, frontiers)
-    extra = union_nlos_gains(observed, mean, cells, offsets, NlosGainConfig(cap_m=3.0), 0.1)
-    assert extra.max() > 0
-    assert np.allclose(planner.gains(ctx, prediction, frontiers), today + 2.5 * extra)
-    assert planner.stats["calls"] == 1 and planner.stats["carve_gain"] == float(extra.sum())
-
-
 def test_the_ceiling_planner_adds_the_weighted_carve_gain_to_the_k_best_frontiers(monkeypatch):
     """The ceiling planner's gain is today's plus ``weight`` x the carve gain, for the ``top_k`` frontiers of
     largest line-of-sight gain only."""
