@@ -45,9 +45,10 @@ from superex_deploy.onboard.mapping.growth import Regrid, regrid_for
 from superex_deploy.onboard.mapping.mapper import Mapper
 from superex_deploy.onboard.mapping.blocks import coarsen_observed
 from superex_deploy.onboard.planning.coarse import CoarsePrediction, PlanningGrid
-from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, path_is_clear, planning_map
+from superex_deploy.onboard.locked_goal import LockedGoal
+from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, planning_map
 from superex_deploy.onboard.planning.bounds import reachable_goals
-from superex_deploy.onboard.planning.goal_choice import choose_goal, goal_reached, near_frontier, unreached
+from superex_deploy.onboard.planning.goal_choice import choose_goal, unreached
 from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
 from superex_deploy.onboard.prediction.scale import at_resolution
 from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
@@ -95,9 +96,8 @@ class Explorer:
         planning_observed: int8 the map the latest step planned on, on those blocks (read it, do not modify it).
         frontiers: the latest step's frontier regions (of the map the planning read: without carved-only cells
             when those may not be driven on, see the module docstring).
-        goal: the locked goal block, or None (:meth:`drop_goal` lets it go); the command's ``goal_rc`` is its free
-            cell nearest its centre.
-        path: blocks from the robot to the goal (the command's ``path_rc``: cells through them).
+        goal, path: the locked goal block (None: none) and the blocks to it (:mod:`.locked_goal`); the command's
+            ``goal_rc`` is the goal's free cell nearest its centre, its ``path_rc`` the cells through the path.
         pose_estimate: the pose the latest step integrated and planned from (the observation's, or the scan
             matcher's correction of it; None before the first step).
         scan_match: the latest step's :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatch`, or None (no
@@ -143,8 +143,6 @@ class Explorer:
         self.observed = self.mapper.observed()
         self.planning_observed = coarsen_observed(self.observed, self.planning_grid.factor)
         self.frontiers: tuple[Frontier, ...] = ()
-        self.goal: Optional[tuple[int, int]] = None
-        self.path: list[tuple[int, int]] = []
         self.steps = 0
         self.finished = False
         self.mission = Mission(cfg)
@@ -165,9 +163,7 @@ class Explorer:
         self._fresh = True  # the step's map holds a measurement of this step (its scan, or a new SLAM map)
         self._reach_cells = cfg.motion.goal_reached_m / block_m
         self._radius_cells = cfg.motion.robot_radius_m / block_m
-        self._goal_tolerance = self._reach_cells
-        self._goal_step = -1
-        self._visited: set[tuple[int, int]] = set()
+        self._locked = LockedGoal(self._reach_cells, self._radius_cells)
         self._pose_exact = True  # the latest observation carried no pose covariance
         self._prediction: Optional[LazyPrediction] = None
         self._latest: Optional[Prediction] = None
@@ -188,9 +184,19 @@ class Explorer:
             spad_processing.reset()
 
     @property
+    def goal(self) -> Optional[tuple[int, int]]:
+        """The locked goal block, or None (:meth:`drop_goal` lets it go)."""
+        return self._locked.goal
+
+    @property
+    def path(self) -> list[tuple[int, int]]:
+        """Blocks from the robot to the goal."""
+        return self._locked.path
+
+    @property
     def visited_goals(self) -> frozenset:
         """Goal cells reached so far whose frontier did not resolve (they are not offered again)."""
-        return frozenset(self._visited)
+        return frozenset(self._locked.visited)
 
     def frontier_candidates(self, pose_rc) -> tuple[Frontier, ...]:
         """The frontier regions (in :attr:`planning_grid` blocks), of every size, :meth:`step` would offer a planner
@@ -207,13 +213,14 @@ class Explorer:
         regions = self.mission.admit(find_frontiers(self.planning_observed, 1), self._blocks_frame,
                                      self._stamps[-1] if self._stamps else 0.0)
         return unreached(regions, self.planning_observed != FREE, self.planning_grid.block(pose), self._reach_cells,
-                         self._visited)
+                         self._locked.visited)
 
     def return_to_start(self) -> None:
         """Stop exploring and drive back to the start from the next step on (an operator's command:
         :meth:`~superex_deploy.onboard.status.Mission.go_home`)."""
         if self.mission.go_home():
-            self.goal, self.path, self.finished = None, [], False
+            self._locked.release()
+            self.finished = False
 
     def set_bounds(self, bounds) -> None:
         """Bound the exploration from the next step on (an operator's polygon, or None:
@@ -225,12 +232,12 @@ class Explorer:
         self.cfg = self.mission.set_bounds(bounds, self.pose_estimate)
         if self.goal is not None and self.cfg.bounds is not None and not self.cfg.bounds.contains_xy(
                 [self._blocks_frame.centre_xy(self.goal)])[0]:
-            self.goal, self.path = None, []
+            self._locked.release()
 
     def drop_goal(self) -> None:
         """Let go of the locked goal and its path: the next :meth:`step` asks the planner again (the goal does not
         count as reached). For a goal chosen outside the explorer: give the choice to the planner, then call this."""
-        self.goal, self.path = None, []
+        self._locked.release()
 
     @property
     def evidence(self) -> Optional[np.ndarray]:
@@ -442,8 +449,7 @@ class Explorer:
         self.planning_grid, move = self.planning_grid.grown(regrid)  # the same blocks, shifted by whole blocks
         self._blocks_frame = self.planning_grid.frame_of(regrid.frame)
         self.planning_observed = coarsen_observed(self.observed, self.planning_grid.factor)
-        self.goal = None if self.goal is None else move(self.goal)
-        self.path, self._visited = [move(cell) for cell in self.path], {move(cell) for cell in self._visited}
+        self._locked.regrid(move)
         self.frontiers = ()
         self.frame = regrid.frame
 
@@ -456,25 +462,28 @@ class Explorer:
             if new_goal:  # its progress is timed from now
                 mission.tracker.chosen(self._blocks_frame.centre_xy(self.goal), stamp_s)
             alive = self.finish_rule.alive(self.mission.admit(self._regions, self._blocks_frame, stamp_s), planning,
-                                           self.goal, self._reach_cells, self._visited,
+                                           self.goal, self._reach_cells, self._locked.visited,
                                            lambda: self._travel_cost(planning, pose), stamp_s)
             self.finished = mission.settle(alive, stamp_s)
             if self.finished:  # a goal on a region too small to keep the run alive is let go with it
-                self.goal, self.path = None, []
+                self._locked.release()
             mission.reason = "" if self.goal is not None else mission.why_no_goal(
                 planning, self._blocks_frame, stamp_s, max(self.finish_cells, 1),
                 None if self._plan_map is None else self._plan_map.travel_cost,
                 self.finish_rule.pockets if self.finish_cells else None)
             if self.finished and self.cfg.return_to_start:
-                self.goal, self.path, self.finished = None, [], False
+                self._locked.release()
+                self.finished = False
                 mission.phase = RETURNING
         if mission.phase == RETURNING:
-            goal, self.path = mission.home(planning, pose, self._blocks_frame, self.path, self._reach_cells,
-                                           self._radius_cells, stamp_s)
-            new_goal, self.goal = goal is not None and goal != self.goal, goal
+            goal, path = mission.home(planning, pose, self._blocks_frame, self.path, self._reach_cells,
+                                      self._radius_cells, stamp_s)
+            new_goal = goal is not None and goal != self.goal
+            self._locked.goal, self._locked.path = goal, path
             self.finished = mission.phase == DONE
         elif mission.phase == DONE:
-            self.goal, self.path, self.finished = None, [], True
+            self._locked.release()
+            self.finished = True
         self.status = mission.status(self.goal is not None, self.finished)
         return new_goal
 
@@ -490,33 +499,15 @@ class Explorer:
         :class:`~.planning.goal_policy.GoalPolicy`); returns whether a new goal was chosen."""
         res, motion = self.planning_grid.block_m, self.cfg.motion
         clock = time.perf_counter()
-        plan: Optional[PlanningMap] = None
         not_free = observed != FREE
-        goal = self.goal
-        path = self.path[self.path.index(pose):] if pose in self.path else []
-        if goal is not None and goal_reached(not_free, pose, goal, self._goal_tolerance):
-            if not self._fresh:  # a stale SLAM map cannot show the frontier resolved yet: wait at the goal for one
-                self.path = path or [pose]
-                return False
-            confirm = self.cfg.goal_policy.confirm_visit_m
-            if confirm is not None and self._goal_tolerance > confirm / res and near_frontier(self._regions, goal, 1.5):
-                self._goal_tolerance = confirm / res  # its frontier is still there: drive onto it, then judge
-            else:
-                self._visited.add(goal)
-                goal, path = None, []
-        if goal is not None and not self.planner.keep_goal(observed, pose, goal, t - self._goal_step):
-            goal, path = None, []
-        if goal is not None and self._resolved_cells is not None and not near_frontier(self._regions, goal,
-                                                                                      self._resolved_cells):
-            goal, path = None, []  # its frontier is gone: drive to none
-        if goal is not None and (not path or not path_is_clear(observed, path[1:], self._radius_cells)):
-            # Blocked by a newly seen wall, or the robot did not stop on its path: plan again to the same goal.
-            plan = planning_map(observed, pose, res, motion)
-            path = plan.path_to(goal)
-        if goal is not None and self.mission.gives_up(self._blocks_frame.centre_xy(goal), path, res, stamp_s):
-            goal, path = None, []  # no progress for too long, or (blacklisting unreachable goals) no path
+        wait, plan = self._locked.keep(
+            observed, pose, t, fresh=self._fresh, planner=self.planner, goal_policy=self.cfg.goal_policy,
+            regions=self._regions, resolved_cells=self._resolved_cells, resolution_m=res, motion=motion,
+            gives_up=lambda goal, path: self.mission.gives_up(self._blocks_frame.centre_xy(goal), path, res, stamp_s))
         timings["path"] = time.perf_counter() - clock
-        self.goal, self.path = goal, path
+        if wait:  # at a reached goal on a stale SLAM map: no choice until a fresh one
+            return False
+        goal = self.goal
         margin = self.cfg.goal_policy.commit_margin
         if goal is not None and margin is None:
             return False
@@ -533,8 +524,8 @@ class Explorer:
         clock = time.perf_counter()
         chosen, tolerance = choose_goal(lambda regions: self.planner.choose_goal(context(regions)), observed,
                                         frontiers, self.frontier_min_cells, not_free, pose, self._reach_cells,
-                                        self._visited, lambda regions: self.mission.admit(regions, self._blocks_frame,
-                                                                                          stamp_s))
+                                        self._locked.visited,
+                                        lambda regions: self.mission.admit(regions, self._blocks_frame, stamp_s))
         if goal is not None:  # a commit margin: the planner's choice replaces the goal only when clearly better
             scores = None if chosen is None or tuple(chosen) == goal else \
                 self.planner.goal_scores(context(()), [goal, chosen])
@@ -544,7 +535,6 @@ class Explorer:
         timings["prediction"] = prediction.seconds
         if chosen is None:
             return False
-        self._goal_tolerance = tolerance
         clock = time.perf_counter()
         goal = (int(chosen[0]), int(chosen[1]))
         path = plan.path_to(goal)
@@ -552,6 +542,6 @@ class Explorer:
         if not path:
             raise RuntimeError(f"planner {self.planner.name!r} chose goal {goal}, which no path reaches from "
                                f"{pose}; a planner must return a cell of finite travel cost")
-        self.goal, self.path, self._goal_step = goal, path, t
+        self._locked.lock(goal, path, tolerance, t)
         return True
 
