@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-import weakref
 from typing import Optional
 
 import numpy as np
@@ -49,11 +48,9 @@ from superex_deploy.onboard.locked_goal import LockedGoal
 from superex_deploy.onboard.planning.motion import PlanningMap, check_wall_reach, planning_map
 from superex_deploy.onboard.planning.bounds import reachable_goals
 from superex_deploy.onboard.planning.goal_choice import choose_goal, unreached
-from superex_deploy.onboard.prediction.reuse import PredictionReuse, ReusingPredictor, merge_with_map
-from superex_deploy.onboard.prediction.scale import at_resolution
-from superex_deploy.onboard.prediction.inference.sessions import ThreadBudget
-from superex_deploy.onboard.prediction.schedule import (LazyPrediction, PredictionSchedule, ScheduledPredictions,
-                                                        StalePrediction, set_numba_threads, weak_prediction_runner)
+from superex_deploy.onboard.prediction.reuse import PredictionReuse, merge_with_map
+from superex_deploy.onboard.prediction.schedule import LazyPrediction, PredictionSchedule, set_numba_threads
+from superex_deploy.onboard.prediction.stepping import StepPredictions
 from superex_deploy.onboard.mapping.scan_matching import ScanMatch, ScanMatcher
 from superex_deploy.onboard.types import (FREE, UNKNOWN, Frontier, MapPredictor, Planner, PlanningContext,
                                           Prediction)
@@ -129,13 +126,9 @@ class Explorer:
         self.spad_processing = spad_processing
         # A learned model runs at the resolution it was trained at (the map pooled or repeated to it, its answer
         # brought back): a grid it cannot serve is refused here, before the first step.
-        native = at_resolution(predictor, frame.resolution_m)
+        self._predictions = StepPredictions(self, predictor, cfg, frame.resolution_m, cores)
         if spad_processing is not None:
             spad_processing.check_resolution(frame.resolution_m)
-        # What the steps call: the predictor (at its scale), or the wrapper that keeps its last prediction.
-        self.reusing: Optional[ReusingPredictor] = (ReusingPredictor(native, cfg.reuse, frame.resolution_m)
-                                                    if cfg.reuse.reuses else None)
-        self.step_predictor: MapPredictor = self.reusing if self.reusing is not None else native
         self.mapper = Mapper(frame.shape, cfg.occupancy)
         self.scan_matcher = ScanMatcher(cfg.scan_matching)
         self.pose_estimate = None
@@ -165,23 +158,16 @@ class Explorer:
         self._radius_cells = cfg.motion.robot_radius_m / block_m
         self._locked = LockedGoal(self._reach_cells, self._radius_cells)
         self._pose_exact = True  # the latest observation carried no pose covariance
-        self._prediction: Optional[LazyPrediction] = None
-        self._latest: Optional[Prediction] = None
-        self._latest_step = -1
         self._stamps: list[float] = []  # the observations' stamps, per step: the prediction's age in seconds
-        self._no_evidence: Optional[np.ndarray] = None
-        self.budget = ThreadBudget.for_cores(cores, worker=cfg.prediction.threaded)
-        self.scheduled: Optional[ScheduledPredictions] = None
         self._closed = False
-        self._stop_worker = None
-        if cfg.prediction.asynchronous:
-            # The worker holds the explorer weakly (weak_prediction_runner: dropped, it stops its worker at once).
-            self.scheduled = ScheduledPredictions(cfg.prediction, weak_prediction_runner(self),
-                                                  self.budget.worker_threads)
-            self._stop_worker = weakref.finalize(self, self.scheduled.close)
         planner.reset()
         if spad_processing is not None:
             spad_processing.reset()
+
+    reusing = property(lambda self: self._predictions.reusing, doc="See the class docstring.")
+    step_predictor = property(lambda self: self._predictions.step_predictor, doc="See the class docstring.")
+    budget = property(lambda self: self._predictions.budget, doc="See the class docstring.")
+    scheduled = property(lambda self: self._predictions.scheduled, doc="See the class docstring.")
 
     @property
     def goal(self) -> Optional[tuple[int, int]]:
@@ -242,15 +228,8 @@ class Explorer:
     @property
     def evidence(self) -> Optional[np.ndarray]:
         """float32 ``[H, W]`` the NLOS evidence the predictor reads: None without SPAD processing, zeros with it
-        until the first SPAD frame arrives (a predictor that reads evidence then sees none)."""
-        if self.spad_processing is None:
-            return None
-        if self.spad_processing.evidence is None:
-            if self._no_evidence is None:  # made once: read-only zeros until the first frame
-                self._no_evidence = np.zeros(self.frame.shape, np.float32)
-                self._no_evidence.flags.writeable = False
-            return self._no_evidence
-        return self.spad_processing.evidence
+        until the first SPAD frame arrives (:meth:`~.prediction.stepping.StepPredictions.evidence`)."""
+        return self._predictions.evidence(self.spad_processing, self.frame.shape)
 
     def predict(self) -> Prediction:
         """What the planners read at the latest step: inline, the prediction of that step's map (computed
@@ -260,17 +239,14 @@ class Explorer:
         Raises:
             RuntimeError: before the first observation.
         """
-        if self._prediction is None:
-            raise RuntimeError("no observation yet: call step() first")
-        return self._prediction.look()
+        return self._predictions.look()
 
     def close(self) -> None:
         """Stop the prediction worker; a later :meth:`step` raises ``RuntimeError("this explorer was closed")``.
         From another thread while a step runs (a ROS shutdown callback), it waits for that step. Idempotent."""
         self._closed = True  # a step that has not started yet refuses
         with self._stepping:  # a step that has started finishes first
-            if self._stop_worker is not None:
-                self._stop_worker()
+            self._predictions.close()
 
     def follow_recorded_predictions(self, prediction_steps) -> None:
         """For a replay: apply at step ``t`` the prediction of the map of step ``prediction_steps[t]`` (a recording's
@@ -282,11 +258,7 @@ class Explorer:
             ValueError: an inline schedule (its predictions are the steps' own), or steps outside ``-1..t``.
             RuntimeError: after the first step.
         """
-        if self.scheduled is None:
-            raise ValueError("an inline schedule predicts each step's own map: there is nothing to follow")
-        if self.steps:
-            raise RuntimeError("follow_recorded_predictions must be called before the first step")
-        self.scheduled.follow(prediction_steps)
+        self._predictions.follow(prediction_steps, self.steps)
 
     def __enter__(self) -> "Explorer":
         return self
@@ -294,10 +266,10 @@ class Explorer:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    @property
-    def step_prediction(self) -> Optional[Prediction]:
-        """The latest step's prediction if anything has computed it, else None (never computes)."""
-        return None if self._prediction is None else self._prediction.value
+    step_prediction = property(lambda self: None if self._predictions.current is None else
+                               self._predictions.current.value,
+                               doc="The latest step's prediction if anything has computed it, else None (never "
+                                   "computes).")
 
     def _pose_cell(self, obs: Observation) -> tuple[int, int]:
         return self.frame.locate(obs.pose.x, obs.pose.y)[1]
@@ -349,7 +321,7 @@ class Explorer:
         if regrid is not None:
             self._regrid(regrid)
             pose = self._pose_cell(obs)
-            regrid_wait = 0.0 if self.scheduled is None else self.scheduled.last_regrid_wait_s
+            regrid_wait = self._predictions.regrid_wait_s
         self._pose_exact = obs.pose_covariance is None
         self.clock.watch(obs.stamp_s, self.cfg.finish_after_s)
         self._fresh = obs.occupancy_grid is None or not obs.occupancy_grid.same_map(self._last_grid)
@@ -358,20 +330,11 @@ class Explorer:
         t = self.steps
 
         clock = time.perf_counter()
-        self.scan_match = None
         footprint = self.cfg.footprint_cells(obs.pose_covariance, self.frame.resolution_m)
-        if obs.occupancy_grid is not None:
-            self.mapper.set_line_of_sight(obs.occupancy_grid.in_frame(self.frame))
-            if footprint is not None:  # the robot stands on free space, whatever a stale map says there
-                self.mapper.clear_footprint(self.frame.locate(obs.pose.x, obs.pose.y)[0], footprint, everything=True)
-        else:
-            if obs.pose_covariance is not None:
-                self.scan_match = self.scan_matcher.match(self.frame, self.mapper.seen_wall, obs.pose,
-                                                          obs.pose_covariance, obs.scan)
-                if self.scan_match.accepted:  # the scan, the SPAD frame and the plan start from the correction
-                    obs = dataclasses.replace(obs, pose=self.scan_match.pose)
-                    pose = self._pose_cell(obs)
-            self.mapper.integrate_scan(self.frame, obs.pose, obs.scan, footprint_radius_cells=footprint)
+        integrated, self.scan_match = self.mapper.integrate_observation(self.frame, obs, footprint, self.scan_matcher)
+        if self.scan_match is not None and self.scan_match.accepted:  # the SPAD frame and the plan start from it too
+            obs = dataclasses.replace(obs, pose=integrated)
+            pose = self._pose_cell(obs)
         self.pose_estimate = obs.pose
         timings["scan"] = time.perf_counter() - clock
 
@@ -401,15 +364,9 @@ class Explorer:
         self._plan_map = None
         timings["frontiers"] = time.perf_counter() - clock
 
-        waited = 0.0
         self._stamps.append(obs.stamp_s)
-        if self.scheduled is not None:
-            waited = self.scheduled.advance(t, observed, self.evidence)
-            self._latest, self._latest_step = self.scheduled.latest, self.scheduled.latest_step
-            prediction = StalePrediction(self._latest, observed)
-        else:
-            prediction = LazyPrediction(self.step_predictor, observed, self.evidence)
-        self.observed, self.frontiers, self._prediction = observed, frontiers, prediction
+        prediction, waited = self._predictions.begin(t, observed, self.evidence)
+        self.observed, self.frontiers = observed, frontiers
         self.planning_observed = planning
         self.steps += 1
         if np.any(observed != UNKNOWN):
@@ -420,31 +377,26 @@ class Explorer:
             new_goal, self.finished, self.mission.no_goal_since = False, False, None
             self.status, self.mission.reason = WAITING_FOR_SCAN, NO_MEASUREMENT
         timings["prediction"] += waited + regrid_wait  # a growth waits for a prediction in progress
-        if self.scheduled is None and prediction.value is not None:
-            self._latest, self._latest_step = prediction.value, t
+        self._predictions.end(t)
         fine = None if grid.factor == 1 or self.goal is None else (  # the map the blocks were made of
             observed if drive_carved else self.mapper.observed(include_carved=False))
         goal_rc, path_rc = grid.on_map(pose_cell, self.goal, self.path, fine)
-        aged = self._latest is not None
+        latest, latest_step = self._predictions.latest, self._predictions.latest_step
         return Command(stamp_s=obs.stamp_s,
                        goal_xy=None if goal_rc is None else self.frame.centre_xy(goal_rc),
                        goal_rc=goal_rc, path_xy=self.frame.centres_xy(path_rc), path_rc=path_rc,
-                       finished=self.finished, new_goal=new_goal, prediction=self._latest,
-                       prediction_step=self._latest_step, step=t, timings_s=timings,
-                       prediction_age_steps=t - self._latest_step if aged else None,
-                       prediction_age_s=obs.stamp_s - self._stamps[self._latest_step] if aged else None,
+                       finished=self.finished, new_goal=new_goal, prediction=latest, prediction_step=latest_step,
+                       step=t, timings_s=timings, prediction_age_steps=None if latest is None else t - latest_step,
+                       prediction_age_s=None if latest is None else obs.stamp_s - self._stamps[latest_step],
                        status=self.status, reason=self.mission.reason)
 
     def _regrid(self, regrid: Regrid) -> None:
         """Move every per-cell state to the larger grid ``regrid``: the map's layers, the SPAD evidence, the
         predictions kept and in progress, the goal, its path and the goals reached."""
-        for part in (self.scheduled, self.reusing, self.mapper, self.spad_processing):  # the scheduled one first
+        self._predictions.regrid(regrid)  # the worker first: it may wait for a prediction in progress
+        for part in (self.mapper, self.spad_processing):
             if part is not None:
                 part.regrid(regrid)
-        if self._latest is not None:
-            self._latest = Prediction(mean=regrid.embed(self._latest.mean, 0.0),
-                                      variance=regrid.embed(self._latest.variance, 0.0))
-        self._no_evidence = None
         self.observed = regrid.embed(self.observed, UNKNOWN)
         self.planning_grid, move = self.planning_grid.grown(regrid)  # the same blocks, shifted by whole blocks
         self._blocks_frame = self.planning_grid.frame_of(regrid.frame)

@@ -221,6 +221,31 @@ class Mapper:
             return 0
         return self.clear_footprint(origin, footprint_radius_cells, keep=confirmed)
 
+    def integrate_observation(self, frame: MapFrame, obs, footprint_cells: Optional[float], scan_matcher=None):
+        """Integrate an :class:`~superex_deploy.messages.Observation`'s line of sight: its SLAM map
+        (``obs.occupancy_grid``) replaces the line-of-sight layer (the robot's footprint cleared on it: the robot
+        stands on free space, whatever a stale map says there); otherwise its scan is integrated
+        (:meth:`integrate_scan`), first matched against the walls held so far when the pose carries a covariance and
+        a ``scan_matcher`` (:class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatcher`) is given.
+
+        Returns:
+            ``(pose, scan_match)``: the pose the scan was integrated at (the observation's, or the accepted match's
+            correction) and the :class:`~superex_deploy.onboard.mapping.scan_matching.ScanMatch` (None when no match
+            was tried).
+        """
+        if obs.occupancy_grid is not None:
+            self.set_line_of_sight(obs.occupancy_grid.in_frame(frame))
+            if footprint_cells is not None:
+                self.clear_footprint(frame.locate(obs.pose.x, obs.pose.y)[0], footprint_cells, everything=True)
+            return obs.pose, None
+        pose, match = obs.pose, None
+        if obs.pose_covariance is not None and scan_matcher is not None:
+            match = scan_matcher.match(frame, self.seen_wall, obs.pose, obs.pose_covariance, obs.scan)
+            if match.accepted:
+                pose = match.pose
+        self.integrate_scan(frame, pose, obs.scan, footprint_radius_cells=footprint_cells)
+        return pose, match
+
     def integrate_ranges(self, origin_yx, angles, ranges_cells, max_range_cells: float,
                          hit_shift_cells: float = 0.0, usable_range_cells: float = np.inf,
                          pose_sigmas: Optional[tuple[float, float]] = None) -> None:
