@@ -74,11 +74,20 @@ def main(argv=None) -> int:
     parser.add_argument("--against", default="superex,mapex_lama_los,superex_observed",
                         help="comma-separated committed paper rows, or new rows' journals (.jsonl) or files (.json)")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--protocol-steps", type=int, default=0,
+                        help="the episodes' protocol budget, whose first half the AUC reads (0: twice the new row's "
+                             "steps, the paper's 1000 for a 500-step row; the altered suite's 500 for its own rows)")
     args = parser.parse_args(argv)
+    if args.protocol_steps < 0 or args.protocol_steps % 2:
+        parser.error("--protocol-steps must be an even number >= 0")
     new = _new_row(args.row)
     if not new:
         raise SystemExit(f"{args.row} holds no finished episode")
     steps = min(int(e["steps"]) for e in new.values())
+    if args.protocol_steps:
+        if args.protocol_steps > steps:
+            parser.error(f"--protocol-steps {args.protocol_steps} is longer than the row's {steps} steps")
+        steps = args.protocol_steps // 2  # the first half the AUC reads
     results = {"row": args.name, "steps": steps, "pairs": {}}
     lines = [f"`{args.name}` ({len(new)} eval scenarios, {steps} steps) paired by scenario with the committed paper "
              f"rows; first-half AUC of {2 * steps}-step episodes in points (steps 1-{steps}), IoU at 10 / 20 / 30 % "

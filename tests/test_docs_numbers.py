@@ -148,6 +148,7 @@ PAIRS = "benchmarks/eval_paper/pairs.json"
 PREVIOUS = "benchmarks/history/eval_paper_previous_defaults/results.json"
 ABLATIONS = "benchmarks/eval_paper/ablations/ablations.json"
 ALTERED = "benchmarks/eval_altered/defaults34/results.json"
+ALTERED_NOW = "benchmarks/eval_altered/shipped44/results.json"
 SIDE_BY_SIDE = "benchmarks/eval_altered/side_by_side.json"
 CEILING = "benchmarks/ceiling_study/ceiling_study_1000.json"
 CARVE_CEILINGS = {"goal": "benchmarks/carve_gain_ceiling/ceiling.json",
@@ -767,6 +768,14 @@ CLAIMS = [
                    fixed(timing(FINE, "realtime@generated@0.05")["p99_ms"], 1),
                    fixed(timing(FINE, "realtime@50015847@x2")["mean_ms"], 1),
                    fixed(timing(FINE, "realtime@generated@0.05")["mean_ms"], 1)]),
+
+    Claim(BETTER_MAP, "", "Re-run with what ships (`benchmarks/eval_altered/shipped44/`, the lattice filter on, the "
+          "carving's step rule): **{} %** ({} points [{}, {}], {} better / {} worse)", (ALTERED_NOW,),
+          "paired_vs_reference.superex.auc_first_half: ratio, mean [low, high], better, worse",
+          lambda: [percent(read(ALTERED_NOW)["paired_vs_reference"]["superex"]["auc_first_half"]["ratio"]),
+                   *paired(read(ALTERED_NOW)["paired_vs_reference"]["superex"]["auc_first_half"]),
+                   count(read(ALTERED_NOW)["paired_vs_reference"]["superex"]["auc_first_half"]["better"]),
+                   count(read(ALTERED_NOW)["paired_vs_reference"]["superex"]["auc_first_half"]["worse"])]),
 
     # --- docs/on-a-robot.md -----------------------------------------------------------------------------------
     Claim(ROBOT_PAGE, "", "the explorer's wall IoU is {} of noise-free", (ROBUSTNESS,),
