@@ -116,14 +116,15 @@ def summarise(out: Path, scenarios, steps: int, pipeline_name: str) -> Optional[
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pipeline", default="mapex_lama_los", help="a named pipeline with a LaMa ensemble")
-    parser.add_argument("--scenarios", type=int, default=17, help="held-out train floors (one seeded start each)")
+    parser.add_argument("--scenarios", type=int, default=17, help="held-out train floors")
+    parser.add_argument("--starts", type=int, default=1, help="seeded starts per floor (the k-th: start index k)")
     parser.add_argument("--steps", type=int, default=500, help="step budget (the episodes run its first half)")
     parser.add_argument("--arm", choices=("both",) + ARMS, default="both")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "lattice" / "train_mapex_lama_los")
     parser.add_argument("--report", action="store_true", help="only write the report from the episodes there")
     args = parser.parse_args(argv)
-    if args.scenarios < 1 or args.steps < 2:
-        parser.error("--scenarios >= 1 and --steps >= 2")
+    if args.scenarios < 1 or args.starts < 1 or args.steps < 2:
+        parser.error("--scenarios >= 1, --starts >= 1 and --steps >= 2")
 
     from tqdm import tqdm
 
@@ -132,7 +133,7 @@ def main(argv=None) -> int:
 
     if args.pipeline not in PIPELINES:
         parser.error(f"--pipeline must be one of {', '.join(PIPELINES)}")
-    scenarios = heldout_scenarios(args.scenarios)
+    scenarios = heldout_scenarios(args.scenarios, args.starts)
     arms = ARMS if args.arm == "both" else (args.arm,)
 
     def report() -> None:
