@@ -453,7 +453,7 @@ class Explorer:
         clock = time.perf_counter()
         not_free = observed != FREE
         wait, plan = self._locked.keep(
-            observed, pose, t, fresh=self._fresh, planner=self.planner, goal_policy=self.cfg.goal_policy,
+            observed, not_free, pose, t, fresh=self._fresh, planner=self.planner, goal_policy=self.cfg.goal_policy,
             regions=self._regions, resolved_cells=self._resolved_cells, resolution_m=res, motion=motion,
             gives_up=lambda goal, path: self.mission.gives_up(self._blocks_frame.centre_xy(goal), path, res, stamp_s))
         timings["path"] = time.perf_counter() - clock

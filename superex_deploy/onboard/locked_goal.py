@@ -19,7 +19,7 @@ import numpy as np
 
 from superex_deploy.onboard.planning.goal_choice import goal_reached, near_frontier
 from superex_deploy.onboard.planning.motion import PlanningMap, path_is_clear, planning_map
-from superex_deploy.onboard.types import FREE, Frontier
+from superex_deploy.onboard.types import Frontier
 
 __all__ = ["LockedGoal"]
 
@@ -61,11 +61,13 @@ class LockedGoal:
         self.goal = None if self.goal is None else move(self.goal)
         self.path, self.visited = [move(cell) for cell in self.path], {move(cell) for cell in self.visited}
 
-    def keep(self, observed: np.ndarray, pose: tuple[int, int], step: int, *, fresh: bool, planner, goal_policy,
+    def keep(self, observed: np.ndarray, not_free: np.ndarray, pose: tuple[int, int], step: int, *, fresh: bool,
+             planner, goal_policy,
              regions: tuple[Frontier, ...], resolved_cells: Optional[float], gives_up: Callable, resolution_m: float,
              motion) -> tuple[bool, Optional[PlanningMap]]:
         """This step's verdict on the locked goal, on the planning map ``observed`` (int8 blocks) with the robot at
-        block ``pose``: the goal and path are updated (kept, re-planned around a new wall, or released; a reached
+        block ``pose`` (``not_free``: bool, ``observed != FREE``, computed once by the caller, which reads it too):
+        the goal and path are updated (kept, re-planned around a new wall, or released; a reached
         goal joins :attr:`visited` unless its frontier is to be confirmed).
 
         Args:
@@ -83,7 +85,6 @@ class LockedGoal:
             no goal); ``plan``: the planning map computed to re-plan a blocked path, else None.
         """
         plan: Optional[PlanningMap] = None
-        not_free = observed != FREE
         goal = self.goal
         path = self.path[self.path.index(pose):] if pose in self.path else []
         if goal is not None and goal_reached(not_free, pose, goal, self.tolerance):
